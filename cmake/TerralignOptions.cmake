@@ -1,0 +1,23 @@
+# Compile settings shared by every terralign target.
+
+# Threading is ours: Eigen must never spawn its own threads.
+add_compile_definitions(EIGEN_DONT_PARALLELIZE)
+# An uninitialised Eigen matrix shows up as NaN in debug builds.
+add_compile_definitions($<$<CONFIG:Debug>:EIGEN_INITIALIZE_MATRICES_BY_NAN>)
+
+if(TERRALIGN_SANITIZE)
+  add_compile_options(-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all)
+  add_link_options(-fsanitize=address,undefined)
+endif()
+
+# Warnings for terralign's own targets (not for embedding projects).
+function(terralign_warnings target)
+  if(NOT TERRALIGN_TOP_LEVEL)
+    return()
+  endif()
+  target_compile_options(${target} PRIVATE -Wall -Wextra -Wshadow -Wfloat-conversion
+                                           -Wnon-virtual-dtor -Wpedantic)
+  if(TERRALIGN_WERROR)
+    target_compile_options(${target} PRIVATE -Werror)
+  endif()
+endfunction()

@@ -1,0 +1,59 @@
+#include "args.hpp"
+
+#include <cerrno>
+#include <cmath>
+#include <cstdlib>
+
+namespace terralign::cli {
+
+Result<Args> Args::parse(const std::vector<std::string>& argv, const std::set<std::string>& options,
+                         const std::set<std::string>& flags) {
+  Args a;
+  for (std::size_t i = 0; i < argv.size(); ++i) {
+    const std::string& tok = argv[i];
+    if (tok.rfind("--", 0) != 0) return Error{"unexpected argument '" + tok + "'"};
+    const std::string key = tok.substr(2);
+    if (flags.count(key)) {
+      a.values_[key] = "1";
+    } else if (options.count(key)) {
+      if (i + 1 >= argv.size()) return Error{"option --" + key + " needs a value"};
+      a.values_[key] = argv[++i];
+    } else {
+      return Error{"unknown option --" + key + " (see --help)"};
+    }
+  }
+  return a;
+}
+
+std::string Args::get(const std::string& key, const std::string& def) const {
+  auto it = values_.find(key);
+  return it == values_.end() ? def : it->second;
+}
+
+Result<std::string> Args::required(const std::string& key) const {
+  auto it = values_.find(key);
+  if (it == values_.end()) return Error{"missing required option --" + key};
+  return it->second;
+}
+
+Result<int> Args::get_int(const std::string& key, int def, int lo, int hi) const {
+  if (!has(key)) return def;
+  const std::string s = get(key);
+  char* end = nullptr;
+  errno = 0;
+  const long v = std::strtol(s.c_str(), &end, 10);
+  if (s.empty() || *end || errno || v < lo || v > hi)
+    return Error{"--" + key + " '" + s + "' must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]"};
+  return static_cast<int>(v);
+}
+
+Result<double> Args::get_double(const std::string& key, double def) const {
+  if (!has(key)) return def;
+  const std::string s = get(key);
+  char* end = nullptr;
+  const double v = std::strtod(s.c_str(), &end);
+  if (s.empty() || *end || !std::isfinite(v)) return Error{"--" + key + " '" + s + "' must be a finite number"};
+  return v;
+}
+
+}  // namespace terralign::cli

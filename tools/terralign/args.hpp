@@ -1,0 +1,28 @@
+// Command-line arguments: "--key value" pairs and "--flag" switches after a command name.
+#pragma once
+
+#include <map>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <terralign/geo/result.hpp>
+
+namespace terralign::cli {
+
+class Args {
+ public:
+  // `flags` take no value; every other option takes one. Unknown options are errors.
+  static Result<Args> parse(const std::vector<std::string>& argv, const std::set<std::string>& options,
+                            const std::set<std::string>& flags);
+  bool has(const std::string& key) const { return values_.count(key) != 0; }
+  std::string get(const std::string& key, const std::string& def = "") const;
+  Result<std::string> required(const std::string& key) const;
+  Result<int> get_int(const std::string& key, int def, int lo, int hi) const;
+  Result<double> get_double(const std::string& key, double def) const;
+
+ private:
+  std::map<std::string, std::string> values_;
+};
+
+}  // namespace terralign::cli

@@ -1,0 +1,20 @@
+// The terralign sub-commands. Each returns the process exit code; errors go to stderr.
+#pragma once
+
+#include <string>
+#include <vector>
+
+namespace terralign::cli {
+
+struct Command {
+  const char* name;
+  const char* summary;
+  const char* usage;  // full --help text
+  int (*run)(const std::vector<std::string>& args);
+};
+
+const std::vector<Command>& commands();
+
+int run_info(const std::vector<std::string>& args);
+
+}  // namespace terralign::cli
