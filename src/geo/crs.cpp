@@ -264,9 +264,16 @@ Result<Geodetic> Crs::to_geodetic(double x, double y, double z) const {
       swiss().inverse(x, y, phi, lam);
       const GeographicLib::Geocentric bessel(Swiss::a, 1.0 / Swiss::inv_f);
       const GeographicLib::Geocentric& wgs = GeographicLib::Geocentric::WGS84();
-      double X, Y, Z;
-      bessel.Forward(phi / kDeg, lam / kDeg, z, X, Y, Z);
-      wgs.Reverse(X + Swiss::dx, Y + Swiss::dy, Z + Swiss::dz, g.lat_deg, g.lon_deg, g.height);
+      // z is a WGS 84 height (see from_geodetic), but the shift needs the Bessel height of
+      // the point: iterate on it (the two differ by tens of metres and vary slowly, so
+      // three steps reach 1e-6 m).
+      double h_bessel = z;
+      for (int it = 0; it < 4; ++it) {
+        double X, Y, Z, h_wgs;
+        bessel.Forward(phi / kDeg, lam / kDeg, h_bessel, X, Y, Z);
+        wgs.Reverse(X + Swiss::dx, Y + Swiss::dy, Z + Swiss::dz, g.lat_deg, g.lon_deg, h_wgs);
+        h_bessel += z - h_wgs;
+      }
       g.height = z;  // heights pass through (see the header)
       break;
     }

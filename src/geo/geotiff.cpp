@@ -250,7 +250,8 @@ Result<GeoRaster> read_geotiff_memory(const std::uint8_t* data, std::size_t size
   TIFFOpenOptionsSetErrorHandlerExtR(opts, tiff_error, &sink);
   TIFFOpenOptionsSetWarningHandlerExtR(opts, tiff_warning, nullptr);
   // A corrupt header must not make libtiff allocate gigabytes.
-  TIFFOpenOptionsSetMaxSingleMemAlloc(opts, static_cast<tmsize_t>(std::min<std::int64_t>(limits.max_bytes, std::int64_t{1} << 31)));
+  TIFFOpenOptionsSetMaxSingleMemAlloc(
+      opts, static_cast<tmsize_t>(std::clamp<std::int64_t>(limits.max_bytes, std::int64_t{16} << 20, std::int64_t{1} << 31)));
   std::unique_ptr<TIFF, TiffCloser> tif(TIFFClientOpenExt(name.c_str(), "rm", &mem, mem_read, mem_write,
                                                           mem_seek, mem_close, mem_size, mem_map,
                                                           mem_unmap, opts));
@@ -306,8 +307,13 @@ Result<GeoRaster> read_geotiff_memory(const std::uint8_t* data, std::size_t size
 
   std::uint16_t n_extra = 0;
   std::uint16_t* extra = nullptr;
-  if (TIFFGetField(t, TIFFTAG_EXTRASAMPLES, &n_extra, &extra) == 1 && extra && n_extra > 0)
-    r.has_alpha = extra[0] == EXTRASAMPLE_ASSOCALPHA || extra[0] == EXTRASAMPLE_UNASSALPHA;
+  if (TIFFGetField(t, TIFFTAG_EXTRASAMPLES, &n_extra, &extra) == 1 && extra && n_extra > 0 && spp >= 4) {
+    // Band 3 (0-based) is alpha when the extra sample describing it says so; the extra
+    // samples are the last n_extra bands.
+    const int idx = 3 - (static_cast<int>(spp) - static_cast<int>(n_extra));
+    r.has_alpha = idx >= 0 && idx < n_extra &&
+                  (extra[idx] == EXTRASAMPLE_ASSOCALPHA || extra[idx] == EXTRASAMPLE_UNASSALPHA);
+  }
   r.width = static_cast<int>(w);
   r.height = static_cast<int>(h);
   r.bands = spp;

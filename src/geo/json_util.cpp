@@ -23,6 +23,8 @@ Result<nlohmann::json> parse_json_text(const std::string& text, const std::strin
     const auto colon = what.find("syntax error");
     if (colon != std::string::npos) what = what.substr(colon);
     return Error{name + ":" + std::to_string(line) + ":" + std::to_string(col) + ": JSON " + what};
+  } catch (const nlohmann::json::exception& e) {  // e.g. a number too large for a double
+    return Error{name + ": JSON " + e.what()};
   }
   return j;
 }

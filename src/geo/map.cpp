@@ -98,7 +98,14 @@ Result<Layer> make_layer(const std::string& name, const std::string& path, Loade
   L.extent = L.transform.extent(r.width, r.height);
   L.rgba.resize(r.width, r.height, 4);
   const int nb = r.bands;
-  const bool alpha = r.has_alpha && nb >= 4;
+  // A fourth band is alpha only if the file says so AND it is a mask (0 and 255 only):
+  // NAIP files label their near-infrared band as alpha.
+  bool alpha = r.has_alpha && nb >= 4;
+  if (alpha) {
+    const std::uint8_t* p = r.u8.data();
+    for (std::size_t i = 0, n = r.u8.size() / static_cast<std::size_t>(nb); i < n && alpha; ++i)
+      alpha = p[i * static_cast<std::size_t>(nb) + 3] == 0 || p[i * static_cast<std::size_t>(nb) + 3] == 255;
+  }
   const bool has_nodata = r.nodata.has_value() && std::isfinite(*r.nodata);
   const double nod = has_nodata ? *r.nodata : 0;
   const std::uint8_t* src = r.u8.data();

@@ -71,7 +71,7 @@ Eigen::Matrix3d tilted_mount(double tilt_deg) {
   nadir << 0, -1, 0,
            1, 0, 0,
            0, 0, 1;
-  return nadir * rot_x(-tilt_deg * kDeg);
+  return nadir * rot_x(tilt_deg * kDeg);
 }
 
 Pose pose_from_ypr(const Eigen::Vector3d& position, double yaw_deg, double pitch_deg,
@@ -114,13 +114,20 @@ Result<Eigen::Matrix3d> grid_from_enu(const Crs& crs, const Geodetic& at) {
 }
 
 Result<Pose> pose_from_opensfm(const Eigen::Vector3d& rotation, const Eigen::Vector3d& translation,
-                               const Geodetic& reference, const Crs& crs) {
+                               const Geodetic& reference, const Crs& crs, OpenSfmFrame frame) {
   if (!rotation.allFinite() || !translation.allFinite())
     return Error{"OpenSfM shot has a non-finite rotation or translation"};
   const double angle = rotation.norm();
   const Eigen::Matrix3d R_C_ENU =
       angle > 0 ? Eigen::AngleAxisd(angle, rotation / angle).toRotationMatrix() : Eigen::Matrix3d::Identity();
   const Eigen::Vector3d centre_enu = -R_C_ENU.transpose() * translation;
+  TERRALIGN_ASSERT(frame != OpenSfmFrame::Auto, "pose_from_opensfm: resolve Auto first");
+  if (frame == OpenSfmFrame::ProjectedOffset) {
+    Eigen::Vector3d offset;
+    TERRALIGN_TRY(crs.from_geodetic(Geodetic{reference.lat_deg, reference.lon_deg, 0.0}, offset.x(),
+                                    offset.y(), offset.z()));
+    return make_pose(offset + centre_enu, R_C_ENU.transpose());
+  }
   const GeographicLib::LocalCartesian topo(reference.lat_deg, reference.lon_deg, reference.height);
   Geodetic g;
   topo.Reverse(centre_enu.x(), centre_enu.y(), centre_enu.z(), g.lat_deg, g.lon_deg, g.height);
@@ -141,7 +148,7 @@ Result<Pose> pose_from_opensfm(const Eigen::Vector3d& rotation, const Eigen::Vec
   return make_pose(t, R_W_C);
 }
 
-Result<std::map<std::string, Pose>> read_opensfm_shots(const std::string& path, const Crs& crs) {
+Result<OpenSfmShots> read_opensfm_shots(const std::string& path, const Crs& crs, OpenSfmFrame frame) {
   TERRALIGN_TRY_ASSIGN(const nlohmann::json doc, parse_json_file(path));
   const nlohmann::json* rec = &doc;
   if (doc.is_array()) {
@@ -155,14 +162,24 @@ Result<std::map<std::string, Pose>> read_opensfm_shots(const std::string& path, 
   TERRALIGN_TRY_ASSIGN(ref.lat_deg, json_number(lla, "latitude", path + ": reference_lla"));
   TERRALIGN_TRY_ASSIGN(ref.lon_deg, json_number(lla, "longitude", path + ": reference_lla"));
   TERRALIGN_TRY_ASSIGN(ref.height, json_number(lla, "altitude", path + ": reference_lla"));
-  std::map<std::string, Pose> out;
-  for (const auto& [name, shot] : (*rec)["shots"].items()) {
+  OpenSfmShots out;
+  if (frame == OpenSfmFrame::Auto) {
+    double x, y, z;
+    auto st = crs.from_geodetic(Geodetic{ref.lat_deg, ref.lon_deg, 0.0}, x, y, z);
+    if (!st.ok()) return with_context(path + ": reference_lla", st.error());
+    const bool whole = std::abs(x - std::round(x)) < 1e-3 && std::abs(y - std::round(y)) < 1e-3;
+    frame = whole ? OpenSfmFrame::ProjectedOffset : OpenSfmFrame::Topocentric;
+  }
+  out.frame = frame;
+  const auto& shots = (*rec)["shots"];
+  if (!shots.is_object()) return Error{path + ": 'shots' must be an object"};
+  for (const auto& [name, shot] : shots.items()) {
     const std::string where = path + ": shot " + name;
     TERRALIGN_TRY_ASSIGN(const Eigen::Vector3d r, json_vec3(shot, "rotation", where));
     TERRALIGN_TRY_ASSIGN(const Eigen::Vector3d t, json_vec3(shot, "translation", where));
-    auto pose = pose_from_opensfm(r, t, ref, crs);
+    auto pose = pose_from_opensfm(r, t, ref, crs, frame);
     if (!pose.ok()) return with_context(where, pose.error());
-    out[name] = pose.value();
+    out.poses[name] = pose.value();
   }
   return out;
 }

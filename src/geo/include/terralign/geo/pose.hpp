@@ -60,15 +60,29 @@ Pose pose_from_opk(const Eigen::Vector3d& position, double omega_deg, double phi
 // CRS's own forward projection by differences over 1 m.
 Result<Eigen::Matrix3d> grid_from_enu(const Crs& crs, const Geodetic& at);
 
-// From an OpenSfM shot: `rotation` is the axis-angle of R_C_ENU (world -> camera, OpenCV
-// camera axes) and `translation` is t with p_C = R p_ENU + t, in the topocentric frame
-// centred at `reference` (height = 0 on the ellipsoid there). Converted to the map frame of
-// `crs` through geodetic coordinates; the height is passed through (see crs.hpp).
-Result<Pose> pose_from_opensfm(const Eigen::Vector3d& rotation, const Eigen::Vector3d& translation,
-                               const Geodetic& reference, const Crs& crs);
+// How an OpenSfM reconstruction.json's frame relates to the map.
+//  - Topocentric: OpenSfM's own frame, east-north-up at `reference_lla` (height 0 on the
+//    ellipsoid there); converted through geodetic coordinates, with the meridian convergence.
+//  - ProjectedOffset: what OpenDroneMap writes after `export_geocoords`: axes parallel to the
+//    projected grid, origin at a whole-metre offset, and `reference_lla` set to that offset's
+//    latitude / longitude. (The Tuniu reconstruction is of this kind: its reference_lla
+//    projects to (292632.0000, 2731169.0000) in EPSG:32651.)
+//  - Auto: ProjectedOffset when reference_lla projects to whole metres within 1 mm in the
+//    map CRS (a chance of about 1e-6 for a true topocentric origin), else Topocentric.
+enum class OpenSfmFrame { Auto, Topocentric, ProjectedOffset };
 
-// Reads every shot of an OpenSfM reconstruction.json (the first reconstruction) into map
-// poses in `crs`, keyed by shot name.
-Result<std::map<std::string, Pose>> read_opensfm_shots(const std::string& path, const Crs& crs);
+// One shot: `rotation` is the axis-angle of R_C_F (frame F -> camera, OpenCV camera axes)
+// and `translation` is t with p_C = R p_F + t. The height is passed through (see crs.hpp).
+Result<Pose> pose_from_opensfm(const Eigen::Vector3d& rotation, const Eigen::Vector3d& translation,
+                               const Geodetic& reference, const Crs& crs, OpenSfmFrame frame);
+
+struct OpenSfmShots {
+  OpenSfmFrame frame = OpenSfmFrame::Topocentric;  // the frame used (Auto resolved)
+  std::map<std::string, Pose> poses;               // map poses in `crs`, by shot name
+};
+
+// Reads every shot of an OpenSfM reconstruction.json (the first reconstruction).
+Result<OpenSfmShots> read_opensfm_shots(const std::string& path, const Crs& crs,
+                                        OpenSfmFrame frame = OpenSfmFrame::Auto);
 
 }  // namespace terralign::geo

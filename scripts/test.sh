@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Builds terralign and runs the whole test suite: a release build with warnings as errors,
+# then (unless TERRALIGN_SKIP_SANITIZE=1) an ASan + UBSan build of the same tests.
+# On a fresh Debian 12 machine this installs what it needs first.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/install-deps.sh
+jobs=$(nproc)
+
+cmake -S . -B build/release -DCMAKE_BUILD_TYPE=Release -DTERRALIGN_WERROR=ON
+cmake --build build/release -j "$jobs"
+(cd build/release && ctest --output-on-failure -j "$jobs")
+
+if [ "${TERRALIGN_SKIP_SANITIZE:-0}" != "1" ]; then
+  cmake -S . -B build/sanitize -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRALIGN_SANITIZE=ON \
+        -DTERRALIGN_WERROR=ON -DTERRALIGN_BUILD_BENCH=OFF
+  cmake --build build/sanitize -j "$jobs"
+  (cd build/sanitize && ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
+     ctest --output-on-failure -j "$jobs")
+fi
