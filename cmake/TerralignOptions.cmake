@@ -21,3 +21,8 @@ function(terralign_warnings target)
     target_compile_options(${target} PRIVATE -Werror)
   endif()
 endfunction()
+
+if(TERRALIGN_FUZZ)
+  # Coverage instrumentation in the libraries too, so the fuzzers see inside the parsers.
+  add_compile_options(-fsanitize=fuzzer-no-link)
+endif()

@@ -16,5 +16,6 @@ struct Command {
 const std::vector<Command>& commands();
 
 int run_info(const std::vector<std::string>& args);
+int run_render(const std::vector<std::string>& args);
 
 }  // namespace terralign::cli

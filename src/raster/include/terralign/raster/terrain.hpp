@@ -1,0 +1,57 @@
+// The terrain as a quadtree of chunks for view-dependent level of detail.
+//
+// Posts: a regular grid of heights (the DEM's pixel centres, or a synthetic flat grid for a
+// constant-height map) placed by an affine transform, in local coordinates (metres relative
+// to the renderer's origin). A chunk at level k covers (kChunkQuads * 2^k) quads a side and
+// is drawn as a kChunkQuads x kChunkQuads grid taking every 2^k-th post. Its error is the
+// largest vertical distance between the full-resolution posts it covers and its coarse
+// surface (and its children's errors), computed once at construction.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <terralign/geo/map.hpp>
+
+namespace terralign::raster {
+
+constexpr int kChunkQuads = 16;
+
+struct TerrainChunk {
+  int level;             // 0: full resolution
+  int i0, j0;            // first post (column, row)
+  int span;              // quads a side at full resolution: kChunkQuads << level
+  float error;           // metres
+  float min_x, min_y, min_z, max_x, max_y, max_z;  // local bounding box
+  int child[4];          // -1 where none
+};
+
+class Terrain {
+ public:
+  // origin: the local frame's origin in map coordinates.
+  static Terrain build(const geo::Map& map, double ox, double oy, double oz);
+
+  int posts_x() const { return nx_; }
+  int posts_y() const { return ny_; }
+  // Local position of post (i, j); z is NaN for a no-data post.
+  void post(int i, int j, float& x, float& y, float& z) const {
+    x = static_cast<float>(px0_ + i * pxi_ + j * pxj_);
+    y = static_cast<float>(py0_ + i * pyi_ + j * pyj_);
+    z = heights_[static_cast<std::size_t>(j) * static_cast<std::size_t>(nx_) + static_cast<std::size_t>(i)];
+  }
+  const std::vector<TerrainChunk>& chunks() const { return chunks_; }
+  int root() const { return root_; }
+  float min_z() const { return min_z_; }
+  float max_z() const { return max_z_; }
+
+ private:
+  int build_chunk(int level, int i0, int j0);
+  int nx_ = 0, ny_ = 0;
+  double px0_ = 0, pxi_ = 1, pxj_ = 0, py0_ = 0, pyi_ = 0, pyj_ = -1;
+  std::vector<float> heights_;
+  std::vector<TerrainChunk> chunks_;
+  int root_ = -1;
+  float min_z_ = 0, max_z_ = 0;
+};
+
+}  // namespace terralign::raster

@@ -1,0 +1,713 @@
+#include <terralign/raster/renderer.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include <terralign/raster/shade_kernels.hpp>
+#include <terralign/raster/terrain.hpp>
+#include <terralign/raster/thread_pool.hpp>
+
+namespace terralign::raster {
+namespace {
+
+constexpr int kTileW = 64, kTileH = 32;
+constexpr int kSubBits = 8;              // sub-pixel bits of the fixed-point screen positions
+constexpr double kGuardPx = 2048.0;      // guard band beyond the image, pixels
+constexpr int kMaxClipVerts = 9;
+
+using Clock = std::chrono::steady_clock;
+
+struct ClipVert {
+  float x, y, z;    // camera frame
+  float wx, wy;     // local world position
+};
+
+// A screen triangle ready for rasterization. Plane coefficients q(x, y) = A x + B y + C in
+// pixel coordinates (centres at integers) for 1/z, x_world/z and y_world/z.
+struct Tri {
+  std::int64_t X[3], Y[3];     // fixed point, kSubBits
+  int bx0, by0, bx1, by1;      // inclusive pixel bounding box, clamped to the image
+  double A[3], B[3], C[3];     // [0]: 1/z, [1]: wx/z, [2]: wy/z
+};
+
+struct LayerTexture {
+  std::string name;
+  std::vector<std::uint32_t> texels;
+  std::vector<MipLevel> levels;
+  double a0, a1, a2, b0, b1, b2;  // local world -> level-0 texel coordinates
+  float lod_bias;
+};
+
+}  // namespace
+
+struct Renderer::Impl {
+  const geo::Map* map = nullptr;
+  geo::CameraModel camera;        // the output camera
+  geo::CameraModel pinhole;       // the G-buffer's camera (= camera without distortion)
+  RenderOptions options;
+  double ox = 0, oy = 0, oz = 0;  // local origin in map coordinates
+  Terrain terrain;
+  std::vector<LayerTexture> layers;
+  ShadeRowFn shade = shade_row_scalar;
+  const char* simd = "scalar";
+  std::unique_ptr<ThreadPool> pool;
+
+  // Frame buffers, sized at construction.
+  int vw = 0, vh = 0;                     // pinhole (G-buffer) size
+  int tiles_x = 0, tiles_y = 0;
+  std::vector<Tri> tris;
+  std::vector<int> tile_count, tile_start, tile_fill;
+  std::vector<long> tile_fragments;
+  std::vector<int> bin_entries;
+  std::vector<float> zbuf;                // 1/z of the nearest triangle so far, 0: none
+  std::vector<int> idbuf;                 // its index, -1: none
+  std::vector<float> remap_u, remap_v;    // per output pixel, pinhole position (distortion)
+  std::vector<float> gx, gy, gz;          // per output pixel: local world x, y; depth
+  std::vector<float> log2fp;              // per output pixel
+  std::vector<ClipVert> chunk_verts;      // (kChunkQuads + 1)^2
+  std::vector<int> chunk_stack;
+  int fragments = 0;
+
+  // Per-frame state.
+  Eigen::Matrix3f R_C_W;
+  Eigen::Vector3f t_local;     // camera centre, local
+  int n_tris = 0;
+  bool overflow = false;
+  int chunks_drawn = 0;
+
+  void emit_triangle(const ClipVert& a, const ClipVert& b, const ClipVert& c);
+  void clip_and_emit(const ClipVert* v, int n);
+  void draw_chunk(const TerrainChunk& c);
+  bool chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const;
+  void raster_tile(int tile);
+  void resolve_rows(int row0, int row1);
+  void footprint_rows(int row0, int row1);
+};
+
+namespace {
+
+void build_mips(const geo::Layer& L, LayerTexture& T) {
+  int w = L.rgba.width(), h = L.rgba.height();
+  std::size_t total = 0;
+  for (int lw = w, lh = h;; lw = std::max(1, (lw + 1) / 2), lh = std::max(1, (lh + 1) / 2)) {
+    total += static_cast<std::size_t>(lw) * static_cast<std::size_t>(lh);
+    if ((lw == 1 && lh == 1) || T.levels.size() >= 15) break;
+    T.levels.push_back({});
+  }
+  T.levels.clear();
+  T.texels.resize(total);
+  // Level 0.
+  const std::uint8_t* src = L.rgba.data();
+  for (std::size_t k = 0; k < static_cast<std::size_t>(w) * static_cast<std::size_t>(h); ++k)
+    T.texels[k] = std::uint32_t{src[4 * k]} | std::uint32_t{src[4 * k + 1]} << 8 |
+                  std::uint32_t{src[4 * k + 2]} << 16 | std::uint32_t{src[4 * k + 3]} << 24;
+  T.levels.push_back({0, w, h, 1.0f});
+  std::size_t off = static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
+  float scale = 1.0f;
+  while (!(w == 1 && h == 1) && T.levels.size() < 16) {
+    const MipLevel prev = T.levels.back();
+    const int nw = std::max(1, (w + 1) / 2), nh = std::max(1, (h + 1) / 2);
+    if (off + static_cast<std::size_t>(nw) * static_cast<std::size_t>(nh) > total) break;
+    scale *= 0.5f;
+    for (int y = 0; y < nh; ++y)
+      for (int x = 0; x < nw; ++x) {
+        // Alpha-weighted 2x2 box: no-data texels do not darken their neighbours.
+        double acc[4] = {0, 0, 0, 0};
+        for (int k = 0; k < 4; ++k) {
+          const int sx = std::min(2 * x + (k & 1), w - 1), sy = std::min(2 * y + (k >> 1), h - 1);
+          const std::uint32_t t = T.texels[static_cast<std::size_t>(prev.offset) + static_cast<std::size_t>(sy) * static_cast<std::size_t>(w) + static_cast<std::size_t>(sx)];
+          const double a = t >> 24;
+          acc[0] += a * (t & 255u);
+          acc[1] += a * ((t >> 8) & 255u);
+          acc[2] += a * ((t >> 16) & 255u);
+          acc[3] += a;
+        }
+        std::uint32_t out = 0;
+        if (acc[3] > 0)
+          for (int c = 0; c < 3; ++c) out |= static_cast<std::uint32_t>(std::lround(acc[c] / acc[3])) << (8 * c);
+        out |= static_cast<std::uint32_t>(std::lround(acc[3] / 4.0)) << 24;
+        T.texels[off + static_cast<std::size_t>(y) * static_cast<std::size_t>(nw) + static_cast<std::size_t>(x)] = out;
+      }
+    T.levels.push_back({static_cast<std::int32_t>(off), nw, nh, scale});
+    off += static_cast<std::size_t>(nw) * static_cast<std::size_t>(nh);
+    w = nw;
+    h = nh;
+  }
+}
+
+}  // namespace
+
+Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const geo::CameraModel& camera,
+                                                   const RenderOptions& options) {
+  TERRALIGN_TRY(camera.validate("camera"));
+  if (options.threads < 1 || options.threads > 64)
+    return Error{"render threads " + std::to_string(options.threads) + " is outside 1..64"};
+  if (!(options.lod_error_px > 0) || !(options.near_m > 0))
+    return Error{"render options: lod_error_px and near_m must be > 0"};
+  if (options.max_triangles < 1024 || options.max_triangles > (1 << 24))
+    return Error{"render options: max_triangles " + std::to_string(options.max_triangles) + " is outside 1024..2^24"};
+  auto impl = std::make_unique<Impl>();
+  Impl& m = *impl;
+  m.map = &map;
+  m.camera = camera;
+  m.options = options;
+  const geo::Extent common = map.common_extent();
+  m.ox = 0.5 * (common.min_x + common.max_x);
+  m.oy = 0.5 * (common.min_y + common.max_y);
+  m.oz = map.dem.min_height;
+  m.terrain = Terrain::build(map, m.ox, m.oy, m.oz);
+
+  for (const auto& L : map.layers) {
+    LayerTexture T;
+    T.name = L.name;
+    build_mips(L, T);
+    double u0, v0, u1, v1, u2, v2;
+    L.transform.world_to_pixel(m.ox, m.oy, u0, v0);
+    L.transform.world_to_pixel(m.ox + 1.0, m.oy, u1, v1);
+    L.transform.world_to_pixel(m.ox, m.oy + 1.0, u2, v2);
+    T.a0 = u0; T.a1 = u1 - u0; T.a2 = u2 - u0;
+    T.b0 = v0; T.b1 = v1 - v0; T.b2 = v2 - v0;
+    const auto& g = L.transform.gdal();
+    T.lod_bias = static_cast<float>(-0.5 * std::log2(std::abs(g[1] * g[5] - g[2] * g[4])));
+    m.layers.push_back(std::move(T));
+  }
+
+  // The G-buffer camera: the same pinhole, grown to hold every distorted output pixel.
+  m.pinhole = camera;
+  m.pinhole.model = geo::DistortionModel::None;
+  m.pinhole.k = {};
+  if (camera.model != geo::DistortionModel::None) {
+    const std::size_t n = static_cast<std::size_t>(camera.width) * static_cast<std::size_t>(camera.height);
+    m.remap_u.assign(n, NAN);
+    m.remap_v.assign(n, NAN);
+    double umin = INFINITY, umax = -INFINITY, vmin = INFINITY, vmax = -INFINITY;
+    for (int v = 0; v < camera.height; ++v)
+      for (int u = 0; u < camera.width; ++u) {
+        Eigen::Vector3d ray;
+        if (!camera.unproject(Eigen::Vector2d(u, v), ray)) continue;
+        const double pu = camera.fx * ray.x(), pv = camera.fy * ray.y();
+        const std::size_t k = static_cast<std::size_t>(v) * static_cast<std::size_t>(camera.width) + static_cast<std::size_t>(u);
+        m.remap_u[k] = static_cast<float>(pu);
+        m.remap_v[k] = static_cast<float>(pv);
+        umin = std::min(umin, pu); umax = std::max(umax, pu);
+        vmin = std::min(vmin, pv); vmax = std::max(vmax, pv);
+      }
+    if (!(umin <= umax)) return Error{"camera: the distortion cannot be inverted anywhere in the image"};
+    const double w = std::ceil(umax - umin) + 3, h = std::ceil(vmax - vmin) + 3;
+    if (w * h > 4.0 * static_cast<double>(n))
+      return Error{"camera: the undistorted view needs " + std::to_string(static_cast<long>(w)) + " x " +
+                   std::to_string(static_cast<long>(h)) + " pixels, over 4x the image; distortion too strong"};
+    m.pinhole.width = static_cast<int>(w);
+    m.pinhole.height = static_cast<int>(h);
+    m.pinhole.cx = 1.0 - umin;
+    m.pinhole.cy = 1.0 - vmin;
+    for (std::size_t k = 0; k < n; ++k) {
+      m.remap_u[k] = static_cast<float>(m.remap_u[k] + m.pinhole.cx);
+      m.remap_v[k] = static_cast<float>(m.remap_v[k] + m.pinhole.cy);
+    }
+  }
+  m.vw = m.pinhole.width;
+  m.vh = m.pinhole.height;
+  m.tiles_x = (m.vw + kTileW - 1) / kTileW;
+  m.tiles_y = (m.vh + kTileH - 1) / kTileH;
+  const std::size_t tiles = static_cast<std::size_t>(m.tiles_x) * static_cast<std::size_t>(m.tiles_y);
+  m.tris.resize(static_cast<std::size_t>(options.max_triangles));
+  m.tile_count.resize(tiles);
+  m.tile_start.resize(tiles + 1);
+  m.tile_fill.resize(tiles);
+  m.tile_fragments.resize(tiles);
+  m.bin_entries.resize(static_cast<std::size_t>(options.max_triangles) * 4 + tiles * 256);
+  const std::size_t vpx = static_cast<std::size_t>(m.vw) * static_cast<std::size_t>(m.vh);
+  m.zbuf.resize(vpx);
+  m.idbuf.resize(vpx);
+  const std::size_t opx = static_cast<std::size_t>(camera.width) * static_cast<std::size_t>(camera.height);
+  m.gx.resize(opx);
+  m.gy.resize(opx);
+  m.gz.resize(opx);
+  m.log2fp.resize(opx);
+  m.chunk_verts.resize(static_cast<std::size_t>(kChunkQuads + 1) * (kChunkQuads + 1));
+  m.chunk_stack.reserve(m.terrain.chunks().size() + 8);
+
+  const bool avx2 = cpu_has_avx2();
+  if (options.simd == RenderOptions::Simd::Avx2 && !avx2)
+    return Error{"render options: AVX2 kernels requested but this CPU (or build) has none"};
+#if defined(TERRALIGN_HAVE_AVX2)
+  if (avx2 && options.simd != RenderOptions::Simd::Scalar) {
+    m.shade = shade_row_avx2;
+    m.simd = "avx2";
+  }
+#endif
+  m.pool = std::make_unique<ThreadPool>(options.threads);
+  return std::unique_ptr<Renderer>(new Renderer(std::move(impl)));
+}
+
+Renderer::Renderer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Renderer::~Renderer() = default;
+const geo::CameraModel& Renderer::camera() const { return impl_->camera; }
+const char* Renderer::simd_name() const { return impl_->simd; }
+
+Result<RenderOutput> Renderer::make_output(const std::vector<std::string>& names) const {
+  RenderOutput out;
+  const bool all = names.empty() || (names.size() == 1 && names[0] == "all");
+  if (all) {
+    for (const auto& L : impl_->layers) out.layer_names.push_back(L.name);
+  } else {
+    for (const auto& n : names) {
+      if (!impl_->map->find_layer(n))
+        return Error{"no layer named '" + n + "' in " + impl_->map->path + " (layers: " + impl_->map->layer_names() + ")"};
+      out.layer_names.push_back(n);
+    }
+  }
+  const int w = impl_->camera.width, h = impl_->camera.height;
+  for (std::size_t i = 0; i < out.layer_names.size(); ++i) {
+    out.rgb.emplace_back(w, h, 3);
+    out.valid.emplace_back(w, h, 1);
+  }
+  out.depth.resize(w, h, 1, NAN);
+  return out;
+}
+
+// ---- geometry ----
+
+void Renderer::Impl::emit_triangle(const ClipVert& a, const ClipVert& b, const ClipVert& c) {
+  if (n_tris >= options.max_triangles) {
+    overflow = true;
+    return;
+  }
+  const ClipVert* v[3] = {&a, &b, &c};
+  double sx[3], sy[3], iz[3];
+  for (int k = 0; k < 3; ++k) {
+    iz[k] = 1.0 / static_cast<double>(v[k]->z);
+    sx[k] = pinhole.fx * v[k]->x * iz[k] + pinhole.cx;
+    sy[k] = pinhole.fy * v[k]->y * iz[k] + pinhole.cy;
+  }
+  Tri& t = tris[static_cast<std::size_t>(n_tris)];
+  for (int k = 0; k < 3; ++k) {
+    t.X[k] = std::llround(sx[k] * (1 << kSubBits));
+    t.Y[k] = std::llround(sy[k] * (1 << kSubBits));
+  }
+  std::int64_t area = (t.X[1] - t.X[0]) * (t.Y[2] - t.Y[0]) - (t.Y[1] - t.Y[0]) * (t.X[2] - t.X[0]);
+  if (area == 0) return;
+  if (area < 0) {  // make every triangle clockwise on screen (y down): area > 0
+    std::swap(t.X[1], t.X[2]);
+    std::swap(t.Y[1], t.Y[2]);
+  }
+  const double minx = std::min({sx[0], sx[1], sx[2]}), maxx = std::max({sx[0], sx[1], sx[2]});
+  const double miny = std::min({sy[0], sy[1], sy[2]}), maxy = std::max({sy[0], sy[1], sy[2]});
+  t.bx0 = std::max(0, static_cast<int>(std::floor(minx)));
+  t.by0 = std::max(0, static_cast<int>(std::floor(miny)));
+  t.bx1 = std::min(vw - 1, static_cast<int>(std::ceil(maxx)));
+  t.by1 = std::min(vh - 1, static_cast<int>(std::ceil(maxy)));
+  if (t.bx0 > t.bx1 || t.by0 > t.by1) return;
+  // Planes from the unsnapped positions, in double: exact depth whatever the snapping.
+  const double x0 = sx[0], y0 = sy[0];
+  const double e1x = sx[1] - x0, e1y = sy[1] - y0, e2x = sx[2] - x0, e2y = sy[2] - y0;
+  const double det = e1x * e2y - e2x * e1y;
+  if (det == 0) return;
+  const double q[3][3] = {{iz[0], iz[1], iz[2]},
+                          {v[0]->wx * iz[0], v[1]->wx * iz[1], v[2]->wx * iz[2]},
+                          {v[0]->wy * iz[0], v[1]->wy * iz[1], v[2]->wy * iz[2]}};
+  for (int p = 0; p < 3; ++p) {
+    const double d1 = q[p][1] - q[p][0], d2 = q[p][2] - q[p][0];
+    t.A[p] = (d1 * e2y - d2 * e1y) / det;
+    t.B[p] = (d2 * e1x - d1 * e2x) / det;
+    t.C[p] = q[p][0] - t.A[p] * x0 - t.B[p] * y0;
+  }
+  ++n_tris;
+}
+
+void Renderer::Impl::clip_and_emit(const ClipVert* in, int n) {
+  // Planes d(v) >= 0: near, then a guard band around the image.
+  const float gl = static_cast<float>((-kGuardPx - pinhole.cx) / pinhole.fx);
+  const float gr = static_cast<float>((vw + kGuardPx - pinhole.cx) / pinhole.fx);
+  const float gt = static_cast<float>((-kGuardPx - pinhole.cy) / pinhole.fy);
+  const float gb = static_cast<float>((vh + kGuardPx - pinhole.cy) / pinhole.fy);
+  const float near = static_cast<float>(options.near_m);
+  auto dist = [&](int plane, const ClipVert& v) {
+    switch (plane) {
+      case 0: return v.z - near;
+      case 1: return v.x - gl * v.z;
+      case 2: return gr * v.z - v.x;
+      case 3: return v.y - gt * v.z;
+      default: return gb * v.z - v.y;
+    }
+  };
+  ClipVert buf[2][kMaxClipVerts];
+  int count = n;
+  std::copy(in, in + n, buf[0]);
+  int cur = 0;
+  for (int plane = 0; plane < 5; ++plane) {
+    bool all_in = true, all_out = true;
+    for (int i = 0; i < count; ++i) {
+      const bool inside = dist(plane, buf[cur][i]) >= 0;
+      all_in = all_in && inside;
+      all_out = all_out && !inside;
+    }
+    if (all_out) return;
+    if (all_in) continue;
+    int m = 0;
+    for (int i = 0; i < count && m < kMaxClipVerts - 1; ++i) {
+      const ClipVert& a = buf[cur][i];
+      const ClipVert& b = buf[cur][(i + 1) % count];
+      const float da = dist(plane, a), db = dist(plane, b);
+      if (da >= 0) buf[1 - cur][m++] = a;
+      if ((da >= 0) != (db >= 0)) {
+        const float s = da / (da - db);
+        ClipVert c;
+        c.x = a.x + s * (b.x - a.x);
+        c.y = a.y + s * (b.y - a.y);
+        c.z = a.z + s * (b.z - a.z);
+        c.wx = a.wx + s * (b.wx - a.wx);
+        c.wy = a.wy + s * (b.wy - a.wy);
+        if (plane == 0) c.z = std::max(c.z, near);
+        buf[1 - cur][m++] = c;
+      }
+    }
+    cur = 1 - cur;
+    count = m;
+    if (count < 3) return;
+  }
+  for (int i = 1; i + 1 < count; ++i) emit_triangle(buf[cur][0], buf[cur][i], buf[cur][i + 1]);
+}
+
+bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const {
+  // Cull: all eight corners outside one side of the view frustum (the image, not the guard).
+  const float xs[2] = {c.min_x, c.max_x}, ys[2] = {c.min_y, c.max_y}, zs[2] = {c.min_z - 0.01f, c.max_z + 0.01f};
+  const float l = static_cast<float>((-0.5 - pinhole.cx) / pinhole.fx), r = static_cast<float>((vw - 0.5 - pinhole.cx) / pinhole.fx);
+  const float tp = static_cast<float>((-0.5 - pinhole.cy) / pinhole.fy), bt = static_cast<float>((vh - 0.5 - pinhole.cy) / pinhole.fy);
+  int out[5] = {0, 0, 0, 0, 0};
+  for (int k = 0; k < 8; ++k) {
+    const Eigen::Vector3f p = R_C_W * (Eigen::Vector3f(xs[k & 1], ys[(k >> 1) & 1], zs[k >> 2]) - t_local);
+    out[0] += p.z() < static_cast<float>(options.near_m);
+    out[1] += p.x() < l * p.z();
+    out[2] += p.x() > r * p.z();
+    out[3] += p.y() < tp * p.z();
+    out[4] += p.y() > bt * p.z();
+  }
+  for (int o : out)
+    if (o == 8) return false;
+  // Screen-space error from the nearest point of the box.
+  const float dx = std::max({c.min_x - t_local.x(), 0.0f, t_local.x() - c.max_x});
+  const float dy = std::max({c.min_y - t_local.y(), 0.0f, t_local.y() - c.max_y});
+  const float dz = std::max({c.min_z - t_local.z(), 0.0f, t_local.z() - c.max_z});
+  const float d = std::sqrt(dx * dx + dy * dy + dz * dz);
+  const float f = static_cast<float>(std::max(pinhole.fx, pinhole.fy));
+  refine = c.level > 0 && c.error * f > static_cast<float>(options.lod_error_px) * d;
+  return true;
+}
+
+void Renderer::Impl::draw_chunk(const TerrainChunk& c) {
+  const int step = 1 << c.level;
+  const int nx = terrain.posts_x(), ny = terrain.posts_y();
+  const int n = kChunkQuads + 1;
+  int ii[kChunkQuads + 1], jj[kChunkQuads + 1];
+  for (int k = 0; k < n; ++k) {
+    ii[k] = std::min(c.i0 + k * step, nx - 1);
+    jj[k] = std::min(c.j0 + k * step, ny - 1);
+  }
+  bool nan_post[(kChunkQuads + 1) * (kChunkQuads + 1)];
+  for (int b = 0; b < n; ++b)
+    for (int a = 0; a < n; ++a) {
+      float x, y, z;
+      terrain.post(ii[a], jj[b], x, y, z);
+      ClipVert& v = chunk_verts[static_cast<std::size_t>(b * n + a)];
+      nan_post[b * n + a] = !std::isfinite(z);
+      const Eigen::Vector3f p = R_C_W * (Eigen::Vector3f(x, y, nan_post[b * n + a] ? 0.0f : z) - t_local);
+      v = {p.x(), p.y(), p.z(), x, y};
+    }
+  // No back-face culling: render() refuses a camera below the terrain, and above it the
+  // visible side of a heightfield faces the camera, so culling would only save time.
+  for (int b = 0; b < kChunkQuads; ++b) {
+    if (jj[b + 1] == jj[b]) continue;
+    for (int a = 0; a < kChunkQuads; ++a) {
+      if (ii[a + 1] == ii[a]) continue;
+      const int k00 = b * n + a, k10 = k00 + 1, k01 = k00 + n, k11 = k01 + 1;
+      if (nan_post[k00] || nan_post[k10] || nan_post[k01] || nan_post[k11]) continue;
+      const ClipVert& v00 = chunk_verts[static_cast<std::size_t>(k00)];
+      const ClipVert& v10 = chunk_verts[static_cast<std::size_t>(k10)];
+      const ClipVert& v01 = chunk_verts[static_cast<std::size_t>(k01)];
+      const ClipVert& v11 = chunk_verts[static_cast<std::size_t>(k11)];
+      const ClipVert t1[3] = {v00, v10, v11}, t2[3] = {v00, v11, v01};
+      clip_and_emit(t1, 3);
+      clip_and_emit(t2, 3);
+    }
+  }
+  // Skirts along the four borders hide cracks against coarser neighbours.
+  if (c.error > 0) {
+    const float drop = c.error + 0.01f;
+    auto skirt = [&](int ka, int kb) {
+      if (nan_post[ka] || nan_post[kb]) return;
+      const ClipVert& a = chunk_verts[static_cast<std::size_t>(ka)];
+      const ClipVert& b = chunk_verts[static_cast<std::size_t>(kb)];
+      // Dropping a vertex by `drop` along world -z is -drop times the world z axis in C.
+      const Eigen::Vector3f down = R_C_W * Eigen::Vector3f(0, 0, -drop);
+      ClipVert a2 = a, b2 = b;
+      a2.x += down.x(); a2.y += down.y(); a2.z += down.z();
+      b2.x += down.x(); b2.y += down.y(); b2.z += down.z();
+      const ClipVert s1[3] = {a, b, b2}, s2[3] = {a, b2, a2};
+      clip_and_emit(s1, 3);
+      clip_and_emit(s2, 3);
+    };
+    for (int k = 0; k < kChunkQuads; ++k) {
+      skirt(k, k + 1);                                  // top row
+      skirt(kChunkQuads * n + k, kChunkQuads * n + k + 1);  // bottom row
+      skirt(k * n, (k + 1) * n);                        // left column
+      skirt(k * n + kChunkQuads, (k + 1) * n + kChunkQuads);  // right column
+    }
+  }
+  ++chunks_drawn;
+}
+
+// ---- rasterization ----
+
+void Renderer::Impl::raster_tile(int tile) {
+  const int tx = tile % tiles_x, ty = tile / tiles_x;
+  const int x0 = tx * kTileW, y0 = ty * kTileH;
+  const int x1 = std::min(x0 + kTileW, vw) - 1, y1 = std::min(y0 + kTileH, vh) - 1;
+  for (int y = y0; y <= y1; ++y) {
+    std::fill(zbuf.begin() + static_cast<std::ptrdiff_t>(y) * vw + x0, zbuf.begin() + static_cast<std::ptrdiff_t>(y) * vw + x1 + 1, 0.0f);
+    std::fill(idbuf.begin() + static_cast<std::ptrdiff_t>(y) * vw + x0, idbuf.begin() + static_cast<std::ptrdiff_t>(y) * vw + x1 + 1, -1);
+  }
+  long frags = 0;
+  const int* list = bin_entries.data() + tile_start[static_cast<std::size_t>(tile)];
+  const int count = tile_count[static_cast<std::size_t>(tile)];
+  for (int e = 0; e < count; ++e) {
+    const int id = list[e];
+    const Tri& t = tris[static_cast<std::size_t>(id)];
+    const int bx0 = std::max(t.bx0, x0), bx1 = std::min(t.bx1, x1);
+    const int by0 = std::max(t.by0, y0), by1 = std::min(t.by1, y1);
+    if (bx0 > bx1 || by0 > by1) continue;
+    // Edge k runs from vertex k to vertex k+1; inside: E > 0, or E == 0 on a top or left
+    // edge (clockwise on screen with y down: top = horizontal going right, left = going up).
+    std::int64_t E[3], dEx[3], dEy[3];
+    const std::int64_t px = static_cast<std::int64_t>(bx0) << kSubBits, py = static_cast<std::int64_t>(by0) << kSubBits;
+    for (int k = 0; k < 3; ++k) {
+      const int k1 = (k + 1) % 3;
+      const std::int64_t ex = t.X[k1] - t.X[k], ey = t.Y[k1] - t.Y[k];
+      const bool top_left = (ey == 0 && ex > 0) || ey < 0;
+      E[k] = ex * (py - t.Y[k]) - ey * (px - t.X[k]) - (top_left ? 0 : 1);
+      dEx[k] = -ey << kSubBits;
+      dEy[k] = ex << kSubBits;
+    }
+    const float A = static_cast<float>(t.A[0]);
+    for (int y = by0; y <= by1; ++y) {
+      std::int64_t e0 = E[0], e1 = E[1], e2 = E[2];
+      const float row = static_cast<float>(t.A[0] * bx0 + t.B[0] * y + t.C[0]);
+      float* zrow = zbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
+      int* irow = idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
+      for (int x = bx0; x <= bx1; ++x) {
+        if ((e0 | e1 | e2) >= 0) {
+          ++frags;
+          const float iz = row + A * static_cast<float>(x - bx0);
+          if (iz > zrow[x]) {
+            zrow[x] = iz;
+            irow[x] = id;
+          }
+        }
+        e0 += dEx[0];
+        e1 += dEx[1];
+        e2 += dEx[2];
+      }
+      E[0] += dEy[0];
+      E[1] += dEy[1];
+      E[2] += dEy[2];
+    }
+  }
+  tile_fragments[static_cast<std::size_t>(tile)] = frags;
+}
+
+void Renderer::Impl::resolve_rows(int row0, int row1) {
+  const int w = camera.width;
+  const bool remap = !remap_u.empty();
+  for (int y = row0; y < row1; ++y)
+    for (int x = 0; x < w; ++x) {
+      const std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x);
+      double px = x, py = y;
+      if (remap) {
+        px = remap_u[k];
+        py = remap_v[k];
+      }
+      gx[k] = gy[k] = gz[k] = NAN;
+      if (!(px > -0.5 && py > -0.5 && px < vw - 0.5 && py < vh - 0.5)) continue;
+      const int id = idbuf[static_cast<std::size_t>(std::lround(py)) * static_cast<std::size_t>(vw) + static_cast<std::size_t>(std::lround(px))];
+      if (id < 0) continue;
+      const Tri& t = tris[static_cast<std::size_t>(id)];
+      const double iz = t.A[0] * px + t.B[0] * py + t.C[0];
+      if (!(iz > 0)) continue;
+      const double z = 1.0 / iz;
+      gz[k] = static_cast<float>(z);
+      gx[k] = static_cast<float>((t.A[1] * px + t.B[1] * py + t.C[1]) * z);
+      gy[k] = static_cast<float>((t.A[2] * px + t.B[2] * py + t.C[2]) * z);
+    }
+}
+
+void Renderer::Impl::footprint_rows(int row0, int row1) {
+  const int w = camera.width, h = camera.height;
+  const float inv_f = static_cast<float>(1.0 / std::max(camera.fx, camera.fy));
+  auto at = [&](int x, int y) { return static_cast<std::size_t>(y) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x); };
+  auto diff = [&](std::size_t a, std::size_t b, float& out) {
+    if (!(gx[a] == gx[a]) || !(gx[b] == gx[b])) return false;
+    out = std::max(std::abs(gx[a] - gx[b]), std::abs(gy[a] - gy[b]));
+    return true;
+  };
+  for (int y = row0; y < row1; ++y)
+    for (int x = 0; x < w; ++x) {
+      const std::size_t k = at(x, y);
+      if (!(gx[k] == gx[k])) {
+        log2fp[k] = 0.0f;
+        continue;
+      }
+      float fx = 0, fy = 0;
+      const bool hx = (x + 1 < w && diff(at(x + 1, y), k, fx)) || (x > 0 && diff(k, at(x - 1, y), fx));
+      const bool hy = (y + 1 < h && diff(at(x, y + 1), k, fy)) || (y > 0 && diff(k, at(x, y - 1), fy));
+      float fp = std::max(fx, fy);
+      if (!hx && !hy) fp = gz[k] * inv_f;  // isolated pixel: a fronto-parallel estimate
+      log2fp[k] = std::log2(std::max(fp, 1e-6f));
+    }
+}
+
+namespace {
+struct TaskCtx {
+  Renderer::Impl* m;
+  RenderOutput* out;
+  int rows_per_task;
+};
+}  // namespace
+
+Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* stats) {
+  Impl& m = *impl_;
+  const auto t0 = Clock::now();
+  auto invalidate = [&] {
+    for (auto& v : out.valid) std::fill(v.pixels().begin(), v.pixels().end(), std::uint8_t{0});
+    for (auto& c : out.rgb) std::fill(c.pixels().begin(), c.pixels().end(), std::uint8_t{0});
+    std::fill(out.depth.pixels().begin(), out.depth.pixels().end(), NAN);
+  };
+  if (out.depth.width() != m.camera.width || out.depth.height() != m.camera.height ||
+      out.rgb.size() != out.layer_names.size() || out.valid.size() != out.layer_names.size())
+    return Error{"render: the output was not made by this renderer's make_output()"};
+  const Eigen::Vector3d& t = T_W_C.t_W_C;
+  if (!t.allFinite() || !T_W_C.q_W_C.coeffs().allFinite() || std::abs(T_W_C.q_W_C.norm() - 1.0) > 1e-3) {
+    invalidate();
+    return Error{"render: pose " + geo::format_pose(T_W_C) + " is not finite or its quaternion is not unit"};
+  }
+  const double ground = m.map->dem.height_at(t.x(), t.y());
+  if (std::isfinite(ground) && t.z() < ground) {
+    invalidate();
+    return Error{"render: camera at z " + std::to_string(t.z()) + " m is below the terrain (" +
+                 std::to_string(ground) + " m) at (" + std::to_string(t.x()) + ", " + std::to_string(t.y()) + ")"};
+  }
+  m.R_C_W = T_W_C.q_W_C.conjugate().toRotationMatrix().cast<float>();
+  m.t_local = Eigen::Vector3f(static_cast<float>(t.x() - m.ox), static_cast<float>(t.y() - m.oy),
+                              static_cast<float>(t.z() - m.oz));
+  m.n_tris = 0;
+  m.overflow = false;
+  m.chunks_drawn = 0;
+
+  // 1-2. Level of detail and geometry.
+  m.chunk_stack.clear();
+  m.chunk_stack.push_back(m.terrain.root());
+  const auto& chunks = m.terrain.chunks();
+  while (!m.chunk_stack.empty()) {
+    const TerrainChunk& c = chunks[static_cast<std::size_t>(m.chunk_stack.back())];
+    m.chunk_stack.pop_back();
+    bool refine = false;
+    if (!m.chunk_visible_and_coarse_enough(c, refine)) continue;
+    if (refine) {
+      for (int k = 3; k >= 0; --k)
+        if (c.child[k] >= 0) m.chunk_stack.push_back(c.child[k]);
+    } else {
+      m.draw_chunk(c);
+    }
+  }
+  if (m.overflow) {
+    invalidate();
+    return Error{"render: the view needs more than " + std::to_string(m.options.max_triangles) +
+                 " triangles (raise max_triangles or lod_error_px)"};
+  }
+  // Binning: counts, prefix sums, fill (triangle order kept within each tile).
+  std::fill(m.tile_count.begin(), m.tile_count.end(), 0);
+  auto tile_range = [&](const Tri& tr, int& a0, int& a1, int& b0, int& b1) {
+    a0 = tr.bx0 / kTileW; a1 = tr.bx1 / kTileW; b0 = tr.by0 / kTileH; b1 = tr.by1 / kTileH;
+  };
+  for (int i = 0; i < m.n_tris; ++i) {
+    int a0, a1, b0, b1;
+    tile_range(m.tris[static_cast<std::size_t>(i)], a0, a1, b0, b1);
+    for (int b = b0; b <= b1; ++b)
+      for (int a = a0; a <= a1; ++a) ++m.tile_count[static_cast<std::size_t>(b * m.tiles_x + a)];
+  }
+  m.tile_start[0] = 0;
+  for (std::size_t k = 0; k < m.tile_count.size(); ++k) m.tile_start[k + 1] = m.tile_start[k] + m.tile_count[k];
+  if (static_cast<std::size_t>(m.tile_start.back()) > m.bin_entries.size()) {
+    invalidate();
+    return Error{"render: tile bins overflow (" + std::to_string(m.tile_start.back()) + " entries)"};
+  }
+  std::copy(m.tile_start.begin(), m.tile_start.end() - 1, m.tile_fill.begin());
+  for (int i = 0; i < m.n_tris; ++i) {
+    int a0, a1, b0, b1;
+    tile_range(m.tris[static_cast<std::size_t>(i)], a0, a1, b0, b1);
+    for (int b = b0; b <= b1; ++b)
+      for (int a = a0; a <= a1; ++a) m.bin_entries[static_cast<std::size_t>(m.tile_fill[static_cast<std::size_t>(b * m.tiles_x + a)]++)] = i;
+  }
+  const auto t1 = Clock::now();
+
+  // 3-4. Visibility per tile, then resolve and footprints per row block.
+  TaskCtx ctx{&m, &out, 8};
+  m.pool->run(m.tiles_x * m.tiles_y, [](void* c, int i) { static_cast<TaskCtx*>(c)->m->raster_tile(i); }, &ctx);
+  const int h = m.camera.height;
+  const int blocks = (h + ctx.rows_per_task - 1) / ctx.rows_per_task;
+  m.pool->run(blocks, [](void* c, int i) {
+    auto* x = static_cast<TaskCtx*>(c);
+    x->m->resolve_rows(i * x->rows_per_task, std::min((i + 1) * x->rows_per_task, x->m->camera.height));
+  }, &ctx);
+  m.pool->run(blocks, [](void* c, int i) {
+    auto* x = static_cast<TaskCtx*>(c);
+    x->m->footprint_rows(i * x->rows_per_task, std::min((i + 1) * x->rows_per_task, x->m->camera.height));
+  }, &ctx);
+  const auto t2 = Clock::now();
+
+  // 5. Shading, every requested layer, by row blocks.
+  std::copy(m.gz.begin(), m.gz.end(), out.depth.pixels().begin());
+  m.pool->run(blocks, [](void* c, int i) {
+    auto* x = static_cast<TaskCtx*>(c);
+    Impl& im = *x->m;
+    const int w = im.camera.width;
+    const int r0 = i * x->rows_per_task, r1 = std::min(r0 + x->rows_per_task, im.camera.height);
+    for (std::size_t l = 0; l < x->out->layer_names.size(); ++l) {
+      const LayerTexture* T = nullptr;
+      for (const auto& lt : im.layers)
+        if (lt.name == x->out->layer_names[l]) T = &lt;
+      ShadeParams p{T->texels.data(), T->levels.data(), static_cast<int>(T->levels.size()),
+                    static_cast<float>(T->a0), static_cast<float>(T->a1), static_cast<float>(T->a2),
+                    static_cast<float>(T->b0), static_cast<float>(T->b1), static_cast<float>(T->b2), T->lod_bias};
+      for (int y = r0; y < r1; ++y) {
+        const std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(w);
+        im.shade(w, im.gx.data() + k, im.gy.data() + k, im.log2fp.data() + k,
+                 x->out->rgb[l].data() + 3 * k, x->out->valid[l].data() + k, p);
+      }
+    }
+  }, &ctx);
+  const auto t3 = Clock::now();
+  if (stats) {
+    stats->triangles = m.n_tris;
+    stats->chunks = m.chunks_drawn;
+    stats->fragments = 0;
+    for (long f : m.tile_fragments) stats->fragments += f;
+    stats->ms_geometry = std::chrono::duration<double, std::milli>(t1 - t0).count();
+    stats->ms_raster = std::chrono::duration<double, std::milli>(t2 - t1).count();
+    stats->ms_shade = std::chrono::duration<double, std::milli>(t3 - t2).count();
+  }
+  bool any = false;
+  for (float z : m.gz)
+    if (z == z) {
+      any = true;
+      break;
+    }
+  if (!any) return Error{"render: the view from " + geo::format_pose(T_W_C) +
+                         " sees no terrain (off the map, or looking at the sky)"};
+  return Ok{};
+}
+
+}  // namespace terralign::raster

@@ -1,0 +1,126 @@
+#include <terralign/raster/terrain.hpp>
+
+#include <algorithm>
+#include <cmath>
+
+namespace terralign::raster {
+
+Terrain Terrain::build(const geo::Map& map, double ox, double oy, double oz) {
+  Terrain t;
+  if (map.dem.constant) {
+    // A flat grid over everything any layer covers (a little more, so texture edges are
+    // reached by geometry). 65 x 65 posts: big enough for near-plane clipping to stay local.
+    geo::Extent e{INFINITY, INFINITY, -INFINITY, -INFINITY};
+    for (const auto& L : map.layers) {
+      e.min_x = std::min(e.min_x, L.extent.min_x);
+      e.min_y = std::min(e.min_y, L.extent.min_y);
+      e.max_x = std::max(e.max_x, L.extent.max_x);
+      e.max_y = std::max(e.max_y, L.extent.max_y);
+    }
+    const int n = 4 * kChunkQuads + 1;
+    t.nx_ = t.ny_ = n;
+    t.px0_ = e.min_x - ox;
+    t.pxi_ = e.width() / (n - 1);
+    t.pxj_ = 0;
+    t.py0_ = e.max_y - oy;
+    t.pyi_ = 0;
+    t.pyj_ = -e.height() / (n - 1);
+    t.heights_.assign(static_cast<std::size_t>(n) * n, static_cast<float>(map.dem.constant_height - oz));
+  } else {
+    const auto& d = map.dem;
+    t.nx_ = d.heights.width();
+    t.ny_ = d.heights.height();
+    // Post (i, j) is the DEM pixel centre (i, j).
+    double x00, y00, x10, y10, x01, y01;
+    d.transform.pixel_to_world(0, 0, x00, y00);
+    d.transform.pixel_to_world(1, 0, x10, y10);
+    d.transform.pixel_to_world(0, 1, x01, y01);
+    t.px0_ = x00 - ox;
+    t.py0_ = y00 - oy;
+    t.pxi_ = x10 - x00;
+    t.pyi_ = y10 - y00;
+    t.pxj_ = x01 - x00;
+    t.pyj_ = y01 - y00;
+    t.heights_.resize(d.heights.size());
+    for (std::size_t k = 0; k < d.heights.size(); ++k)
+      t.heights_[k] = static_cast<float>(d.heights.data()[k] - oz);  // NaN stays NaN
+  }
+  float lo = INFINITY, hi = -INFINITY;
+  for (float h : t.heights_)
+    if (std::isfinite(h)) {
+      lo = std::min(lo, h);
+      hi = std::max(hi, h);
+    }
+  t.min_z_ = lo;
+  t.max_z_ = hi;
+  // The smallest level whose chunk covers every quad.
+  const int quads = std::max(std::max(t.nx_, t.ny_) - 1, 1);
+  int level = 0;
+  while ((kChunkQuads << level) < quads) ++level;
+  t.chunks_.reserve(static_cast<std::size_t>(4) << (2 * std::min(level, 10)));
+  t.root_ = t.build_chunk(level, 0, 0);
+  return t;
+}
+
+int Terrain::build_chunk(int level, int i0, int j0) {
+  const int span = kChunkQuads << level;
+  const int step = 1 << level;
+  TerrainChunk c{};
+  c.level = level;
+  c.i0 = i0;
+  c.j0 = j0;
+  c.span = span;
+  for (int& ch : c.child) ch = -1;
+  const int i1 = std::min(i0 + span, nx_ - 1), j1 = std::min(j0 + span, ny_ - 1);
+  // Bounding box and the error of the coarse surface against every post inside.
+  float bx0 = INFINITY, by0 = INFINITY, bz0 = INFINITY, bx1 = -INFINITY, by1 = -INFINITY, bz1 = -INFINITY;
+  float err = 0;
+  for (int j = j0; j <= j1; ++j)
+    for (int i = i0; i <= i1; ++i) {
+      float x, y, z;
+      post(i, j, x, y, z);
+      bx0 = std::min(bx0, x); bx1 = std::max(bx1, x);
+      by0 = std::min(by0, y); by1 = std::max(by1, y);
+      if (!std::isfinite(z)) continue;
+      bz0 = std::min(bz0, z); bz1 = std::max(bz1, z);
+      if (level == 0) continue;
+      // The coarse surface the chunk draws: the two triangles (split along the diagonal
+      // from (ci, cj) to (ci1, cj1)) of the coarse quad around (i, j).
+      int ci = i0 + ((i - i0) / step) * step, cj = j0 + ((j - j0) / step) * step;
+      if (ci >= i1 && ci > i0) ci -= step;
+      if (cj >= j1 && cj > j0) cj -= step;
+      const int ci1 = std::min(ci + step, i1), cj1 = std::min(cj + step, j1);
+      const float fx = ci1 > ci ? static_cast<float>(i - ci) / static_cast<float>(ci1 - ci) : 0.0f;
+      const float fy = cj1 > cj ? static_cast<float>(j - cj) / static_cast<float>(cj1 - cj) : 0.0f;
+      float a, b, c00, c10, c01, c11;
+      post(ci, cj, a, b, c00);
+      post(ci1, cj, a, b, c10);
+      post(ci, cj1, a, b, c01);
+      post(ci1, cj1, a, b, c11);
+      const float h = fx >= fy ? c00 + fx * (c10 - c00) + fy * (c11 - c10)
+                               : c00 + fy * (c01 - c00) + fx * (c11 - c01);
+      if (std::isfinite(h)) err = std::max(err, std::abs(h - z));
+      else err = std::max(err, bz1 - bz0 + 1.0f);  // a hole in the coarse surface
+    }
+  c.min_x = bx0; c.max_x = bx1; c.min_y = by0; c.max_y = by1;
+  c.min_z = std::isfinite(bz0) ? bz0 : 0.0f;
+  c.max_z = std::isfinite(bz1) ? bz1 : 0.0f;
+  const int index = static_cast<int>(chunks_.size());
+  chunks_.push_back(c);
+  if (level > 0) {
+    const int half = span / 2;
+    int k = 0;
+    for (int dj = 0; dj < 2; ++dj)
+      for (int di = 0; di < 2; ++di) {
+        const int ci = i0 + di * half, cj = j0 + dj * half;
+        if (ci >= nx_ - 1 || cj >= ny_ - 1) continue;
+        const int child = build_chunk(level - 1, ci, cj);
+        chunks_[static_cast<std::size_t>(index)].child[k++] = child;
+        err = std::max(err, chunks_[static_cast<std::size_t>(child)].error);
+      }
+  }
+  chunks_[static_cast<std::size_t>(index)].error = err;
+  return index;
+}
+
+}  // namespace terralign::raster

@@ -1,0 +1,144 @@
+// terralign render: the reference views of a map from one pose or a list of poses.
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <sys/stat.h>
+
+#include <terralign/geo/camera.hpp>
+#include <terralign/geo/image_io.hpp>
+#include <terralign/geo/map.hpp>
+#include <terralign/geo/pose.hpp>
+#include <terralign/raster/renderer.hpp>
+
+#include "args.hpp"
+#include "commands.hpp"
+#include "common.hpp"
+
+namespace terralign::cli {
+namespace {
+
+std::vector<std::string> split_commas(const std::string& s) {
+  std::vector<std::string> out;
+  std::size_t a = 0;
+  while (a <= s.size()) {
+    const std::size_t b = s.find(',', a);
+    out.push_back(s.substr(a, b == std::string::npos ? std::string::npos : b - a));
+    if (b == std::string::npos) break;
+    a = b + 1;
+  }
+  return out;
+}
+
+// A false-colour preview of depth: near bright, far dark, no terrain black.
+ImageU8 depth_preview(const ImageF& depth) {
+  float lo = INFINITY, hi = -INFINITY;
+  for (float z : depth.pixels())
+    if (z == z) {
+      lo = std::min(lo, z);
+      hi = std::max(hi, z);
+    }
+  ImageU8 img(depth.width(), depth.height(), 1, 0);
+  const float span = hi > lo ? hi - lo : 1.0f;
+  for (std::size_t k = 0; k < depth.size(); ++k) {
+    const float z = depth.data()[k];
+    if (z == z) img.data()[k] = static_cast<std::uint8_t>(255.0f - 223.0f * (z - lo) / span);
+  }
+  return img;
+}
+
+Status write_outputs(const std::string& dir, const raster::RenderOutput& out) {
+  for (std::size_t l = 0; l < out.layer_names.size(); ++l) {
+    TERRALIGN_TRY(geo::save_png(dir + "/" + out.layer_names[l] + ".png", out.rgb[l].view()));
+    TERRALIGN_TRY(geo::save_png(dir + "/" + out.layer_names[l] + "_valid.png", out.valid[l].view()));
+  }
+  TERRALIGN_TRY(geo::save_pfm(dir + "/depth.pfm", out.depth.view()));
+  const ImageU8 preview = depth_preview(out.depth);
+  return geo::save_png(dir + "/depth.png", preview.view());
+}
+
+Status ensure_dir(const std::string& dir) {
+  struct stat st {};
+  if (::stat(dir.c_str(), &st) == 0) {
+    if (!S_ISDIR(st.st_mode)) return Error{dir + ": exists and is not a folder"};
+    return Ok{};
+  }
+  if (::mkdir(dir.c_str(), 0755) != 0) return Error{dir + ": cannot create the output folder"};
+  return Ok{};
+}
+
+}  // namespace
+
+int run_render(const std::vector<std::string>& argv) {
+  auto args = Args::parse(argv, {"map", "camera", "pose", "poses", "layers", "out", "threads", "lod-error"}, {});
+  if (!args.ok()) return usage_error("render", args.error());
+  auto map_path = args->required("map");
+  auto cam_path = args->required("camera");
+  auto out_dir = args->required("out");
+  if (!map_path.ok()) return usage_error("render", map_path.error());
+  if (!cam_path.ok()) return usage_error("render", cam_path.error());
+  if (!out_dir.ok()) return usage_error("render", out_dir.error());
+  if (args->has("pose") == args->has("poses"))
+    return usage_error("render", Error{"give exactly one of --pose or --poses"});
+  auto threads = args->get_int("threads", 2, 1, 64);
+  if (!threads.ok()) return usage_error("render", threads.error());
+  auto lod = args->get_double("lod-error", 0.5);
+  if (!lod.ok()) return usage_error("render", lod.error());
+
+  std::vector<geo::Pose> poses;
+  if (args->has("pose")) {
+    auto p = geo::parse_pose(args->get("pose"));
+    if (!p.ok()) return fail(p.error());
+    poses.push_back(p.value());
+  } else {
+    std::ifstream in(args->get("poses"));
+    if (!in) return fail(Error{args->get("poses") + ": cannot open the pose list"});
+    std::string line;
+    int n = 0;
+    while (std::getline(in, line)) {
+      ++n;
+      if (line.find_first_not_of(" \t\r") == std::string::npos || line[0] == '#') continue;
+      auto p = geo::parse_pose(line);
+      if (!p.ok()) return fail(Error{args->get("poses") + ":" + std::to_string(n) + ": " + p.error().message});
+      poses.push_back(p.value());
+    }
+    if (poses.empty()) return fail(Error{args->get("poses") + ": no poses"});
+  }
+  auto map = geo::load_map(map_path.value());
+  if (!map.ok()) return fail(map.error());
+  auto cam = geo::load_camera(cam_path.value());
+  if (!cam.ok()) return fail(cam.error());
+  raster::RenderOptions opt;
+  opt.threads = threads.value();
+  opt.lod_error_px = lod.value();
+  auto renderer = raster::Renderer::create(map.value(), cam.value(), opt);
+  if (!renderer.ok()) return fail(renderer.error());
+  const std::string layer_arg = args->get("layers", "all");
+  auto out = renderer.value()->make_output(split_commas(layer_arg));
+  if (!out.ok()) return fail(out.error());
+  if (auto st = ensure_dir(out_dir.value()); !st.ok()) return fail(st.error());
+
+  int failed = 0;
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    const std::string dir = poses.size() == 1 ? out_dir.value() : out_dir.value() + "/" + std::to_string(i);
+    if (poses.size() > 1) {
+      if (auto st = ensure_dir(dir); !st.ok()) return fail(st.error());
+    }
+    raster::RenderStats stats;
+    auto st = renderer.value()->render(poses[i], out.value(), &stats);
+    if (!st.ok()) {
+      std::fprintf(stderr, "terralign: pose %zu: %s\n", i, st.error().message.c_str());
+      ++failed;
+      continue;  // nothing written for a failed view: no half results
+    }
+    if (auto w = write_outputs(dir, out.value()); !w.ok()) return fail(w.error());
+    if (poses.size() > 1) {
+      const int width = 40, done = static_cast<int>((i + 1) * width / poses.size());
+      std::fprintf(stderr, "\r[%.*s%*s] %zu/%zu", done, "========================================", width - done, "",
+                   i + 1, poses.size());
+    }
+  }
+  if (poses.size() > 1) std::fprintf(stderr, "\n");
+  return failed == 0 ? 0 : 1;
+}
+
+}  // namespace terralign::cli
