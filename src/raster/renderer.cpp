@@ -17,6 +17,7 @@ constexpr int kTileW = 64, kTileH = 32;
 constexpr int kSubBits = 8;              // sub-pixel bits of the fixed-point screen positions
 constexpr double kGuardPx = 2048.0;      // guard band beyond the image, pixels
 constexpr int kMaxClipVerts = 9;
+constexpr int kMaxTileEntries = 1 << 16;  // triangles binned into one tile, at most
 
 using Clock = std::chrono::steady_clock;
 
@@ -61,6 +62,7 @@ struct Renderer::Impl {
   std::vector<Tri> tris;
   std::vector<int> tile_count, tile_start, tile_fill;
   std::vector<long> tile_fragments;
+  std::vector<std::vector<float>> tile_coef;  // per thread: 9 floats per bin entry of a tile
   std::vector<int> bin_entries;
   std::vector<float> zbuf;                // 1/z of the nearest triangle so far, 0: none
   std::vector<int> idbuf;                 // its index, -1: none
@@ -82,9 +84,8 @@ struct Renderer::Impl {
   void clip_and_emit(const ClipVert* v, int n);
   void draw_chunk(const TerrainChunk& c);
   bool chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const;
-  void raster_tile(int tile);
+  void raster_tile(int tile, int thread);
   void resolve_rows(int row0, int row1);
-  void footprint_rows(int row0, int row1);
 };
 
 namespace {
@@ -219,6 +220,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.tile_start.resize(tiles + 1);
   m.tile_fill.resize(tiles);
   m.tile_fragments.resize(tiles);
+  m.tile_coef.assign(static_cast<std::size_t>(options.threads), std::vector<float>(9 * static_cast<std::size_t>(kMaxTileEntries)));
   m.bin_entries.resize(static_cast<std::size_t>(options.max_triangles) * 4 + tiles * 256);
   const std::size_t vpx = static_cast<std::size_t>(m.vw) * static_cast<std::size_t>(m.vh);
   m.zbuf.resize(vpx);
@@ -463,7 +465,32 @@ void Renderer::Impl::draw_chunk(const TerrainChunk& c) {
 
 // ---- rasterization ----
 
-void Renderer::Impl::raster_tile(int tile) {
+namespace {
+
+// log2 to about 0.005: enough to pick a mip level, and the same on every machine.
+inline float fast_log2(float x) {
+  std::uint32_t i;
+  std::memcpy(&i, &x, 4);
+  const float e = static_cast<float>(static_cast<int>(i >> 23) - 127);
+  const std::uint32_t mi = (i & 0x7fffffu) | 0x3f800000u;
+  float m;
+  std::memcpy(&m, &mi, 4);
+  return e + (-0.34484843f * m + 2.02466578f) * m - 0.67487759f;
+}
+
+// log2 of a pixel's ground footprint (metres) on the triangle's plane: the larger of the
+// lengths of d(world x, y)/du and d(world x, y)/dv, from the planes of 1/z, x/z and y/z.
+template <class T>
+inline float footprint_log2(T A0, T B0, T A1, T B1, T A2, T B2, T wx, T wy, T z) {
+  const T du_x = (A1 - wx * A0) * z, du_y = (A2 - wy * A0) * z;
+  const T dv_x = (B1 - wx * B0) * z, dv_y = (B2 - wy * B0) * z;
+  const T d2 = std::max(du_x * du_x + du_y * du_y, dv_x * dv_x + dv_y * dv_y);
+  return 0.5f * fast_log2(std::max(static_cast<float>(d2), 1e-12f));
+}
+
+}  // namespace
+
+void Renderer::Impl::raster_tile(int tile, int thread) {
   const int tx = tile % tiles_x, ty = tile / tiles_x;
   const int x0 = tx * kTileW, y0 = ty * kTileH;
   const int x1 = std::min(x0 + kTileW, vw) - 1, y1 = std::min(y0 + kTileH, vh) - 1;
@@ -472,16 +499,17 @@ void Renderer::Impl::raster_tile(int tile) {
     std::fill(idbuf.begin() + static_cast<std::ptrdiff_t>(y) * vw + x0, idbuf.begin() + static_cast<std::ptrdiff_t>(y) * vw + x1 + 1, -1);
   }
   long frags = 0;
-  const int* list = bin_entries.data() + tile_start[static_cast<std::size_t>(tile)];
+  const int first = tile_start[static_cast<std::size_t>(tile)];
   const int count = tile_count[static_cast<std::size_t>(tile)];
   for (int e = 0; e < count; ++e) {
-    const int id = list[e];
+    const int id = bin_entries[static_cast<std::size_t>(first + e)];
     const Tri& t = tris[static_cast<std::size_t>(id)];
     const int bx0 = std::max(t.bx0, x0), bx1 = std::min(t.bx1, x1);
     const int by0 = std::max(t.by0, y0), by1 = std::min(t.by1, y1);
     if (bx0 > bx1 || by0 > by1) continue;
     // Edge k runs from vertex k to vertex k+1; inside: E > 0, or E == 0 on a top or left
     // edge (clockwise on screen with y down: top = horizontal going right, left = going up).
+    // The bias folds the rule into one test, E >= 0.
     std::int64_t E[3], dEx[3], dEy[3];
     const std::int64_t px = static_cast<std::int64_t>(bx0) << kSubBits, py = static_cast<std::int64_t>(by0) << kSubBits;
     for (int k = 0; k < 3; ++k) {
@@ -492,80 +520,149 @@ void Renderer::Impl::raster_tile(int tile) {
       dEx[k] = -ey << kSubBits;
       dEy[k] = ex << kSubBits;
     }
-    const float A = static_cast<float>(t.A[0]);
-    for (int y = by0; y <= by1; ++y) {
-      std::int64_t e0 = E[0], e1 = E[1], e2 = E[2];
-      const float row = static_cast<float>(t.A[0] * bx0 + t.B[0] * y + t.C[0]);
-      float* zrow = zbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
-      int* irow = idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
-      for (int x = bx0; x <= bx1; ++x) {
-        if ((e0 | e1 | e2) >= 0) {
-          ++frags;
-          const float iz = row + A * static_cast<float>(x - bx0);
-          if (iz > zrow[x]) {
-            zrow[x] = iz;
-            irow[x] = id;
+    // 1/z relative to the box corner, in float (exact enough for the depth test only).
+    const float A = static_cast<float>(t.A[0]), B = static_cast<float>(t.B[0]);
+    const float base = static_cast<float>(t.A[0] * bx0 + t.B[0] * by0 + t.C[0]);
+    // 8 x 8 blocks: the edge functions are linear, so their values at a block's corners say
+    // whether the block is wholly inside (no per-pixel test), wholly outside one edge
+    // (skipped), or crossed (tested per pixel).
+    for (int by = by0; by <= by1; by += 8) {
+      const int ey1 = std::min(by + 7, by1);
+      for (int bx = bx0; bx <= bx1; bx += 8) {
+        const int ex1 = std::min(bx + 7, bx1);
+        bool outside = false, inside = true;
+        for (int k = 0; k < 3 && !outside; ++k) {
+          const std::int64_t c00 = E[k] + dEx[k] * (bx - bx0) + dEy[k] * (by - by0);
+          const std::int64_t c10 = c00 + dEx[k] * (ex1 - bx), c01 = c00 + dEy[k] * (ey1 - by);
+          const std::int64_t c11 = c10 + dEy[k] * (ey1 - by);
+          const std::int64_t lo = std::min(std::min(c00, c10), std::min(c01, c11));
+          const std::int64_t hi = std::max(std::max(c00, c10), std::max(c01, c11));
+          outside = hi < 0;
+          inside = inside && lo >= 0;
+        }
+        if (outside) continue;
+        for (int y = by; y <= ey1; ++y) {
+          float* zrow = zbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
+          int* irow = idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
+          const float rowz = base + B * static_cast<float>(y - by0);
+          if (inside) {
+            for (int x = bx; x <= ex1; ++x) {
+              const float iz = rowz + A * static_cast<float>(x - bx0);
+              const bool nearer = iz > zrow[x];
+              zrow[x] = nearer ? iz : zrow[x];
+              irow[x] = nearer ? e : irow[x];
+            }
+            frags += ex1 - bx + 1;
+            continue;
+          }
+          std::int64_t e0 = E[0] + dEx[0] * (bx - bx0) + dEy[0] * (y - by0);
+          std::int64_t e1 = E[1] + dEx[1] * (bx - bx0) + dEy[1] * (y - by0);
+          std::int64_t e2 = E[2] + dEx[2] * (bx - bx0) + dEy[2] * (y - by0);
+          for (int x = bx; x <= ex1; ++x) {
+            if ((e0 | e1 | e2) >= 0) {
+              ++frags;
+              const float iz = rowz + A * static_cast<float>(x - bx0);
+              if (iz > zrow[x]) {
+                zrow[x] = iz;
+                irow[x] = e;
+              }
+            }
+            e0 += dEx[0];
+            e1 += dEx[1];
+            e2 += dEx[2];
           }
         }
-        e0 += dEx[0];
-        e1 += dEx[1];
-        e2 += dEx[2];
       }
-      E[0] += dEy[0];
-      E[1] += dEy[1];
-      E[2] += dEy[2];
     }
   }
   tile_fragments[static_cast<std::size_t>(tile)] = frags;
+  if (!remap_u.empty()) {
+    // Distorted camera: resolve_rows() reads this tile later; it needs triangle indices.
+    for (int y = y0; y <= y1; ++y) {
+      int* irow = idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
+      for (int x = x0; x <= x1; ++x)
+        if (irow[x] >= 0) irow[x] = bin_entries[static_cast<std::size_t>(first + irow[x])];
+    }
+    return;
+  }
+  // Pinhole camera: resolve this tile now, in float relative to the tile's corner (depth to
+  // about 3e-7 relative: the planes were fitted in double).
+  float* coef = tile_coef[static_cast<std::size_t>(thread)].data();
+  for (int e = 0; e < count; ++e) coef[9 * e] = NAN;  // computed on first use
+  const int w = camera.width;
+  for (int y = y0; y <= y1; ++y) {
+    const int* irow = idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
+    const std::size_t row = static_cast<std::size_t>(y) * static_cast<std::size_t>(w);
+    float* __restrict ox = gx.data() + row;
+    float* __restrict oy = gy.data() + row;
+    float* __restrict oz = gz.data() + row;
+    float* __restrict ol = log2fp.data() + row;
+    const float dy = static_cast<float>(y - y0);
+    // Runs of pixels that see the same triangle share its coefficients: a plain loop over a
+    // run vectorises.
+    for (int x = x0; x <= x1;) {
+      const int e = irow[x];
+      int end = x + 1;
+      while (end <= x1 && irow[end] == e) ++end;
+      if (e < 0) {
+        for (int i = x; i < end; ++i) {
+          ox[i] = oy[i] = oz[i] = NAN;
+          ol[i] = 0.0f;
+        }
+        x = end;
+        continue;
+      }
+      float* c = coef + 9 * e;
+      if (c[0] != c[0]) {
+        const Tri& t = tris[static_cast<std::size_t>(bin_entries[static_cast<std::size_t>(first + e)])];
+        for (int q = 0; q < 3; ++q) {
+          c[3 * q + 0] = static_cast<float>(t.A[q] * x0 + t.B[q] * y0 + t.C[q]);
+          c[3 * q + 1] = static_cast<float>(t.A[q]);
+          c[3 * q + 2] = static_cast<float>(t.B[q]);
+        }
+      }
+      const float iz0 = c[0] + c[2] * dy, ax = c[1];
+      const float wx0 = c[3] + c[5] * dy, bx = c[4];
+      const float wy0 = c[6] + c[8] * dy, by = c[7];
+      for (int i = x; i < end; ++i) {
+        const float dx = static_cast<float>(i - x0);
+        const float iz = iz0 + ax * dx;
+        const float z = 1.0f / iz;  // iz > 0: the triangle passed the near plane
+        const float wx = (wx0 + bx * dx) * z;
+        const float wy = (wy0 + by * dx) * z;
+        oz[i] = z;
+        ox[i] = wx;
+        oy[i] = wy;
+        ol[i] = footprint_log2(c[1], c[2], c[4], c[5], c[7], c[8], wx, wy, z);
+      }
+      x = end;
+    }
+  }
 }
 
 void Renderer::Impl::resolve_rows(int row0, int row1) {
   const int w = camera.width;
-  const bool remap = !remap_u.empty();
   for (int y = row0; y < row1; ++y)
     for (int x = 0; x < w; ++x) {
       const std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x);
-      double px = x, py = y;
-      if (remap) {
-        px = remap_u[k];
-        py = remap_v[k];
-      }
+      const double px = remap_u[k], py = remap_v[k];
       gx[k] = gy[k] = gz[k] = NAN;
+      log2fp[k] = 0.0f;
       if (!(px > -0.5 && py > -0.5 && px < vw - 0.5 && py < vh - 0.5)) continue;
       const int id = idbuf[static_cast<std::size_t>(std::lround(py)) * static_cast<std::size_t>(vw) + static_cast<std::size_t>(std::lround(px))];
       if (id < 0) continue;
+      // The pinhole pixel nearest to this output pixel's ray names the triangle; its planes
+      // are evaluated at the ray's exact pinhole position.
       const Tri& t = tris[static_cast<std::size_t>(id)];
       const double iz = t.A[0] * px + t.B[0] * py + t.C[0];
       if (!(iz > 0)) continue;
       const double z = 1.0 / iz;
+      const double wx = (t.A[1] * px + t.B[1] * py + t.C[1]) * z;
+      const double wy = (t.A[2] * px + t.B[2] * py + t.C[2]) * z;
       gz[k] = static_cast<float>(z);
-      gx[k] = static_cast<float>((t.A[1] * px + t.B[1] * py + t.C[1]) * z);
-      gy[k] = static_cast<float>((t.A[2] * px + t.B[2] * py + t.C[2]) * z);
-    }
-}
-
-void Renderer::Impl::footprint_rows(int row0, int row1) {
-  const int w = camera.width, h = camera.height;
-  const float inv_f = static_cast<float>(1.0 / std::max(camera.fx, camera.fy));
-  auto at = [&](int x, int y) { return static_cast<std::size_t>(y) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x); };
-  auto diff = [&](std::size_t a, std::size_t b, float& out) {
-    if (!(gx[a] == gx[a]) || !(gx[b] == gx[b])) return false;
-    out = std::max(std::abs(gx[a] - gx[b]), std::abs(gy[a] - gy[b]));
-    return true;
-  };
-  for (int y = row0; y < row1; ++y)
-    for (int x = 0; x < w; ++x) {
-      const std::size_t k = at(x, y);
-      if (!(gx[k] == gx[k])) {
-        log2fp[k] = 0.0f;
-        continue;
-      }
-      float fx = 0, fy = 0;
-      const bool hx = (x + 1 < w && diff(at(x + 1, y), k, fx)) || (x > 0 && diff(k, at(x - 1, y), fx));
-      const bool hy = (y + 1 < h && diff(at(x, y + 1), k, fy)) || (y > 0 && diff(k, at(x, y - 1), fy));
-      float fp = std::max(fx, fy);
-      if (!hx && !hy) fp = gz[k] * inv_f;  // isolated pixel: a fronto-parallel estimate
-      log2fp[k] = std::log2(std::max(fp, 1e-6f));
+      gx[k] = static_cast<float>(wx);
+      gy[k] = static_cast<float>(wy);
+      log2fp[k] = footprint_log2(t.A[0], t.B[0], t.A[1], t.B[1], t.A[2], t.B[2], wx, wy, z);
     }
 }
 
@@ -653,19 +750,25 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   }
   const auto t1 = Clock::now();
 
-  // 3-4. Visibility per tile, then resolve and footprints per row block.
+  // 3-4. Visibility per tile (resolved in the tile for a pinhole camera), then, for a
+  // distorted camera, resolve per output row block.
+  for (int c : m.tile_count)
+    if (c > kMaxTileEntries) {
+      invalidate();
+      return Error{"render: a screen tile holds " + std::to_string(c) + " triangles, over " + std::to_string(kMaxTileEntries)};
+    }
   TaskCtx ctx{&m, &out, 8};
-  m.pool->run(m.tiles_x * m.tiles_y, [](void* c, int i) { static_cast<TaskCtx*>(c)->m->raster_tile(i); }, &ctx);
+  m.pool->run(m.tiles_x * m.tiles_y, [](void* c, int i) {
+    auto* x = static_cast<TaskCtx*>(c);
+    x->m->raster_tile(i, i % x->m->pool->threads());
+  }, &ctx);
   const int h = m.camera.height;
   const int blocks = (h + ctx.rows_per_task - 1) / ctx.rows_per_task;
-  m.pool->run(blocks, [](void* c, int i) {
-    auto* x = static_cast<TaskCtx*>(c);
-    x->m->resolve_rows(i * x->rows_per_task, std::min((i + 1) * x->rows_per_task, x->m->camera.height));
-  }, &ctx);
-  m.pool->run(blocks, [](void* c, int i) {
-    auto* x = static_cast<TaskCtx*>(c);
-    x->m->footprint_rows(i * x->rows_per_task, std::min((i + 1) * x->rows_per_task, x->m->camera.height));
-  }, &ctx);
+  if (!m.remap_u.empty())
+    m.pool->run(blocks, [](void* c, int i) {
+      auto* x = static_cast<TaskCtx*>(c);
+      x->m->resolve_rows(i * x->rows_per_task, std::min((i + 1) * x->rows_per_task, x->m->camera.height));
+    }, &ctx);
   const auto t2 = Clock::now();
 
   // 5. Shading, every requested layer, by row blocks.

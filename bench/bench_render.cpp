@@ -1,0 +1,116 @@
+// Renderer throughput: frames per second at several image sizes, nadir and 45 degrees
+// oblique, over the sample NAIP map and a large synthetic map (4096^2 texture, 1025^2 DEM
+// over 1 km^2), with 1 and 2 threads. Each figure is the median of timed batches.
+//   build/release/bench/bench_render [--quick]
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <vector>
+
+#include <terralign/geo/map.hpp>
+#include <terralign/geo/pose.hpp>
+#include <terralign/raster/renderer.hpp>
+
+using namespace terralign;
+
+namespace {
+
+geo::Map large_map() {
+  geo::Map m;
+  m.path = "(synthetic 4096^2 texture, 1025^2 DEM, 1 km^2)";
+  const int n = 1025;
+  m.dem.constant = false;
+  m.dem.transform = geo::GeoTransform::north_up(0, 1000, 1000.0 / n, 1000.0 / n);
+  m.dem.extent = m.dem.transform.extent(n, n);
+  m.dem.heights.resize(n, n, 1);
+  for (int j = 0; j < n; ++j)
+    for (int i = 0; i < n; ++i)
+      m.dem.heights.at(i, j) = static_cast<float>(200 + 40 * std::sin(i * 0.013) * std::cos(j * 0.011) + 3 * std::sin(i * 0.2 + j * 0.17));
+  m.dem.min_height = 157;
+  m.dem.max_height = 243;
+  geo::Layer L;
+  L.name = "tex";
+  const int t = 4096;
+  L.transform = geo::GeoTransform::north_up(0, 1000, 1000.0 / t, 1000.0 / t);
+  L.extent = L.transform.extent(t, t);
+  L.rgba.resize(t, t, 4);
+  for (int y = 0; y < t; ++y)
+    for (int x = 0; x < t; ++x) {
+      std::uint8_t* p = &L.rgba.at(x, y, 0);
+      p[0] = static_cast<std::uint8_t>(x * 7 + y);
+      p[1] = static_cast<std::uint8_t>((x ^ y) >> 3);
+      p[2] = static_cast<std::uint8_t>(y * 3);
+      p[3] = 255;
+    }
+  L.valid_pixels = static_cast<std::int64_t>(t) * t;
+  m.layers.push_back(std::move(L));
+  return m;
+}
+
+double fps(raster::Renderer& r, raster::RenderOutput& out, const geo::Pose& T, int frames) {
+  std::vector<double> per;
+  raster::RenderStats st;
+  if (!r.render(T, out, &st).ok()) return -1;
+  for (int b = 0; b < 5; ++b) {
+    const auto t0 = std::chrono::steady_clock::now();
+    for (int i = 0; i < frames; ++i) (void)r.render(T, out);
+    per.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() / frames);
+  }
+  std::sort(per.begin(), per.end());
+  return 1.0 / per[2];
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
+  auto sample = geo::load_map(TERRALIGN_SOURCE_DIR "/data/naip_west/map.json");
+  if (!sample.ok()) {
+    std::fprintf(stderr, "%s\n", sample.error().message.c_str());
+    return 1;
+  }
+  const geo::Map big = large_map();
+  struct Scene {
+    const char* name;
+    const geo::Map* map;
+    geo::Pose nadir, oblique;
+    const char* layer;
+  };
+  const Scene scenes[] = {
+      {"sample NAIP (5 m/px, flat)", &sample.value(), geo::pose_from_ypr({487450, 5207437, 1370}, 0, 0, 0),
+       geo::pose_from_ypr({487450, 5206400, 1370}, 0, 0, 0, geo::tilted_mount(45)), "2016"},
+      {"synthetic 4096^2 tex, 1025^2 DEM", &big, geo::pose_from_ypr({500, 500, 600}, 0, 0, 0),
+       geo::pose_from_ypr({500, 150, 500}, 0, 0, 0, geo::tilted_mount(45)), "tex"},
+  };
+  const int sizes[][2] = {{188, 120}, {376, 240}, {752, 480}, {1504, 960}};
+  std::printf("| scene | view | size | threads | fps | ms/frame | triangles |\n|---|---|---|---|---|---|---|\n");
+  for (const auto& s : scenes)
+    for (int view = 0; view < 2; ++view)
+      for (const auto& sz : sizes) {
+        if (quick && sz[0] != 752) continue;
+        for (int threads : {1, 2}) {
+          geo::CameraModel cam;
+          cam.width = sz[0];
+          cam.height = sz[1];
+          cam.fx = cam.fy = 651.2 * sz[0] / 752.0;
+          cam.cx = (sz[0] - 1) / 2.0;
+          cam.cy = (sz[1] - 1) / 2.0;
+          raster::RenderOptions opt;
+          opt.threads = threads;
+          auto r = raster::Renderer::create(*s.map, cam, opt);
+          if (!r.ok()) return 1;
+          auto out = r.value()->make_output({s.layer});
+          if (!out.ok()) return 1;
+          const geo::Pose& T = view ? s.oblique : s.nadir;
+          raster::RenderStats st;
+          (void)r.value()->render(T, out.value(), &st);
+          const double f = fps(*r.value(), out.value(), T, sz[0] >= 1504 ? 10 : 40);
+          std::printf("| %s | %s | %dx%d | %d | %.0f | %.3f | %d |\n", s.name, view ? "oblique 45" : "nadir", sz[0], sz[1],
+                      threads, f, 1000.0 / f, st.triangles);
+          std::fflush(stdout);
+        }
+      }
+  return 0;
+}
