@@ -139,7 +139,7 @@ TEST_CASE("1 and 2 threads, and scalar and AVX2 shading, give the same bytes") {
   }
 }
 
-TEST_CASE("the shading kernels agree bit for bit on seeded random inputs") {
+TEST_CASE("the shading and resolve kernels agree bit for bit on seeded random inputs") {
   if (!cpu_has_avx2()) {
     MESSAGE("skipped: this CPU or build has no AVX2 kernel");
     return;
@@ -182,6 +182,13 @@ TEST_CASE("the shading kernels agree bit for bit on seeded random inputs") {
   int valid = 0;
   for (auto v : val_s) valid += v != 0;
   CHECK(valid > n / 4);  // the test exercised real samples, not only invalid pixels
+
+  // The resolve kernel: a run of 29 pixels (three vectors and a tail) of a tilted plane.
+  const ResolveRun run{0.0021f, -1.3e-6f, 1.7f, 0.0003f, -0.9f, 0.0002f, -1.3e-6f, 2.1e-6f, 0.0003f, 0.00011f, 0.0002f, -0.0004f, 5.0f};
+  std::vector<float> a(4 * 29), b(4 * 29);
+  resolve_run_scalar(29, run, a.data(), a.data() + 29, a.data() + 58, a.data() + 87);
+  resolve_run_avx2(29, run, b.data(), b.data() + 29, b.data() + 58, b.data() + 87);
+  CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0);
 #endif
 }
 

@@ -53,6 +53,7 @@ struct Renderer::Impl {
   Terrain terrain;
   std::vector<LayerTexture> layers;
   ShadeRowFn shade = shade_row_scalar;
+  ResolveRunFn resolve = resolve_run_scalar;
   const char* simd = "scalar";
   std::unique_ptr<ThreadPool> pool;
 
@@ -239,6 +240,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
 #if defined(TERRALIGN_HAVE_AVX2)
   if (avx2 && options.simd != RenderOptions::Simd::Scalar) {
     m.shade = shade_row_avx2;
+    m.resolve = resolve_run_avx2;
     m.simd = "avx2";
   }
 #endif
@@ -467,17 +469,6 @@ void Renderer::Impl::draw_chunk(const TerrainChunk& c) {
 
 namespace {
 
-// log2 to about 0.005: enough to pick a mip level, and the same on every machine.
-inline float fast_log2(float x) {
-  std::uint32_t i;
-  std::memcpy(&i, &x, 4);
-  const float e = static_cast<float>(static_cast<int>(i >> 23) - 127);
-  const std::uint32_t mi = (i & 0x7fffffu) | 0x3f800000u;
-  float m;
-  std::memcpy(&m, &mi, 4);
-  return e + (-0.34484843f * m + 2.02466578f) * m - 0.67487759f;
-}
-
 // log2 of a pixel's ground footprint (metres) on the triangle's plane: the larger of the
 // lengths of d(world x, y)/du and d(world x, y)/dv, from the planes of 1/z, x/z and y/z.
 template <class T>
@@ -485,7 +476,7 @@ inline float footprint_log2(T A0, T B0, T A1, T B1, T A2, T B2, T wx, T wy, T z)
   const T du_x = (A1 - wx * A0) * z, du_y = (A2 - wy * A0) * z;
   const T dv_x = (B1 - wx * B0) * z, dv_y = (B2 - wy * B0) * z;
   const T d2 = std::max(du_x * du_x + du_y * du_y, dv_x * dv_x + dv_y * dv_y);
-  return 0.5f * fast_log2(std::max(static_cast<float>(d2), 1e-12f));
+  return 0.5f * fast_log2(std::max(static_cast<float>(d2), 1e-12f));  // see shade_kernels.hpp
 }
 
 }  // namespace
@@ -593,21 +584,20 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   for (int y = y0; y <= y1; ++y) {
     const int* irow = idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
     const std::size_t row = static_cast<std::size_t>(y) * static_cast<std::size_t>(w);
-    float* __restrict ox = gx.data() + row;
-    float* __restrict oy = gy.data() + row;
-    float* __restrict oz = gz.data() + row;
-    float* __restrict ol = log2fp.data() + row;
+    float* dst_x = gx.data() + row;
+    float* dst_y = gy.data() + row;
+    float* dst_z = gz.data() + row;
+    float* dst_l = log2fp.data() + row;
     const float dy = static_cast<float>(y - y0);
-    // Runs of pixels that see the same triangle share its coefficients: a plain loop over a
-    // run vectorises.
+    // Runs of pixels that see the same triangle share its coefficients.
     for (int x = x0; x <= x1;) {
       const int e = irow[x];
       int end = x + 1;
       while (end <= x1 && irow[end] == e) ++end;
       if (e < 0) {
         for (int i = x; i < end; ++i) {
-          ox[i] = oy[i] = oz[i] = NAN;
-          ol[i] = 0.0f;
+          dst_x[i] = dst_y[i] = dst_z[i] = NAN;
+          dst_l[i] = 0.0f;
         }
         x = end;
         continue;
@@ -621,20 +611,9 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
           c[3 * q + 2] = static_cast<float>(t.B[q]);
         }
       }
-      const float iz0 = c[0] + c[2] * dy, ax = c[1];
-      const float wx0 = c[3] + c[5] * dy, bx = c[4];
-      const float wy0 = c[6] + c[8] * dy, by = c[7];
-      for (int i = x; i < end; ++i) {
-        const float dx = static_cast<float>(i - x0);
-        const float iz = iz0 + ax * dx;
-        const float z = 1.0f / iz;  // iz > 0: the triangle passed the near plane
-        const float wx = (wx0 + bx * dx) * z;
-        const float wy = (wy0 + by * dx) * z;
-        oz[i] = z;
-        ox[i] = wx;
-        oy[i] = wy;
-        ol[i] = footprint_log2(c[1], c[2], c[4], c[5], c[7], c[8], wx, wy, z);
-      }
+      const ResolveRun run{c[0] + c[2] * dy, c[1], c[3] + c[5] * dy, c[4], c[6] + c[8] * dy, c[7],
+                           c[1], c[2], c[4], c[5], c[7], c[8], static_cast<float>(x - x0)};
+      resolve(end - x, run, dst_x + x, dst_y + x, dst_z + x, dst_l + x);
       x = end;
     }
   }

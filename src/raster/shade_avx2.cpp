@@ -3,6 +3,8 @@
 // the output matches it bit for bit. The tail (n % 8) runs the scalar kernel.
 #include <terralign/raster/shade_kernels.hpp>
 
+#include <cstring>
+
 #include <immintrin.h>
 
 namespace terralign::raster {
@@ -14,12 +16,24 @@ struct Acc8 {
 
 inline Acc8 sample8(const ShadeParams& p, __m256i level, __m256 u, __m256 v) {
   const int* lv = reinterpret_cast<const int*>(p.levels);
-  // MipLevel is 4 x 32 bits: gather its fields per lane.
-  const __m256i idx = _mm256_slli_epi32(level, 2);
-  const __m256i off = _mm256_i32gather_epi32(lv + 0, idx, 4);
-  const __m256i wid = _mm256_i32gather_epi32(lv + 1, idx, 4);
-  const __m256i hei = _mm256_i32gather_epi32(lv + 2, idx, 4);
-  const __m256 scale = _mm256_castsi256_ps(_mm256_i32gather_epi32(lv + 3, idx, 4));
+  __m256i off, wid, hei;
+  __m256 scale;
+  const int l0 = _mm256_cvtsi256_si32(level);
+  if (_mm256_movemask_epi8(_mm256_cmpeq_epi32(level, _mm256_set1_epi32(l0))) == -1) {
+    // One level for all lanes (the usual case): broadcast its fields.
+    const MipLevel& L = p.levels[l0];
+    off = _mm256_set1_epi32(L.offset);
+    wid = _mm256_set1_epi32(L.width);
+    hei = _mm256_set1_epi32(L.height);
+    scale = _mm256_set1_ps(L.scale);
+  } else {
+    // MipLevel is 4 x 32 bits: gather its fields per lane.
+    const __m256i idx = _mm256_slli_epi32(level, 2);
+    off = _mm256_i32gather_epi32(lv + 0, idx, 4);
+    wid = _mm256_i32gather_epi32(lv + 1, idx, 4);
+    hei = _mm256_i32gather_epi32(lv + 2, idx, 4);
+    scale = _mm256_castsi256_ps(_mm256_i32gather_epi32(lv + 3, idx, 4));
+  }
   const __m256 half = _mm256_set1_ps(0.5f), one = _mm256_set1_ps(1.0f);
   const __m256 ul = _mm256_sub_ps(_mm256_mul_ps(_mm256_add_ps(u, half), scale), half);
   const __m256 vl = _mm256_sub_ps(_mm256_mul_ps(_mm256_add_ps(v, half), scale), half);
@@ -104,19 +118,63 @@ void shade_row_avx2(int n, const float* wx, const float* wy, const float* log2fp
     const __m256i r = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(_mm256_and_ps(acc.r, terrain), inv), half));
     const __m256i g = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(_mm256_and_ps(acc.g, terrain), inv), half));
     const __m256i b = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(_mm256_and_ps(acc.b, terrain), inv), half));
-    alignas(32) int rr[8], gg[8], bb[8], vv[8];
-    _mm256_store_si256(reinterpret_cast<__m256i*>(rr), r);
-    _mm256_store_si256(reinterpret_cast<__m256i*>(gg), g);
-    _mm256_store_si256(reinterpret_cast<__m256i*>(bb), b);
-    _mm256_store_si256(reinterpret_cast<__m256i*>(vv), _mm256_castps_si256(ok));
-    for (int k = 0; k < 8; ++k) {
-      rgb[3 * (i + k) + 0] = static_cast<std::uint8_t>(rr[k]);
-      rgb[3 * (i + k) + 1] = static_cast<std::uint8_t>(gg[k]);
-      rgb[3 * (i + k) + 2] = static_cast<std::uint8_t>(bb[k]);
-      valid[i + k] = vv[k] ? 255 : 0;
-    }
+    // RGBX per pixel, then 12 bytes of RGB from each 128-bit half.
+    const __m256i px = _mm256_or_si256(r, _mm256_or_si256(_mm256_slli_epi32(g, 8), _mm256_slli_epi32(b, 16)));
+    const __m256i packed = _mm256_shuffle_epi8(px, _mm256_setr_epi8(0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, -1, -1, -1, -1,
+                                                                    0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, -1, -1, -1, -1));
+    const __m128i lo = _mm256_castsi256_si128(packed), hi = _mm256_extracti128_si256(packed, 1);
+    std::uint8_t* dst = rgb + 3 * i;
+    _mm_storel_epi64(reinterpret_cast<__m128i*>(dst), lo);
+    const int lo_tail = _mm_extract_epi32(lo, 2);
+    std::memcpy(dst + 8, &lo_tail, 4);
+    _mm_storel_epi64(reinterpret_cast<__m128i*>(dst + 12), hi);
+    const int hi_tail = _mm_extract_epi32(hi, 2);
+    std::memcpy(dst + 20, &hi_tail, 4);
+    // Validity bytes: 0 / -1 per lane, narrowed to 8 bytes of 0 / 255.
+    const __m256i v16 = _mm256_packs_epi32(_mm256_castps_si256(ok), _mm256_castps_si256(ok));
+    const __m256i v8 = _mm256_packs_epi16(v16, v16);
+    _mm_storel_epi64(reinterpret_cast<__m128i*>(valid + i),
+                     _mm_unpacklo_epi32(_mm256_castsi256_si128(v8), _mm256_extracti128_si256(v8, 1)));
   }
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
+}
+
+void resolve_run_avx2(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp) {
+  const __m256 lane = _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256 one = _mm256_set1_ps(1.0f);
+  auto b = [](float v) { return _mm256_set1_ps(v); };
+  int i = 0;
+  for (; i + 8 <= n; i += 8) {
+    const __m256 dx = _mm256_add_ps(_mm256_set1_ps(r.dx0 + static_cast<float>(i)), lane);
+    const __m256 iz = _mm256_add_ps(b(r.iz0), _mm256_mul_ps(b(r.iz_dx), dx));
+    const __m256 zz = _mm256_div_ps(one, iz);
+    const __m256 x = _mm256_mul_ps(_mm256_add_ps(b(r.wxz0), _mm256_mul_ps(b(r.wxz_dx), dx)), zz);
+    const __m256 y = _mm256_mul_ps(_mm256_add_ps(b(r.wyz0), _mm256_mul_ps(b(r.wyz_dx), dx)), zz);
+    _mm256_storeu_ps(z + i, zz);
+    _mm256_storeu_ps(wx + i, x);
+    _mm256_storeu_ps(wy + i, y);
+    const __m256 du_x = _mm256_mul_ps(_mm256_sub_ps(b(r.A1), _mm256_mul_ps(x, b(r.A0))), zz);
+    const __m256 du_y = _mm256_mul_ps(_mm256_sub_ps(b(r.A2), _mm256_mul_ps(y, b(r.A0))), zz);
+    const __m256 dv_x = _mm256_mul_ps(_mm256_sub_ps(b(r.B1), _mm256_mul_ps(x, b(r.B0))), zz);
+    const __m256 dv_y = _mm256_mul_ps(_mm256_sub_ps(b(r.B2), _mm256_mul_ps(y, b(r.B0))), zz);
+    const __m256 su = _mm256_add_ps(_mm256_mul_ps(du_x, du_x), _mm256_mul_ps(du_y, du_y));
+    const __m256 sv = _mm256_add_ps(_mm256_mul_ps(dv_x, dv_x), _mm256_mul_ps(dv_y, dv_y));
+    __m256 d2 = _mm256_blendv_ps(sv, su, _mm256_cmp_ps(su, sv, _CMP_GT_OQ));
+    d2 = _mm256_blendv_ps(b(1e-12f), d2, _mm256_cmp_ps(d2, b(1e-12f), _CMP_GT_OQ));
+    // fast_log2, lane-wise: exponent + quadratic in the mantissa, as in the scalar twin.
+    const __m256i bits = _mm256_castps_si256(d2);
+    const __m256 e = _mm256_cvtepi32_ps(_mm256_sub_epi32(_mm256_srli_epi32(bits, 23), _mm256_set1_epi32(127)));
+    const __m256 m = _mm256_castsi256_ps(_mm256_or_si256(_mm256_and_si256(bits, _mm256_set1_epi32(0x7fffff)),
+                                                         _mm256_set1_epi32(0x3f800000)));
+    const __m256 poly = _mm256_sub_ps(_mm256_mul_ps(_mm256_add_ps(_mm256_mul_ps(b(-0.34484843f), m), b(2.02466578f)), m),
+                                      b(0.67487759f));
+    _mm256_storeu_ps(log2fp + i, _mm256_mul_ps(b(0.5f), _mm256_add_ps(e, poly)));
+  }
+  if (i < n) {
+    ResolveRun tail = r;
+    tail.dx0 = r.dx0 + static_cast<float>(i);
+    resolve_run_scalar(n - i, tail, wx + i, wy + i, z + i, log2fp + i);
+  }
 }
 
 }  // namespace terralign::raster

@@ -73,4 +73,23 @@ void shade_row_scalar(int n, const float* wx, const float* wy, const float* log2
   }
 }
 
+void resolve_run_scalar(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp) {
+  for (int i = 0; i < n; ++i) {
+    const float dx = (r.dx0 + static_cast<float>(i - i % 8)) + static_cast<float>(i % 8);  // as the AVX2 lanes
+    const float iz = r.iz0 + r.iz_dx * dx;
+    const float zz = 1.0f / iz;
+    const float x = (r.wxz0 + r.wxz_dx * dx) * zz;
+    const float y = (r.wyz0 + r.wyz_dx * dx) * zz;
+    z[i] = zz;
+    wx[i] = x;
+    wy[i] = y;
+    const float du_x = (r.A1 - x * r.A0) * zz, du_y = (r.A2 - y * r.A0) * zz;
+    const float dv_x = (r.B1 - x * r.B0) * zz, dv_y = (r.B2 - y * r.B0) * zz;
+    const float su = du_x * du_x + du_y * du_y, sv = dv_x * dv_x + dv_y * dv_y;
+    float d2 = su > sv ? su : sv;
+    d2 = d2 > 1e-12f ? d2 : 1e-12f;
+    log2fp[i] = 0.5f * fast_log2(d2);
+  }
+}
+
 }  // namespace terralign::raster

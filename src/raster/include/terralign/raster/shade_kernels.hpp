@@ -34,6 +34,35 @@ void shade_row_avx2(int n, const float* wx, const float* wy, const float* log2fp
                     std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p);
 #endif
 
+// One run of pixels of a row that see the same triangle: for pixel i of the run at
+// dx = dx0 + i (pixels from the tile's corner), 1/z = iz0 + iz_dx dx, x/z and y/z likewise;
+// the footprint coefficients are the planes' derivatives (A: per column, B: per row) of 1/z,
+// x/z and y/z.
+struct ResolveRun {
+  float iz0, iz_dx, wxz0, wxz_dx, wyz0, wyz_dx;
+  float A0, B0, A1, B1, A2, B2;
+  float dx0;
+};
+
+// Writes world x, y, depth z and log2 of the ground footprint (metres) for n pixels.
+void resolve_run_scalar(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp);
+#if defined(TERRALIGN_HAVE_AVX2)
+void resolve_run_avx2(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp);
+#endif
+using ResolveRunFn = void (*)(int, const ResolveRun&, float*, float*, float*, float*);
+
+// log2 to about 0.005 (exponent plus a quadratic in the mantissa): enough to pick a mip
+// level, and the same on every machine.
+inline float fast_log2(float x) {
+  std::uint32_t i;
+  __builtin_memcpy(&i, &x, 4);
+  const float e = static_cast<float>(static_cast<int>(i >> 23) - 127);
+  const std::uint32_t mi = (i & 0x7fffffu) | 0x3f800000u;
+  float m;
+  __builtin_memcpy(&m, &mi, 4);
+  return e + ((-0.34484843f * m + 2.02466578f) * m - 0.67487759f);
+}
+
 using ShadeRowFn = void (*)(int, const float*, const float*, const float*, std::uint8_t*,
                             std::uint8_t*, const ShadeParams&);
 
