@@ -1,0 +1,121 @@
+// The inverse-compositional Lucas-Kanade solver with Levenberg-Marquardt steps, coarse to
+// fine, templated on the scalar (float, double), the warp (SE3DepthWarp, HomographyWarp) and
+// the channel count of the feature images.
+//
+// For each pyramid level, from coarse to fine:
+//  - reference pixels with valid depth (and a valid 3x3 neighbourhood) are selected, and
+//    their Jacobians J = dF_ref/du * dW/dxi are computed once, on the reference (inverse
+//    compositional);
+//  - per-pixel weights W come from outside (a learned M-estimator) or from a robust
+//    function (none, Huber, Tukey) of the residuals at the pose the level starts from;
+//    H = J^T W J is built once per level;
+//  - each iteration warps the reference pixels into the live image (bilinear; pixels that
+//    land outside are masked, and their share of H removed), forms r = F_live(W(x)) -
+//    F_ref(x), and steps dxi = (H + lambda diag(H))^-1 J^T W r, p <- p o W(dxi)^-1.
+// "N iterations" is N per level (Lv et al.'s max_iter_per_pyr): the paper's "no NN (20)".
+// A level stops early when the step is below step_tol.
+//
+// Intrinsics per level: K_{l+1} = K_l.half(), i.e. fx' = fx / 2, cx' = (cx + 0.5) / 2 - 0.5,
+// with a level's pixel (i, j) the mean of level l's pixels 2i..2i+1, 2j..2j+1.
+//
+// Failure is data: converged = false with a reason (too few valid pixels, no texture, NaN,
+// a step over the bound, the cost rising); the parameters are then the initial ones, never
+// NaN. All buffers are allocated in the constructor; align() allocates nothing.
+#pragma once
+
+#include <vector>
+
+#include <Eigen/Core>
+
+#include <terralign/geo/image.hpp>
+#include <terralign/iclk/se3.hpp>
+#include <terralign/iclk/warps.hpp>
+
+namespace terralign::iclk {
+
+enum class Robust { None, Huber, Tukey };
+
+struct TrackerOptions {
+  int levels = 4;                    // 1..6
+  int iterations = 20;               // per level
+  double lambda = 1e-6;              // LM damping, times diag(H)
+  Robust robust = Robust::None;
+  bool normalize = true;             // zero mean, unit variance per image and level
+  double step_tol = 1e-6;            // rad, and m per metre of median depth
+  int min_valid_pixels = 200;        // at the finest level
+  double max_step_rotation = 0.35;   // rad in one iteration
+  double max_step_translation = 0.35;  // times the median reference depth, in one iteration
+  double max_cost_ratio = 1.25;      // final cost / starting cost at the finest level
+  double min_information = 1e-9;     // smallest eigenvalue of H / largest: below is no texture
+};
+
+template <class Warp>
+struct TrackResult {
+  using Params = typename Warp::Params;
+  static constexpr int DoF = Warp::DoF;
+  Params params = Warp::identity();  // e.g. T_live_ref
+  bool converged = false;
+  const char* reason = "not run";
+  int iterations = 0;                // over all levels
+  int valid_pixels = 0;              // at the finest level, final iteration
+  double cost_start = 0, cost_final = 0;  // mean weighted squared residual, finest level
+  // Covariance of the last step's parameters dxi (the solver's tangent at the estimate,
+  // reference side): sigma^2 (J^T W J)^-1 at the finest level, sigma^2 = sum w r^2 / (sum w - DoF).
+  Eigen::Matrix<double, DoF, DoF> covariance = Eigen::Matrix<double, DoF, DoF>::Zero();
+  double ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
+};
+
+template <class S, class Warp, int C = 1>
+class Tracker {
+ public:
+  using Params = typename Warp::Params;
+  static constexpr int DoF = Warp::DoF;
+
+  // Sizes every buffer for images of width x height at the finest level.
+  Tracker(int width, int height, const TrackerOptions& options);
+
+  const TrackerOptions& options() const { return opt_; }
+  void set_options(const TrackerOptions& o);  // same sizes; levels may not grow
+
+  // Full-resolution inputs: reference features (C channels), its depth (metres along the
+  // axis, NaN: no data), live features (C channels), the level-0 pinhole intrinsics, the
+  // initial parameters. Pyramids are built inside. `weights`, if given, is one view per
+  // level of per-pixel weights on the reference grid (from a learned M-estimator).
+  const TrackResult<Warp>& align(ImageView<const float> ref, ImageView<const float> ref_depth,
+                                 ImageView<const float> live, const Pinhole<S>& K0,
+                                 const Params& init, const ImageView<const float>* weights = nullptr);
+
+  const TrackResult<Warp>& result() const { return result_; }
+
+ private:
+  struct Level {
+    int w = 0, h = 0;
+    ImageF ref, live, depth;
+  };
+  void build_pyramids(ImageView<const float> ref, ImageView<const float> depth, ImageView<const float> live);
+  int select_pixels(int level, const Pinhole<S>& K);
+  void robust_weights(int n, const ImageView<const float>* weights, int level);
+  // Residuals and J^T W r at `p`; returns the valid count, fills cost (sum w r^2), sum of w
+  // and H_out (J^T W J over the pixels that left the image).
+  int evaluate(int n, const Params& p, const Pinhole<S>& K, Eigen::Matrix<double, DoF, 1>& g,
+               Eigen::Matrix<double, DoF, DoF>& H_out, double& cost, double& wsum);
+
+  TrackerOptions opt_;
+  int width_, height_;
+  std::vector<Level> levels_;
+  // Per selected reference pixel (structure of arrays, sized for the finest level).
+  std::vector<S> pu_, pv_, px_, py_, pz_;   // pixel and 3-D point in the reference camera
+  std::vector<S> val_;                      // C reference feature values
+  std::vector<S> jac_;                      // C x DoF Jacobian rows
+  std::vector<S> w_;                        // weight
+  std::vector<S> r_;                        // residual scratch (C per pixel)
+  std::vector<unsigned char> ok_;           // landed inside the live image
+  std::vector<S> abs_;                      // scratch: absolute residuals
+  const Level* cur_level_ = nullptr;
+  TrackResult<Warp> result_;
+};
+
+// Grey level in [0, 1] from 8-bit RGB (Rec. 601 weights), for the classical method.
+void rgb_to_grey(ImageView<const std::uint8_t> rgb, ImageF& grey);
+
+}  // namespace terralign::iclk

@@ -1,0 +1,357 @@
+#include <terralign/iclk/tracker.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+
+namespace terralign::iclk {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+
+// Zero mean, unit variance over the pixels where `mask` (if given) is finite.
+void normalize(ImageF& img, const ImageF* mask) {
+  double s = 0, s2 = 0;
+  long n = 0;
+  const int C = img.channels();
+  for (std::size_t k = 0; k < img.size(); ++k) {
+    if (mask && !std::isfinite(mask->data()[k / static_cast<std::size_t>(C)])) continue;
+    const double v = img.data()[k];
+    s += v;
+    s2 += v * v;
+    ++n;
+  }
+  if (n < 2) return;
+  const double mean = s / static_cast<double>(n);
+  const double var = s2 / static_cast<double>(n) - mean * mean;
+  const double inv = var > 1e-20 ? 1.0 / std::sqrt(var) : 1.0;
+  for (std::size_t k = 0; k < img.size(); ++k)
+    img.data()[k] = static_cast<float>((img.data()[k] - mean) * inv);
+}
+
+}  // namespace
+
+void rgb_to_grey(ImageView<const std::uint8_t> rgb, ImageF& grey) {
+  grey.resize(rgb.width, rgb.height, 1);
+  for (int y = 0; y < rgb.height; ++y) {
+    const std::uint8_t* s = rgb.row(y);
+    for (int x = 0; x < rgb.width; ++x, s += rgb.channels)
+      grey.at(x, y) = (0.299f * s[0] + 0.587f * s[1] + 0.114f * s[2]) / 255.0f;
+  }
+}
+
+template <class S, class Warp, int C>
+Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& options)
+    : opt_(options), width_(width), height_(height) {
+  opt_.levels = std::max(1, std::min(6, opt_.levels));
+  int w = width, h = height;
+  levels_.resize(static_cast<std::size_t>(opt_.levels));
+  for (auto& L : levels_) {
+    L.w = w;
+    L.h = h;
+    L.ref.resize(w, h, C);
+    L.live.resize(w, h, C);
+    L.depth.resize(w, h, 1);
+    w = std::max(1, w / 2);
+    h = std::max(1, h / 2);
+  }
+  const std::size_t n = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
+  for (auto* v : {&pu_, &pv_, &px_, &py_, &pz_, &w_}) v->resize(n);
+  val_.resize(n * C);
+  r_.resize(n * C);
+  jac_.resize(n * C * DoF);
+  abs_.resize(n);
+  ok_.resize(n);
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::set_options(const TrackerOptions& o) {
+  const int levels = opt_.levels;
+  opt_ = o;
+  opt_.levels = std::max(1, std::min(levels, o.levels));
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::build_pyramids(ImageView<const float> ref, ImageView<const float> depth,
+                                         ImageView<const float> live) {
+  Level& L0 = levels_[0];
+  for (int y = 0; y < L0.h; ++y) {
+    std::copy(ref.row(y), ref.row(y) + L0.w * C, &L0.ref.at(0, y, 0));
+    std::copy(live.row(y), live.row(y) + L0.w * C, &L0.live.at(0, y, 0));
+    std::copy(depth.row(y), depth.row(y) + L0.w, &L0.depth.at(0, y, 0));
+  }
+  for (std::size_t l = 1; l < levels_.size(); ++l) {
+    const Level& A = levels_[l - 1];
+    Level& B = levels_[l];
+    for (int y = 0; y < B.h; ++y)
+      for (int x = 0; x < B.w; ++x) {
+        // Reference and depth: the mean of the valid children; live: the plain mean.
+        float d = 0;
+        int nd = 0;
+        float f[C] = {}, g[C] = {};
+        for (int k = 0; k < 4; ++k) {
+          const int sx = std::min(2 * x + (k & 1), A.w - 1), sy = std::min(2 * y + (k >> 1), A.h - 1);
+          const float dz = A.depth.at(sx, sy);
+          for (int c = 0; c < C; ++c) g[c] += A.live.at(sx, sy, c);
+          if (!std::isfinite(dz)) continue;
+          d += dz;
+          ++nd;
+          for (int c = 0; c < C; ++c) f[c] += A.ref.at(sx, sy, c);
+        }
+        B.depth.at(x, y) = nd ? d / static_cast<float>(nd) : NAN;
+        for (int c = 0; c < C; ++c) {
+          B.ref.at(x, y, c) = nd ? f[c] / static_cast<float>(nd) : 0.0f;
+          B.live.at(x, y, c) = g[c] * 0.25f;
+        }
+      }
+  }
+  if (opt_.normalize)
+    for (auto& L : levels_) {
+      normalize(L.ref, &L.depth);
+      normalize(L.live, nullptr);
+    }
+}
+
+template <class S, class Warp, int C>
+int Tracker<S, Warp, C>::select_pixels(int level, const Pinhole<S>& K) {
+  const Level& L = levels_[static_cast<std::size_t>(level)];
+  int n = 0;
+  for (int y = 1; y + 1 < L.h; ++y)
+    for (int x = 1; x + 1 < L.w; ++x) {
+      bool ok = true;
+      for (int dy = -1; dy <= 1 && ok; ++dy)
+        for (int dx = -1; dx <= 1 && ok; ++dx) ok = std::isfinite(L.depth.at(x + dx, y + dy));
+      if (!ok) continue;
+      const S d = static_cast<S>(L.depth.at(x, y));
+      const S u = static_cast<S>(x), v = static_cast<S>(y);
+      const Vec3<S> X(d * (u - K.cx) / K.fx, d * (v - K.cy) / K.fy, d);
+      const typename Warp::Jac dW = Warp::d_warp_d_xi(X, u, v, K);
+      for (int c = 0; c < C; ++c) {
+        auto I = [&](int xx, int yy) { return static_cast<S>(L.ref.at(xx, yy, c)); };
+        // Sobel / 8: the image gradient in intensity per pixel.
+        const S gx = (I(x + 1, y - 1) + S(2) * I(x + 1, y) + I(x + 1, y + 1) - I(x - 1, y - 1) -
+                      S(2) * I(x - 1, y) - I(x - 1, y + 1)) / S(8);
+        const S gy = (I(x - 1, y + 1) + S(2) * I(x, y + 1) + I(x + 1, y + 1) - I(x - 1, y - 1) -
+                      S(2) * I(x, y - 1) - I(x + 1, y - 1)) / S(8);
+        S* J = &jac_[(static_cast<std::size_t>(n) * C + static_cast<std::size_t>(c)) * DoF];
+        for (int k = 0; k < DoF; ++k) J[k] = gx * dW(0, k) + gy * dW(1, k);
+        val_[static_cast<std::size_t>(n) * C + static_cast<std::size_t>(c)] = I(x, y);
+      }
+      pu_[static_cast<std::size_t>(n)] = u;
+      pv_[static_cast<std::size_t>(n)] = v;
+      px_[static_cast<std::size_t>(n)] = X.x();
+      py_[static_cast<std::size_t>(n)] = X.y();
+      pz_[static_cast<std::size_t>(n)] = X.z();
+      ++n;
+    }
+  return n;
+}
+
+template <class S, class Warp, int C>
+int Tracker<S, Warp, C>::evaluate(int n, const Params& p, const Pinhole<S>& K, Eigen::Matrix<double, DoF, 1>& g,
+                                  Eigen::Matrix<double, DoF, DoF>& H_out, double& cost, double& wsum) {
+  g.setZero();
+  H_out.setZero();
+  cost = 0;
+  wsum = 0;
+  int valid = 0;
+  const Level& Lv = *cur_level_;
+  for (int i = 0; i < n; ++i) {
+    const std::size_t k = static_cast<std::size_t>(i);
+    S u, v;
+    const Vec3<S> X(px_[k], py_[k], pz_[k]);
+    bool inside = Warp::apply(p, X, pu_[k], pv_[k], K, u, v);
+    inside = inside && u >= S(0) && v >= S(0) && u <= S(Lv.w - 1) && v <= S(Lv.h - 1);
+    const S* J = &jac_[k * C * DoF];
+    const double w = static_cast<double>(w_[k]);
+    ok_[k] = inside;
+    if (!inside) {
+      if (w > 0)
+        for (int c = 0; c < C; ++c)
+          for (int a = 0; a < DoF; ++a)
+            for (int b = 0; b <= a; ++b) H_out(a, b) += w * static_cast<double>(J[c * DoF + a]) * static_cast<double>(J[c * DoF + b]);
+      continue;
+    }
+    const int x0 = std::min(static_cast<int>(u), Lv.w - 2), y0 = std::min(static_cast<int>(v), Lv.h - 2);
+    const S fx = u - S(x0), fy = v - S(y0);
+    for (int c = 0; c < C; ++c) {
+      const S a = static_cast<S>(Lv.live.at(x0, y0, c)), b = static_cast<S>(Lv.live.at(x0 + 1, y0, c));
+      const S d = static_cast<S>(Lv.live.at(x0, y0 + 1, c)), e = static_cast<S>(Lv.live.at(x0 + 1, y0 + 1, c));
+      const S live = (S(1) - fy) * ((S(1) - fx) * a + fx * b) + fy * ((S(1) - fx) * d + fx * e);
+      const S r = live - val_[k * C + static_cast<std::size_t>(c)];
+      r_[k * C + static_cast<std::size_t>(c)] = r;
+      const double wr = w * static_cast<double>(r);
+      for (int a2 = 0; a2 < DoF; ++a2) g[a2] += wr * static_cast<double>(J[c * DoF + a2]);
+      cost += wr * static_cast<double>(r);
+    }
+    wsum += w;
+    ++valid;
+  }
+  H_out = H_out.template selfadjointView<Eigen::Lower>();
+  return valid;
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::robust_weights(int n, const ImageView<const float>* weights, int level) {
+  if (weights) {
+    const ImageView<const float>& W = weights[level];
+    for (int i = 0; i < n; ++i) {
+      const float wv = W.at(static_cast<int>(pu_[static_cast<std::size_t>(i)]), static_cast<int>(pv_[static_cast<std::size_t>(i)]));
+      w_[static_cast<std::size_t>(i)] = std::isfinite(wv) && wv > 0 ? static_cast<S>(wv) : S(0);
+    }
+    return;
+  }
+  std::fill(w_.begin(), w_.begin() + n, S(1));
+}
+
+template <class S, class Warp, int C>
+const TrackResult<Warp>& Tracker<S, Warp, C>::align(ImageView<const float> ref, ImageView<const float> ref_depth,
+                                                     ImageView<const float> live, const Pinhole<S>& K0,
+                                                     const Params& init, const ImageView<const float>* weights) {
+  TrackResult<Warp>& R = result_;
+  R = TrackResult<Warp>{};
+  R.params = init;
+  auto fail = [&](const char* why) -> const TrackResult<Warp>& {
+    R.params = init;
+    R.converged = false;
+    R.reason = why;
+    R.covariance.setZero();
+    return R;
+  };
+  TERRALIGN_ASSERT(ref.width == width_ && ref.height == height_ && live.width == width_ && live.height == height_ &&
+                       ref_depth.width == width_ && ref_depth.height == height_,
+                   "Tracker::align: image size differs from the size the tracker was built for");
+  TERRALIGN_ASSERT(ref.channels == C && live.channels == C && ref_depth.channels == 1, "Tracker::align: channels");
+  const auto t0 = Clock::now();
+  build_pyramids(ref, ref_depth, live);
+  const auto t1 = Clock::now();
+  R.ms_pyramid = ms(t0, t1);
+
+  Pinhole<S> K[6];
+  K[0] = K0;
+  for (int l = 1; l < opt_.levels; ++l) K[l] = K[l - 1].half();
+  Params p = init;
+  Eigen::Matrix<double, DoF, DoF> H, Hout, Hv;
+  Eigen::Matrix<double, DoF, 1> g;
+  double cost = 0, wsum = 0;
+  for (int level = opt_.levels - 1; level >= 0; --level) {
+    cur_level_ = &levels_[static_cast<std::size_t>(level)];
+    const auto tj = Clock::now();
+    const int n = select_pixels(level, K[level]);
+    robust_weights(n, weights, level);
+    if (!weights && opt_.robust != Robust::None && n > 0) {
+      // Robust weights from the residuals at the pose this level starts from, with the scale
+      // 1.4826 x the median absolute residual of the pixels that land inside.
+      evaluate(n, p, K[level], g, Hout, cost, wsum);
+      auto norm_r = [&](int i) {
+        double a = 0;
+        for (int c = 0; c < C; ++c) {
+          const double r = static_cast<double>(r_[static_cast<std::size_t>(i) * C + static_cast<std::size_t>(c)]);
+          a += r * r;
+        }
+        return std::sqrt(a);
+      };
+      int m = 0;
+      for (int i = 0; i < n; ++i)
+        if (ok_[static_cast<std::size_t>(i)]) abs_[static_cast<std::size_t>(m++)] = static_cast<S>(norm_r(i));
+      if (m > 0) {
+        std::nth_element(abs_.begin(), abs_.begin() + m / 2, abs_.begin() + m);
+        const double sigma = std::max(1.4826 * static_cast<double>(abs_[static_cast<std::size_t>(m / 2)]), 1e-6);
+        const double k = (opt_.robust == Robust::Huber ? 1.345 : 4.685) * sigma;
+        for (int i = 0; i < n; ++i) {
+          if (!ok_[static_cast<std::size_t>(i)]) continue;
+          const double a = norm_r(i);
+          double w;
+          if (opt_.robust == Robust::Huber) {
+            w = a <= k ? 1.0 : k / a;
+          } else {
+            const double q = a / k;
+            w = q < 1.0 ? (1.0 - q * q) * (1.0 - q * q) : 0.0;
+          }
+          w_[static_cast<std::size_t>(i)] = static_cast<S>(w);
+        }
+      }
+    }
+    H.setZero();
+    for (int i = 0; i < n; ++i) {
+      const S* J = &jac_[static_cast<std::size_t>(i) * C * DoF];
+      const double w = static_cast<double>(w_[static_cast<std::size_t>(i)]);
+      if (w == 0) continue;
+      for (int c = 0; c < C; ++c)
+        for (int a = 0; a < DoF; ++a) {
+          const double wa = w * static_cast<double>(J[c * DoF + a]);
+          for (int b = 0; b <= a; ++b) H(a, b) += wa * static_cast<double>(J[c * DoF + b]);
+        }
+    }
+    H = H.template selfadjointView<Eigen::Lower>();
+    R.ms_jacobian += ms(tj, Clock::now());
+    const auto ti = Clock::now();
+    if (n < std::max(DoF * 4, level == 0 ? opt_.min_valid_pixels : 0)) {
+      if (level == 0) return fail("too few reference pixels with depth and texture");
+      continue;
+    }
+    // The median depth scales the translation bound (SE(3)); 1 for the homography.
+    double depth_scale = 1.0;
+    if (Warp::kNeedsDepth) {
+      std::copy(pz_.begin(), pz_.begin() + n, r_.begin());
+      std::nth_element(r_.begin(), r_.begin() + n / 2, r_.begin() + n);
+      depth_scale = static_cast<double>(r_[static_cast<std::size_t>(n / 2)]);
+    }
+    for (int it = 0; it < opt_.iterations; ++it) {
+      const int valid = evaluate(n, p, K[level], g, Hout, cost, wsum);
+      if (level == 0 && it == 0) R.cost_start = wsum > 0 ? cost / wsum : 0;
+      if (valid < std::max(DoF * 4, level == 0 ? opt_.min_valid_pixels : 0)) {
+        if (level == 0) return fail("too few pixels land inside the live image");
+        break;
+      }
+      Hv = H - Hout;
+      Eigen::Matrix<double, DoF, DoF> A = Hv;
+      A.diagonal() *= 1.0 + opt_.lambda;
+      const Eigen::Matrix<double, DoF, 1> delta = A.ldlt().solve(g);
+      if (!delta.allFinite()) return fail("numerical failure: the step is not finite");
+      if (Warp::kNeedsDepth) {
+        if (delta.template head<3>().norm() > opt_.max_step_rotation ||
+            delta.template segment<3>(DoF - 3).norm() > opt_.max_step_translation * depth_scale)
+          return fail("diverged: a step exceeded the bound");
+      } else if (delta.norm() > opt_.max_step_rotation) {
+        return fail("diverged: a step exceeded the bound");
+      }
+      Warp::update(p, delta.template cast<S>());
+      ++R.iterations;
+      double step = delta.template head<3>().norm();
+      if (Warp::kNeedsDepth) step = std::max(step, delta.template segment<3>(DoF - 3).norm() / depth_scale);
+      else step = delta.norm();
+      if (step < opt_.step_tol) break;
+    }
+    R.ms_iterations += ms(ti, Clock::now());
+    if (level == 0) {
+      const int valid = evaluate(n, p, K[0], g, Hout, cost, wsum);
+      R.valid_pixels = valid;
+      R.cost_final = wsum > 0 ? cost / wsum : 0;
+      Hv = H - Hout;
+      if (valid < opt_.min_valid_pixels) return fail("too few pixels land inside the live image");
+      Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, DoF, DoF>> eig(Hv, Eigen::EigenvaluesOnly);
+      const double emax = eig.eigenvalues().maxCoeff(), emin = eig.eigenvalues().minCoeff();
+      if (!(emax > 0) || !(emin > opt_.min_information * emax))
+        return fail("no texture: the image does not constrain every degree of freedom");
+      if (R.cost_final > opt_.max_cost_ratio * R.cost_start) return fail("cost rose: the alignment diverged");
+      const double sigma2 = cost / std::max(wsum - DoF, 1.0);
+      R.covariance = sigma2 * Hv.inverse();
+    }
+  }
+  R.params = p;
+  R.converged = true;
+  R.reason = "converged";
+  return R;
+}
+
+template class Tracker<float, SE3DepthWarp<float>, 1>;
+template class Tracker<double, SE3DepthWarp<double>, 1>;
+template class Tracker<float, HomographyWarp<float>, 1>;
+template class Tracker<double, HomographyWarp<double>, 1>;
+
+}  // namespace terralign::iclk

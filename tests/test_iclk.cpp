@@ -1,0 +1,239 @@
+#include <cmath>
+#include <random>
+
+#include <doctest/doctest.h>
+
+#include <terralign/iclk/tracker.hpp>
+#include <terralign/raster/renderer.hpp>
+
+#include "alloc_counter.hpp"
+#include "support.hpp"
+#include "synthetic.hpp"
+
+using namespace terralign;
+using namespace terralign::iclk;
+
+TEST_CASE_TEMPLATE("SE(3) exp and log round-trip, small and near-pi angles included", S, float, double) {
+  // Bounds: double 1e-9; float 2e-4 (acos and the near-pi branch lose ~sqrt(eps) there).
+  const double tol = std::is_same<S, double>::value ? 1e-9 : 2e-4;
+  std::mt19937 rng(3);
+  std::normal_distribution<double> n01(0, 1);
+  for (double angle : {0.0, 1e-9, 1e-6, 1e-4, 0.3, 1.0, 2.5, M_PI - 1e-3, M_PI - 1e-6}) {
+    for (int trial = 0; trial < 5; ++trial) {
+      CAPTURE(angle);
+      Eigen::Vector3d axis(n01(rng), n01(rng), n01(rng));
+      axis.normalize();
+      Vec6<S> xi;
+      xi << (axis * angle).cast<S>(), Vec3<S>(S(n01(rng)), S(n01(rng)), S(n01(rng)));
+      const SE3<S> T = SE3<S>::exp(xi);
+      CHECK(T.R.allFinite());
+      CHECK(((T.R.transpose() * T.R) - Mat3<S>::Identity()).norm() < tol);
+      const Vec6<S> back = T.log();
+      REQUIRE(back.allFinite());
+      // exp(log(T)) == T, compared as transforms (near pi the axis sign is ambiguous).
+      const SE3<S> T2 = SE3<S>::exp(back);
+      CHECK((T2.R - T.R).norm() < tol);
+      CHECK((T2.t - T.t).norm() < tol * 10);
+      if (angle < 3.0) CHECK((back - xi).norm() < tol * 10);
+    }
+  }
+  // The identity: exactly zero, no NaN (Lv et al.'s exp divides by the angle).
+  const SE3<S> I = SE3<S>::exp(Vec6<S>::Zero());
+  CHECK(I.R == Mat3<S>::Identity());
+  CHECK(I.t == Vec3<S>::Zero());
+  CHECK(I.log() == Vec6<S>::Zero());
+}
+
+TEST_CASE_TEMPLATE("warp Jacobians match central differences on an analytic image", S, float, double) {
+  const Pinhole<S> K{S(300), S(310), S(160.3), S(119.7)};
+  // A smooth analytic texture and its exact gradient.
+  auto f = [](S u, S v) { return std::sin(u * S(0.11)) * std::cos(v * S(0.07)) + S(0.3) * std::sin(u * S(0.05) + v * S(0.09)); };
+  auto grad = [](S u, S v) {
+    return Eigen::Matrix<S, 1, 2>(S(0.11) * std::cos(u * S(0.11)) * std::cos(v * S(0.07)) + S(0.015) * std::cos(u * S(0.05) + v * S(0.09)),
+                                  -S(0.07) * std::sin(u * S(0.11)) * std::sin(v * S(0.07)) + S(0.027) * std::cos(u * S(0.05) + v * S(0.09)));
+  };
+  // Steps and bounds: double h = 1e-6 (truncation ~1e-12); float h = 1e-3 with float
+  // rounding of pixel coordinates near 300 (~3e-5 px / 2e-3) dominating.
+  const S h = std::is_same<S, double>::value ? S(1e-6) : S(1e-3);
+  const double tol = std::is_same<S, double>::value ? 1e-6 : 3e-2;
+  for (int i = 0; i < 20; ++i) {
+    const S u = S(20 + 13 * i), v = S(15 + 9 * i);
+    const S d = S(80 + 3 * i);
+    const Vec3<S> X(d * (u - K.cx) / K.fx, d * (v - K.cy) / K.fy, d);
+    SUBCASE("SE(3) with depth") {
+      const auto J = SE3DepthWarp<S>::d_warp_d_xi(X, u, v, K);
+      const Eigen::Matrix<S, 1, 6> JI = grad(u, v) * J;
+      for (int k = 0; k < 6; ++k) {
+        Vec6<S> e = Vec6<S>::Zero();
+        e[k] = h;
+        S up = 0, vp = 0, um = 0, vm = 0;
+        REQUIRE(SE3DepthWarp<S>::apply(SE3<S>::exp(e), X, u, v, K, up, vp));
+        REQUIRE(SE3DepthWarp<S>::apply(SE3<S>::exp(-e), X, u, v, K, um, vm));
+        CHECK(std::abs(double((up - um) / (S(2) * h) - J(0, k))) < tol * (1 + std::abs(double(J(0, k)))));
+        CHECK(std::abs(double((vp - vm) / (S(2) * h) - J(1, k))) < tol * (1 + std::abs(double(J(1, k)))));
+        const S dI = (f(up, vp) - f(um, vm)) / (S(2) * h);
+        CHECK(std::abs(double(dI - JI(k))) < tol * (1 + std::abs(double(JI(k)))));
+      }
+    }
+    SUBCASE("homography") {
+      const auto J = HomographyWarp<S>::d_warp_d_xi(X, u, v, K);
+      for (int k = 0; k < 8; ++k) {
+        Eigen::Matrix<S, 8, 1> e = Eigen::Matrix<S, 8, 1>::Zero();
+        e[k] = h;
+        Mat3<S> Hp, Hm;
+        Hp << S(1) + e[0], e[1], e[2], e[3], S(1) + e[4], e[5], e[6], e[7], S(1);
+        Hm << S(1) - e[0], -e[1], -e[2], -e[3], S(1) - e[4], -e[5], -e[6], -e[7], S(1);
+        S up = 0, vp = 0, um = 0, vm = 0;
+        REQUIRE(HomographyWarp<S>::apply(Hp, X, u, v, K, up, vp));
+        REQUIRE(HomographyWarp<S>::apply(Hm, X, u, v, K, um, vm));
+        CHECK(std::abs(double((up - um) / (S(2) * h) - J(0, k))) < tol * 10 * (1 + std::abs(double(J(0, k)))));
+        CHECK(std::abs(double((vp - vm) / (S(2) * h) - J(1, k))) < tol * 10 * (1 + std::abs(double(J(1, k)))));
+      }
+    }
+  }
+}
+
+namespace {
+
+struct Pair {
+  ImageF ref_grey, live_grey, depth;
+  SE3<double> T_live_ref_true;
+  Pinhole<double> K;
+};
+
+// Renders the reference at `prior` and the live image at `truth` from one layer.
+Pair render_pair(const geo::Map& map, const geo::CameraModel& cam, const geo::Pose& prior, const geo::Pose& truth,
+                 const std::string& ref_layer, const std::string& live_layer) {
+  auto r = raster::Renderer::create(map, cam);
+  REQUIRE(r.ok());
+  auto a = r.value()->make_output({ref_layer});
+  auto b = r.value()->make_output({live_layer});
+  REQUIRE((a.ok() && b.ok()));
+  REQUIRE(r.value()->render(prior, a.value()).ok());
+  REQUIRE(r.value()->render(truth, b.value()).ok());
+  Pair p;
+  rgb_to_grey(a->rgb[0].view(), p.ref_grey);
+  rgb_to_grey(b->rgb[0].view(), p.live_grey);
+  p.depth = a->depth;
+  for (std::size_t k = 0; k < p.depth.size(); ++k)
+    if (!a->valid[0].data()[k]) p.depth.data()[k] = NAN;
+  // T_live_ref = T_C1_W T_W_Cref.
+  const geo::Pose rel = truth.inverse() * prior;
+  p.T_live_ref_true.R = rel.R();
+  p.T_live_ref_true.t = rel.t_W_C;
+  p.K = {cam.fx, cam.fy, cam.cx, cam.cy};
+  return p;
+}
+
+// Mean 2-D end-point error between two relative poses over the reference points.
+double epe_px(const Pair& p, const SE3<double>& est) {
+  double sum = 0;
+  long n = 0;
+  for (int y = 0; y < p.depth.height(); y += 4)
+    for (int x = 0; x < p.depth.width(); x += 4) {
+      const double d = p.depth.at(x, y);
+      if (!std::isfinite(d)) continue;
+      const Vec3<double> X(d * (x - p.K.cx) / p.K.fx, d * (y - p.K.cy) / p.K.fy, d);
+      double u1, v1, u2, v2;
+      if (!SE3DepthWarp<double>::apply(est, X, x, y, p.K, u1, v1)) continue;
+      if (!SE3DepthWarp<double>::apply(p.T_live_ref_true, X, x, y, p.K, u2, v2)) continue;
+      sum += std::hypot(u1 - u2, v1 - v2);
+      ++n;
+    }
+  return n ? sum / static_cast<double>(n) : INFINITY;
+}
+
+geo::CameraModel paper_camera() {
+  geo::CameraModel c;
+  c.width = 752;
+  c.height = 480;
+  c.fx = c.fy = 651.2;
+  c.cx = 375.5;
+  c.cy = 239.5;
+  return c;
+}
+
+}  // namespace
+
+namespace {
+
+// Aligns a same-layer pair rendered at a known small offset; returns the final 2-D EPE.
+double converge_same_layer(const geo::Map& map, const std::string& layer) {
+  const geo::CameraModel cam = paper_camera();
+  const geo::Pose truth = geo::pose_from_ypr({487450, 5207437, 570 + 800}, 30, 2, -3);
+  const geo::Pose prior = geo::pose_from_ypr({487450 + 12, 5207437 - 9, 570 + 806}, 31.5, 1, -2);
+  const Pair p = render_pair(map, cam, prior, truth, layer, layer);
+  CHECK(epe_px(p, SE3<double>::identity()) > 10);  // a real offset to recover
+  TrackerOptions opt;
+  opt.iterations = 50;
+  opt.step_tol = 1e-10;
+  Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, opt);
+  const auto& res = tracker.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), p.K, SE3<double>::identity());
+  CHECK(res.converged);
+  const double epe = epe_px(p, res.params);
+  MESSAGE(layer << ": " << std::string(res.reason) << ", iterations " << res.iterations << ", EPE " << epe << " px");
+  // The covariance is a covariance: symmetric positive definite.
+  CHECK((res.covariance - res.covariance.transpose()).norm() < 1e-12 * res.covariance.norm());
+  CHECK(res.covariance.llt().info() == Eigen::Success);
+
+  // The float solver and the homography baseline converge on the same pair.
+  Tracker<float, SE3DepthWarp<float>, 1> tf(cam.width, cam.height, opt);
+  const Pinhole<float> Kf{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
+  const auto& rf = tf.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), Kf, SE3<float>::identity());
+  CHECK(rf.converged);
+  CHECK(epe_px(p, rf.params.cast<double>()) < 2 * epe + 0.01);
+  Tracker<double, HomographyWarp<double>, 1> th(cam.width, cam.height, opt);
+  CHECK(th.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), p.K, Mat3<double>::Identity()).converged);
+  return epe;
+}
+
+}  // namespace
+
+TEST_CASE("a rendered same-layer pair with a known small relative pose converges below 0.01 px") {
+  // A smooth texture over the NAIP tile's ground: the solver's own accuracy.
+  const geo::Map smooth = test::flat_map(570.0, test::make_layer("s", 700, 800, 485900, 5209250, 5.0, [](int x, int y, std::uint8_t* p) {
+    p[0] = static_cast<std::uint8_t>(128 + 90 * std::sin(x * 0.21) * std::cos(y * 0.13));
+    p[1] = static_cast<std::uint8_t>(128 + 80 * std::sin(x * 0.07 + y * 0.17));
+    p[2] = static_cast<std::uint8_t>(128 + 60 * std::cos(y * 0.11 - x * 0.05));
+  }));
+  CHECK(converge_same_layer(smooth, "s") < 0.01);
+  // The real NAIP 2016 layer, 5 m texels magnified 4x: bilinear texture interpolation is not
+  // shift-invariant (the two views sample the texels at different phases), which leaves
+  // 0.025 px here; 0.05 px bounds it.
+  auto naip = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(naip.ok());
+  CHECK(converge_same_layer(naip.value(), "2016") < 0.05);
+}
+
+TEST_CASE("a pair with no texture reports failure instead of a pose") {
+  const geo::Map map = test::flat_map(0.0, test::make_layer("grey", 400, 400, 0, 2000, 5.0, [](int, int, std::uint8_t* p) {
+    p[0] = p[1] = p[2] = 120;
+  }));
+  const geo::CameraModel cam = paper_camera();
+  const geo::Pose truth = geo::pose_from_ypr({1000, 1000, 800}, 0, 0, 0);
+  const geo::Pose prior = geo::pose_from_ypr({1010, 1000, 800}, 1, 0, 0);
+  const Pair p = render_pair(map, cam, prior, truth, "grey", "grey");
+  Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, TrackerOptions{});
+  const auto& res = tracker.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), p.K, SE3<double>::identity());
+  CHECK(!res.converged);
+  MESSAGE("reason: " << std::string(res.reason));
+  CHECK(std::string(res.reason).find("texture") != std::string::npos);
+  CHECK(res.params.R == Mat3<double>::Identity());  // the initial pose, never NaN
+}
+
+TEST_CASE("an alignment allocates nothing after set-up") {
+  auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(map.ok());
+  const geo::CameraModel cam = paper_camera();
+  const Pair p = render_pair(map.value(), cam, geo::pose_from_ypr({487450, 5207437, 1370}, 0, 0, 0),
+                             geo::pose_from_ypr({487455, 5207437, 1370}, 0.5, 0, 0), "2009", "2009");
+  TrackerOptions opt;
+  opt.robust = Robust::Huber;
+  Tracker<float, SE3DepthWarp<float>, 1> tracker(cam.width, cam.height, opt);
+  const Pinhole<float> K{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
+  (void)tracker.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());
+  test::AllocationCounter count;
+  const auto& res = tracker.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());
+  CHECK(count.allocations() == 0);
+  CHECK(res.converged);
+}
