@@ -44,6 +44,16 @@ void rgb_to_grey(ImageView<const std::uint8_t> rgb, ImageF& grey) {
   }
 }
 
+// The motion between two parameter sets, for the plausibility bound (SE(3) only).
+template <class P>
+struct SE3Log {
+  static Vec6<double> of(const P&, const P&) { return Vec6<double>::Zero(); }
+};
+template <class S>
+struct SE3Log<SE3<S>> {
+  static Vec6<double> of(const SE3<S>& a, const SE3<S>& b) { return (a.inverse() * b).template cast<double>().log(); }
+};
+
 template <class S, class Warp, int C>
 Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& options)
     : opt_(options), width_(width), height_(height) {
@@ -119,27 +129,59 @@ void Tracker<S, Warp, C>::build_pyramids(ImageView<const float> ref, ImageView<c
 template <class S, class Warp, int C>
 int Tracker<S, Warp, C>::select_pixels(int level, const Pinhole<S>& K) {
   const Level& L = levels_[static_cast<std::size_t>(level)];
+  // Sobel / 8 of channel c at (x, y): the intensity gradient per pixel.
+  auto sobel = [&](int x, int y, int c, S& gx, S& gy) {
+    auto I = [&](int xx, int yy) { return static_cast<S>(L.ref.at(xx, yy, c)); };
+    gx = (I(x + 1, y - 1) + S(2) * I(x + 1, y) + I(x + 1, y + 1) - I(x - 1, y - 1) - S(2) * I(x - 1, y) -
+          I(x - 1, y + 1)) / S(8);
+    gy = (I(x - 1, y + 1) + S(2) * I(x, y + 1) + I(x + 1, y + 1) - I(x - 1, y - 1) - S(2) * I(x, y - 1) -
+          I(x + 1, y - 1)) / S(8);
+  };
+  auto usable = [&](int x, int y) {
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx)
+        if (!std::isfinite(L.depth.at(x + dx, y + dy))) return false;
+    return true;
+  };
+  const int block = level < static_cast<int>(opt_.block.size()) ? std::max(1, opt_.block[static_cast<std::size_t>(level)]) : 1;
   int n = 0;
-  for (int y = 1; y + 1 < L.h; ++y)
-    for (int x = 1; x + 1 < L.w; ++x) {
-      bool ok = true;
-      for (int dy = -1; dy <= 1 && ok; ++dy)
-        for (int dx = -1; dx <= 1 && ok; ++dx) ok = std::isfinite(L.depth.at(x + dx, y + dy));
-      if (!ok) continue;
+  for (int by = 1; by + 1 < L.h; by += block)
+    for (int bx = 1; bx + 1 < L.w; bx += block) {
+      // The pixel of the block with the strongest gradient (every pixel when block == 1).
+      int best_x = -1, best_y = -1;
+      S best = S(-1);
+      for (int y = by; y < std::min(by + block, L.h - 1); ++y)
+        for (int x = bx; x < std::min(bx + block, L.w - 1); ++x) {
+          // Rank by central differences (cheap); the full 3x3 check only for the winner.
+          S m = S(0);
+          if (block > 1) {
+            if (!std::isfinite(L.depth.at(x, y))) continue;
+            for (int c = 0; c < C; ++c) {
+              const S gx = static_cast<S>(L.ref.at(x + 1, y, c)) - static_cast<S>(L.ref.at(x - 1, y, c));
+              const S gy = static_cast<S>(L.ref.at(x, y + 1, c)) - static_cast<S>(L.ref.at(x, y - 1, c));
+              m += gx * gx + gy * gy;
+            }
+          } else if (!usable(x, y)) {
+            continue;
+          }
+          if (m > best) {
+            best = m;
+            best_x = x;
+            best_y = y;
+          }
+        }
+      if (best_x < 0 || (block > 1 && !usable(best_x, best_y))) continue;
+      const int x = best_x, y = best_y;
       const S d = static_cast<S>(L.depth.at(x, y));
       const S u = static_cast<S>(x), v = static_cast<S>(y);
       const Vec3<S> X(d * (u - K.cx) / K.fx, d * (v - K.cy) / K.fy, d);
       const typename Warp::Jac dW = Warp::d_warp_d_xi(X, u, v, K);
       for (int c = 0; c < C; ++c) {
-        auto I = [&](int xx, int yy) { return static_cast<S>(L.ref.at(xx, yy, c)); };
-        // Sobel / 8: the image gradient in intensity per pixel.
-        const S gx = (I(x + 1, y - 1) + S(2) * I(x + 1, y) + I(x + 1, y + 1) - I(x - 1, y - 1) -
-                      S(2) * I(x - 1, y) - I(x - 1, y + 1)) / S(8);
-        const S gy = (I(x - 1, y + 1) + S(2) * I(x, y + 1) + I(x + 1, y + 1) - I(x - 1, y - 1) -
-                      S(2) * I(x, y - 1) - I(x + 1, y - 1)) / S(8);
+        S gx, gy;
+        sobel(x, y, c, gx, gy);
         S* J = &jac_[(static_cast<std::size_t>(n) * C + static_cast<std::size_t>(c)) * DoF];
         for (int k = 0; k < DoF; ++k) J[k] = gx * dW(0, k) + gy * dW(1, k);
-        val_[static_cast<std::size_t>(n) * C + static_cast<std::size_t>(c)] = I(x, y);
+        val_[static_cast<std::size_t>(n) * C + static_cast<std::size_t>(c)] = static_cast<S>(L.ref.at(x, y, c));
       }
       pu_[static_cast<std::size_t>(n)] = u;
       pv_[static_cast<std::size_t>(n)] = v;
@@ -301,6 +343,10 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::align(ImageView<const float> ref, 
       std::nth_element(r_.begin(), r_.begin() + n / 2, r_.begin() + n);
       depth_scale = static_cast<double>(r_[static_cast<std::size_t>(n / 2)]);
     }
+    if (level == 0) {
+      evaluate(n, init, K[0], g, Hout, cost, wsum);
+      R.cost_init = wsum > 0 ? cost / wsum : 0;
+    }
     for (int it = 0; it < opt_.iterations; ++it) {
       const int valid = evaluate(n, p, K[level], g, Hout, cost, wsum);
       if (level == 0 && it == 0) R.cost_start = wsum > 0 ? cost / wsum : 0;
@@ -338,7 +384,14 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::align(ImageView<const float> ref, 
       const double emax = eig.eigenvalues().maxCoeff(), emin = eig.eigenvalues().minCoeff();
       if (!(emax > 0) || !(emin > opt_.min_information * emax))
         return fail("no texture: the image does not constrain every degree of freedom");
-      if (R.cost_final > opt_.max_cost_ratio * R.cost_start) return fail("cost rose: the alignment diverged");
+      if (R.cost_final > opt_.max_cost_ratio * R.cost_init)
+        return fail("diverged: the final cost is above the cost at the initial pose");
+      if (Warp::kNeedsDepth) {
+        const Vec6<double> moved = SE3Log<Params>::of(init, p);
+        if (moved.template head<3>().norm() > opt_.max_rotation ||
+            moved.template tail<3>().norm() > opt_.max_translation * depth_scale)
+          return fail("diverged: the pose moved implausibly far from the initial one");
+      }
       const double sigma2 = cost / std::max(wsum - DoF, 1.0);
       R.covariance = sigma2 * Hv.inverse();
     }

@@ -17,5 +17,7 @@ const std::vector<Command>& commands();
 
 int run_info(const std::vector<std::string>& args);
 int run_render(const std::vector<std::string>& args);
+int run_align(const std::vector<std::string>& args);
+int run_eval(const std::vector<std::string>& args);
 
 }  // namespace terralign::cli

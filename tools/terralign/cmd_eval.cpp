@@ -1,0 +1,368 @@
+// terralign eval: the paper's evaluation protocol on rendered pairs.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <sys/stat.h>
+
+#include <nlohmann/json.hpp>
+
+#include <terralign/geo/file.hpp>
+#include <terralign/geo/image_io.hpp>
+
+#include "args.hpp"
+#include "commands.hpp"
+#include "common.hpp"
+#include "localizer.hpp"
+
+namespace terralign::cli {
+
+Result<iclk::Robust> parse_robust(const std::string& s);
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// SplitMix64: the same stream on every platform and standard library.
+struct Rng {
+  std::uint64_t s;
+  std::uint64_t next() {
+    std::uint64_t z = (s += 0x9e3779b97f4a7c15ull);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return z ^ (z >> 31);
+  }
+  double uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
+  double uniform(double a, double b) { return a + (b - a) * uniform(); }
+  Eigen::Vector3d unit() {  // uniform on the sphere
+    const double z = uniform(-1, 1), phi = uniform(0, 2 * kPi), r = std::sqrt(1 - z * z);
+    return {r * std::cos(phi), r * std::sin(phi), z};
+  }
+};
+
+struct Sample {
+  geo::Pose truth, prior;
+  double altitude;
+};
+
+// The ground point seen along the camera ray through pixel (u, v), on the plane z = h.
+bool ground_hit(const geo::Pose& T, const geo::CameraModel& cam, double u, double v, double h, Eigen::Vector3d& p) {
+  const Eigen::Vector3d d = T.R() * Eigen::Vector3d((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0);
+  if (!(d.z() < -1e-6)) return false;
+  const double t = (h - T.t_W_C.z()) / d.z();
+  p = T.t_W_C + t * d;
+  return true;
+}
+
+Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, int count, std::uint64_t seed,
+                                         double lo, double hi, double tilt_deg) {
+  Rng rng{seed};
+  const geo::Extent e = map.common_extent();
+  std::vector<Sample> out;
+  for (int i = 0; i < count; ++i) {
+    bool placed = false;
+    for (int attempt = 0; attempt < 2000 && !placed; ++attempt) {
+      const double alt = rng.uniform(lo, hi), heading = rng.uniform(0, 360);
+      const double tilt = rng.uniform(0, tilt_deg), tilt_dir = rng.uniform(0, 2 * kPi);
+      const double x = rng.uniform(e.min_x, e.max_x), y = rng.uniform(e.min_y, e.max_y);
+      const double ground = map.dem.height_at(x, y);
+      if (!std::isfinite(ground)) continue;
+      geo::Pose T = geo::pose_from_ypr({x, y, ground + alt}, heading, 0, 0);
+      // Tilt off nadir by `tilt` about a horizontal axis at a random azimuth.
+      const Eigen::Vector3d axis(std::cos(tilt_dir), std::sin(tilt_dir), 0);
+      T.q_W_C = Eigen::Quaterniond(Eigen::AngleAxisd(tilt * kPi / 180, axis)) * T.q_W_C;
+      bool inside = true;
+      for (int k = 0; k < 5 && inside; ++k) {
+        const double u = k == 4 ? cam.cx : (k & 1) * (cam.width - 1.0), v = k == 4 ? cam.cy : (k >> 1) * (cam.height - 1.0);
+        Eigen::Vector3d p;
+        inside = ground_hit(T, cam, u, v, ground, p) && e.contains(p.x(), p.y());
+        if (inside) {
+          const double hp = map.dem.height_at(p.x(), p.y());
+          inside = std::isfinite(hp) && ground_hit(T, cam, u, v, hp, p) && e.contains(p.x(), p.y());
+        }
+      }
+      if (!inside) continue;
+      Sample s;
+      s.truth = T;
+      s.altitude = alt;
+      // The prior: rotated about a random axis by U[0, 6] deg (in the camera frame), moved by
+      // U[0, 0.13 alt] m in a random direction.
+      const double angle = rng.uniform(0, 6) * kPi / 180;
+      const Eigen::Vector3d raxis = rng.unit();
+      const double len = rng.uniform(0, 0.13 * alt);
+      const Eigen::Vector3d dir = rng.unit();
+      s.prior.q_W_C = (T.q_W_C * Eigen::Quaterniond(Eigen::AngleAxisd(angle, raxis))).normalized();
+      s.prior.t_W_C = T.t_W_C + len * dir;
+      out.push_back(s);
+      placed = true;
+    }
+    if (!placed)
+      return Error{"cannot place pose " + std::to_string(i) + ": no position in 2000 tries shows only the map at altitude " +
+                   std::to_string(lo) + ".." + std::to_string(hi) + " m (map too small for the altitude?)"};
+  }
+  return out;
+}
+
+struct Errors {
+  double epe_m, angle_deg, trans_m, epe_px;
+};
+
+Errors errors(const iclk::SE3<double>& est, const iclk::SE3<double>& gt, const ImageF& depth, const geo::CameraModel& cam) {
+  const iclk::Pinhole<double> K{cam.fx, cam.fy, cam.cx, cam.cy};
+  double s3 = 0, s2 = 0;
+  long n3 = 0, n2 = 0;
+  for (int y = 0; y < depth.height(); y += 2)
+    for (int x = 0; x < depth.width(); x += 2) {
+      const double d = depth.at(x, y);
+      if (!std::isfinite(d)) continue;
+      const iclk::Vec3<double> X(d * (x - cam.cx) / cam.fx, d * (y - cam.cy) / cam.fy, d);
+      s3 += (est * X - gt * X).norm();
+      ++n3;
+      double u1, v1, u2, v2;
+      if (iclk::SE3DepthWarp<double>::apply(est, X, x, y, K, u1, v1) && iclk::SE3DepthWarp<double>::apply(gt, X, x, y, K, u2, v2)) {
+        s2 += std::hypot(u1 - u2, v1 - v2);
+        ++n2;
+      }
+    }
+  const Eigen::Matrix3d dR = gt.R * est.R.transpose();
+  Errors e;
+  e.epe_m = n3 ? s3 / static_cast<double>(n3) : NAN;
+  e.epe_px = n2 ? s2 / static_cast<double>(n2) : NAN;
+  e.angle_deg = Eigen::AngleAxisd(dR).angle() * 180 / kPi;
+  e.trans_m = (gt.t - dR * est.t).norm();
+  return e;
+}
+
+nlohmann::json stats(std::vector<double> v) {
+  if (v.empty()) return nullptr;
+  std::sort(v.begin(), v.end());
+  double s = 0, s2 = 0;
+  for (double x : v) {
+    s += x;
+    s2 += x * x;
+  }
+  const double n = static_cast<double>(v.size()), mean = s / n;
+  const double median = v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]);
+  return {{"mean", mean}, {"std", std::sqrt(std::max(0.0, s2 / n - mean * mean))}, {"median", median},
+          {"min", v.front()}, {"max", v.back()}};
+}
+
+struct Method {
+  std::string name;
+  int iterations;  // 0: init
+  std::vector<double> epe_m, angle, trans, epe_px, ms;
+  int converged = 0;
+};
+
+// Red: the reference; green and blue: the query seen through T_live_ref (pixels of the
+// reference warped into the query). Aligned images look grey; misaligned ones show fringes.
+ImageU8 overlay(const ImageF& ref_grey, const ImageF& depth, const ImageF& query_grey, const iclk::SE3<double>& T,
+                const geo::CameraModel& cam) {
+  const iclk::Pinhole<double> K{cam.fx, cam.fy, cam.cx, cam.cy};
+  ImageU8 img(ref_grey.width(), ref_grey.height(), 3, 0);
+  for (int y = 0; y < img.height(); ++y)
+    for (int x = 0; x < img.width(); ++x) {
+      const double d = depth.at(x, y);
+      const auto r8 = static_cast<std::uint8_t>(std::clamp(ref_grey.at(x, y) * 255.0f, 0.0f, 255.0f));
+      img.at(x, y, 0) = r8;
+      if (!std::isfinite(d)) continue;
+      const iclk::Vec3<double> X(d * (x - cam.cx) / cam.fx, d * (y - cam.cy) / cam.fy, d);
+      double u, v;
+      if (!iclk::SE3DepthWarp<double>::apply(T, X, x, y, K, u, v)) continue;
+      if (!(u >= 0 && v >= 0 && u <= img.width() - 1 && v <= img.height() - 1)) continue;
+      const int x0 = std::min(static_cast<int>(u), img.width() - 2), y0 = std::min(static_cast<int>(v), img.height() - 2);
+      const double fx = u - x0, fy = v - y0;
+      const double q = (1 - fy) * ((1 - fx) * query_grey.at(x0, y0) + fx * query_grey.at(x0 + 1, y0)) +
+                       fy * ((1 - fx) * query_grey.at(x0, y0 + 1) + fx * query_grey.at(x0 + 1, y0 + 1));
+      const auto q8 = static_cast<std::uint8_t>(std::clamp(q * 255.0, 0.0, 255.0));
+      img.at(x, y, 1) = q8;
+      img.at(x, y, 2) = q8;
+    }
+  return img;
+}
+
+}  // namespace
+
+int run_eval(const std::vector<std::string>& argv) {
+  auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
+                                 "json", "overlays", "threads", "robust"}, {});
+  if (!args.ok()) return usage_error("eval", args.error());
+  for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
+    if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
+  auto count = args->get_int("count", 0, 1, 100000);
+  if (!count.ok()) return usage_error("eval", count.error());
+  char* end = nullptr;
+  const std::string seed_text = args->get("seed");
+  const unsigned long long seed = std::strtoull(seed_text.c_str(), &end, 10);
+  if (seed_text.empty() || *end) return usage_error("eval", Error{"--seed '" + seed_text + "' must be a non-negative integer"});
+  const std::string alt = args->get("altitude");
+  const auto colon = alt.find(':');
+  double lo = 0, hi = 0;
+  if (colon == std::string::npos || std::sscanf(alt.c_str(), "%lf:%lf", &lo, &hi) != 2 || !(lo > 0) || !(hi >= lo))
+    return usage_error("eval", Error{"--altitude '" + alt + "' must be LO:HI metres with 0 < LO <= HI"});
+  auto tilt = args->get_double("tilt", 0.0);
+  if (!tilt.ok() || tilt.value() < 0 || tilt.value() > 60) return usage_error("eval", Error{"--tilt must be in [0, 60] degrees"});
+  auto threads = args->get_int("threads", 2, 1, 64);
+  if (!threads.ok()) return usage_error("eval", threads.error());
+  auto robust = parse_robust(args->get("robust", "none"));
+  if (!robust.ok()) return usage_error("eval", robust.error());
+  std::vector<Method> methods;
+  {
+    const std::string list = args->get("methods", "init,classic:20,classic:50");
+    std::size_t a = 0;
+    while (a <= list.size()) {
+      const std::size_t b = list.find(',', a);
+      const std::string m = list.substr(a, b == std::string::npos ? std::string::npos : b - a);
+      if (m == "init") {
+        methods.push_back({m, 0, {}, {}, {}, {}, {}, 0});
+      } else if (m.rfind("classic:", 0) == 0) {
+        const int n = std::atoi(m.c_str() + 8);
+        if (n < 1 || n > 1000) return usage_error("eval", Error{"method '" + m + "': iterations must be 1..1000"});
+        methods.push_back({m, n, {}, {}, {}, {}, {}, 0});
+      } else if (m.rfind("nn:", 0) == 0) {
+        return fail(Error{"method '" + m + "': the learned tracker has not landed in this build yet"});
+      } else {
+        return usage_error("eval", Error{"unknown method '" + m + "' (init, classic:N)"});
+      }
+      if (b == std::string::npos) break;
+      a = b + 1;
+    }
+  }
+
+  auto map = geo::load_map(args->get("map"));
+  if (!map.ok()) return fail(map.error());
+  auto cam_in = geo::load_camera(args->get("camera"));
+  if (!cam_in.ok()) return fail(cam_in.error());
+  const geo::CameraModel cam = pinhole_of(cam_in.value());
+  for (const char* k : {"ref-layer", "query-layer"})
+    if (!map->find_layer(args->get(k)))
+      return fail(Error{"--" + std::string(k) + ": no layer named '" + args->get(k) + "' (layers: " + map->layer_names() + ")"});
+  const std::string overlays = args->get("overlays");
+  if (!overlays.empty()) {
+    struct stat st {};
+    if (::stat(overlays.c_str(), &st) != 0 && ::mkdir(overlays.c_str(), 0755) != 0)
+      return fail(Error{overlays + ": cannot create the overlay folder"});
+  }
+  auto samples = sample_poses(map.value(), cam, count.value(), seed, lo, hi, tilt.value());
+  if (!samples.ok()) return fail(samples.error());
+
+  iclk::TrackerOptions opt;
+  opt.robust = robust.value();
+  auto loc = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value());
+  if (!loc.ok()) return fail(loc.error());
+  raster::RenderOptions ro;
+  ro.threads = threads.value();
+  auto query_renderer = raster::Renderer::create(map.value(), cam, ro);
+  if (!query_renderer.ok()) return fail(query_renderer.error());
+  auto query = query_renderer.value()->make_output({args->get("query-layer")});
+  if (!query.ok()) return fail(query.error());
+  ImageF ref_grey, query_grey;
+
+  int skipped = 0;
+  for (std::size_t i = 0; i < samples->size(); ++i) {
+    const Sample& s = samples.value()[i];
+    if (auto st = query_renderer.value()->render(s.truth, query.value()); !st.ok()) {
+      ++skipped;
+      continue;
+    }
+    const geo::Pose rel = s.truth.inverse() * s.prior;  // T_C1_Cref
+    iclk::SE3<double> gt;
+    gt.R = rel.R();
+    gt.t = rel.t_W_C;
+    bool have_ref = false;
+    for (auto& m : methods) {
+      iclk::SE3<double> est = iclk::SE3<double>::identity();
+      double ms = 0;
+      if (m.iterations > 0) {
+        loc.value()->set_iterations(m.iterations);
+        auto out = loc.value()->localize(query->rgb[0].view(), s.prior);
+        if (!out.ok()) {
+          std::fprintf(stderr, "terralign eval: sample %zu: %s\n", i, out.error().message.c_str());
+          break;
+        }
+        have_ref = true;
+        est = out->T_live_ref;
+        ms = out->ms_pyramid + out->ms_jacobian + out->ms_iterations;
+        m.converged += out->converged;
+      } else {
+        m.converged += 1;
+      }
+      if (!have_ref) {  // the reference for the metrics (the init method renders nothing)
+        loc.value()->set_iterations(1);
+        auto out = loc.value()->localize(query->rgb[0].view(), s.prior);
+        if (!out.ok()) break;
+        have_ref = true;
+      }
+      const Errors e = errors(est, gt, loc.value()->reference_depth(), cam);
+      m.epe_m.push_back(e.epe_m);
+      m.angle.push_back(e.angle_deg);
+      m.trans.push_back(e.trans_m);
+      m.epe_px.push_back(e.epe_px);
+      m.ms.push_back(ms);
+      if (!overlays.empty() && i < 20) {
+        iclk::rgb_to_grey(loc.value()->reference().rgb[0].view(), ref_grey);
+        iclk::rgb_to_grey(query->rgb[0].view(), query_grey);
+        const std::string base = overlays + "/" + std::to_string(i) + "_";
+        std::string safe = m.name;
+        std::replace(safe.begin(), safe.end(), ':', '_');
+        auto img = overlay(ref_grey, loc.value()->reference_depth(), query_grey, est, cam);
+        if (auto st = geo::save_png(base + safe + ".png", img.view()); !st.ok()) return fail(st.error());
+        if (&m == &methods.front()) {
+          auto truth_img = overlay(ref_grey, loc.value()->reference_depth(), query_grey, gt, cam);
+          if (auto st = geo::save_png(base + "truth.png", truth_img.view()); !st.ok()) return fail(st.error());
+        }
+      }
+    }
+    std::fprintf(stderr, "\r%zu/%zu", i + 1, samples->size());
+  }
+  std::fprintf(stderr, "\n");
+
+  nlohmann::json j;
+  j["count"] = count.value();
+  j["seed"] = seed;
+  j["map"] = args->get("map");
+  j["ref_layer"] = args->get("ref-layer");
+  j["query_layer"] = args->get("query-layer");
+  j["altitude"] = {lo, hi};
+  j["tilt_deg"] = tilt.value();
+  j["skipped"] = skipped;
+  std::printf("%s vs %s, %d poses, seed %llu, altitude %g-%g m, tilt <= %g deg\n\n", args->get("ref-layer").c_str(),
+              args->get("query-layer").c_str(), count.value(), seed, lo, hi, tilt.value());
+  std::printf("| method | 3-D EPE m (mean / median) | angle deg (mean / median) | trans m (mean / median) | 2-D EPE px (mean / median) | < 1 px | < 5 px | converged | ms (mean / median) |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|\n");
+  for (const auto& m : methods) {
+    const double n = static_cast<double>(m.epe_px.size());
+    int ok1 = 0, ok5 = 0;
+    for (double e : m.epe_px) {
+      ok1 += e < 1.0;
+      ok5 += e < 5.0;
+    }
+    nlohmann::json mj;
+    mj["epe_m"] = stats(m.epe_m);
+    mj["angle_deg"] = stats(m.angle);
+    mj["trans_m"] = stats(m.trans);
+    mj["epe_px"] = stats(m.epe_px);
+    mj["success_rate"] = n > 0 ? ok1 / n : 0.0;
+    mj["success_rate_5px"] = n > 0 ? ok5 / n : 0.0;
+    mj["converged_fraction"] = n > 0 ? m.converged / n : 0.0;
+    const auto t = stats(m.ms);
+    mj["ms"] = t.is_null() ? nlohmann::json(nullptr) : nlohmann::json{{"mean", t["mean"]}, {"median", t["median"]}};
+    j["methods"][m.name] = mj;
+    if (n == 0) continue;
+    auto mm = [&](const char* key) {
+      char buf[64];
+      std::snprintf(buf, sizeof buf, "%.3f / %.3f", mj[key]["mean"].get<double>(), mj[key]["median"].get<double>());
+      return std::string(buf);
+    };
+    std::printf("| %s | %s | %s | %s | %s | %.1f %% | %.1f %% | %.1f %% | %.1f / %.1f |\n", m.name.c_str(), mm("epe_m").c_str(),
+                mm("angle_deg").c_str(), mm("trans_m").c_str(), mm("epe_px").c_str(), 100.0 * ok1 / n, 100.0 * ok5 / n,
+                100.0 * m.converged / n, t["mean"].get<double>(), t["median"].get<double>());
+  }
+  if (args->has("json")) {
+    const std::string text = j.dump(2) + "\n";
+    if (auto st = geo::write_file_atomic(args->get("json"), text.data(), text.size()); !st.ok()) return fail(st.error());
+  }
+  return 0;
+}
+
+}  // namespace terralign::cli

@@ -1,0 +1,111 @@
+#include "localizer.hpp"
+
+#include <chrono>
+#include <cmath>
+
+namespace terralign::cli {
+
+Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const geo::CameraModel& camera,
+                                                     const std::string& layer, const iclk::TrackerOptions& options,
+                                                     int threads) {
+  if (camera.model != geo::DistortionModel::None)
+    return Error{"Localizer: the camera must be a pinhole (undistort the live image first)"};
+  std::unique_ptr<Localizer> L(new Localizer);
+  L->camera_ = camera;
+  raster::RenderOptions ro;
+  ro.threads = threads;
+  TERRALIGN_TRY_ASSIGN(L->renderer_, raster::Renderer::create(map, camera, ro));
+  TERRALIGN_TRY_ASSIGN(L->ref_, L->renderer_->make_output({layer}));
+  L->ref_grey_.resize(camera.width, camera.height, 1);
+  L->live_grey_.resize(camera.width, camera.height, 1);
+  L->depth_.resize(camera.width, camera.height, 1);
+  L->tracker_ = std::make_unique<iclk::Tracker<float, iclk::SE3DepthWarp<float>, 1>>(camera.width, camera.height, options);
+  return L;
+}
+
+void Localizer::set_iterations(int n) {
+  auto o = tracker_->options();
+  o.iterations = n;
+  tracker_->set_options(o);
+}
+
+Eigen::Matrix<double, 6, 6> covariance_in_world(const Eigen::Matrix<double, 6, 6>& cov_ref,
+                                                const geo::Pose& T_W_ref, const iclk::SE3<double>& T_ref_live) {
+  // T_ref_live' = exp(d) T_ref_live, d = [w; v] in the reference camera: the live centre
+  // p = t_ref_live moves by w x p + v and the rotation by exp(w). In world axes:
+  // dtheta = R_W_ref w, dp = R_W_ref (-[p]x w + v).
+  const Eigen::Matrix3d R = T_W_ref.R();
+  const Eigen::Vector3d p = T_ref_live.t;
+  Eigen::Matrix<double, 6, 6> J = Eigen::Matrix<double, 6, 6>::Zero();
+  J.topLeftCorner<3, 3>() = R;
+  J.bottomLeftCorner<3, 3>() = -R * iclk::hat<double>(p);
+  J.bottomRightCorner<3, 3>() = R;
+  return J * cov_ref * J.transpose();
+}
+
+Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, const geo::Pose& prior) {
+  if (live.width != camera_.width || live.height != camera_.height || live.channels != 3)
+    return Error{"live image is " + std::to_string(live.width) + " x " + std::to_string(live.height) + " x " +
+                 std::to_string(live.channels) + ", the camera is " + std::to_string(camera_.width) + " x " +
+                 std::to_string(camera_.height) + " x 3"};
+  LocalizeOutput out;
+  out.T_W_C = prior;
+  const auto t0 = std::chrono::steady_clock::now();
+  auto st = renderer_->render(prior, ref_);
+  if (!st.ok()) return st.error();
+  out.ms_render = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  iclk::rgb_to_grey(ref_.rgb[0].view(), ref_grey_);
+  iclk::rgb_to_grey(live, live_grey_);
+  // Depth where the reference layer has colour; NaN elsewhere (sky, off the layer).
+  for (std::size_t k = 0; k < depth_.size(); ++k)
+    depth_.data()[k] = ref_.valid[0].data()[k] ? ref_.depth.data()[k] : NAN;
+  const iclk::Pinhole<float> K{static_cast<float>(camera_.fx), static_cast<float>(camera_.fy),
+                               static_cast<float>(camera_.cx), static_cast<float>(camera_.cy)};
+  const auto& r = tracker_->align(ref_grey_.view(), depth_.view(), live_grey_.view(), K, iclk::SE3<float>::identity());
+  out.converged = r.converged;
+  out.reason = r.reason;
+  out.iterations = r.iterations;
+  out.ms_pyramid = r.ms_pyramid;
+  out.ms_jacobian = r.ms_jacobian;
+  out.ms_iterations = r.ms_iterations;
+  out.T_live_ref = r.params.cast<double>();
+  if (r.converged) {
+    const iclk::SE3<double> T_ref_live = out.T_live_ref.inverse();
+    geo::Pose rel;
+    rel.q_W_C = Eigen::Quaterniond(T_ref_live.R).normalized();
+    rel.t_W_C = T_ref_live.t;
+    out.T_W_C = prior * rel;
+    out.covariance = covariance_in_world(r.covariance, prior, T_ref_live);
+  }
+  return out;
+}
+
+geo::CameraModel pinhole_of(const geo::CameraModel& camera) {
+  geo::CameraModel c = camera;
+  c.model = geo::DistortionModel::None;
+  c.k = {};
+  return c;
+}
+
+ImageU8 undistort(ImageView<const std::uint8_t> image, const geo::CameraModel& camera) {
+  ImageU8 out(image.width, image.height, image.channels, 0);
+  for (int v = 0; v < image.height; ++v)
+    for (int u = 0; u < image.width; ++u) {
+      // The pinhole pixel (u, v) sees the ray (x, y, 1); find where the real camera saw it.
+      const Eigen::Vector3d ray((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0);
+      Eigen::Vector2d px;
+      if (!camera.project<double>(ray, px)) continue;
+      const double x = px.x(), y = px.y();
+      if (!(x >= 0 && y >= 0 && x <= image.width - 1 && y <= image.height - 1)) continue;
+      const int x0 = std::min(static_cast<int>(x), image.width - 2), y0 = std::min(static_cast<int>(y), image.height - 2);
+      const double fx = x - x0, fy = y - y0;
+      for (int c = 0; c < image.channels; ++c) {
+        const double a = image.at(x0, y0, c), b = image.at(x0 + 1, y0, c);
+        const double d = image.at(x0, y0 + 1, c), e = image.at(x0 + 1, y0 + 1, c);
+        out.at(u, v, c) = static_cast<std::uint8_t>(std::lround((1 - fy) * ((1 - fx) * a + fx * b) + fy * ((1 - fx) * d + fx * e)));
+      }
+    }
+  return out;
+}
+
+}  // namespace terralign::cli

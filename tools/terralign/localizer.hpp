@@ -1,0 +1,63 @@
+// The classical localisation pipeline shared by align, eval (and later track): render the
+// reference at the prior, align the live image to it, return the map pose with its
+// covariance. Everything is sized at construction; localize() allocates nothing.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include <Eigen/Core>
+
+#include <terralign/geo/camera.hpp>
+#include <terralign/geo/image.hpp>
+#include <terralign/geo/map.hpp>
+#include <terralign/geo/pose.hpp>
+#include <terralign/iclk/tracker.hpp>
+#include <terralign/raster/renderer.hpp>
+
+namespace terralign::cli {
+
+struct LocalizeOutput {
+  geo::Pose T_W_C;                      // the estimate (the prior when not converged)
+  iclk::SE3<double> T_live_ref;         // the relative pose found
+  // Covariance of [dtheta; dp]: a rotation about the world axes applied on the left of
+  // R_W_C (rad) and a shift of the camera centre (m, world axes), in that order.
+  Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
+  bool converged = false;
+  std::string reason;
+  int iterations = 0;
+  double ms_render = 0, ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
+};
+
+class Localizer {
+ public:
+  // `camera` must be a pinhole (undistort the live image first); `layer` is the reference.
+  static Result<std::unique_ptr<Localizer>> create(const geo::Map& map, const geo::CameraModel& camera,
+                                                   const std::string& layer, const iclk::TrackerOptions& options,
+                                                   int threads);
+  // live: the camera image, 3-channel RGB of the camera's size.
+  Result<LocalizeOutput> localize(ImageView<const std::uint8_t> live, const geo::Pose& prior);
+  void set_iterations(int n);
+  const raster::RenderOutput& reference() const { return ref_; }
+  const ImageF& reference_depth() const { return depth_; }
+
+ private:
+  Localizer() = default;
+  geo::CameraModel camera_;
+  std::unique_ptr<raster::Renderer> renderer_;
+  raster::RenderOutput ref_;
+  ImageF ref_grey_, live_grey_, depth_;
+  std::unique_ptr<iclk::Tracker<float, iclk::SE3DepthWarp<float>, 1>> tracker_;
+};
+
+// Maps the tracker's covariance (left perturbation of T_ref_live in the reference camera)
+// to the world-frame [dtheta; dp] of LocalizeOutput::covariance.
+Eigen::Matrix<double, 6, 6> covariance_in_world(const Eigen::Matrix<double, 6, 6>& cov_ref,
+                                                const geo::Pose& T_W_ref, const iclk::SE3<double>& T_ref_live);
+
+// A pinhole copy of a camera, and the live image resampled to it (bilinear), for cameras
+// with distortion. The pinhole keeps fx, fy, cx, cy.
+geo::CameraModel pinhole_of(const geo::CameraModel& camera);
+ImageU8 undistort(ImageView<const std::uint8_t> image, const geo::CameraModel& camera);
+
+}  // namespace terralign::cli
