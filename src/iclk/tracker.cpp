@@ -384,6 +384,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::align(ImageView<const float> ref, 
       const double emax = eig.eigenvalues().maxCoeff(), emin = eig.eigenvalues().minCoeff();
       if (!(emax > 0) || !(emin > opt_.min_information * emax))
         return fail("no texture: the image does not constrain every degree of freedom");
+      if (R.cost_final > opt_.max_final_cost) return fail("poor match: the final residual is above max_final_cost");
       if (R.cost_final > opt_.max_cost_ratio * R.cost_init)
         return fail("diverged: the final cost is above the cost at the initial pose");
       if (Warp::kNeedsDepth) {

@@ -151,6 +151,8 @@ struct Method {
   std::string name;
   int iterations;  // 0: init
   std::vector<double> epe_m, angle, trans, epe_px, ms;
+  std::vector<char> ok;  // reported converged
+  std::vector<double> cost_init, cost_final;
   int converged = 0;
 };
 
@@ -185,7 +187,7 @@ ImageU8 overlay(const ImageF& ref_grey, const ImageF& depth, const ImageF& query
 
 int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
-                                 "json", "overlays", "threads", "robust"}, {});
+                                 "json", "overlays", "threads", "robust", "levels"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -206,6 +208,8 @@ int run_eval(const std::vector<std::string>& argv) {
   if (!threads.ok()) return usage_error("eval", threads.error());
   auto robust = parse_robust(args->get("robust", "none"));
   if (!robust.ok()) return usage_error("eval", robust.error());
+  auto levels = args->get_int("levels", 4, 1, 6);
+  if (!levels.ok()) return usage_error("eval", levels.error());
   std::vector<Method> methods;
   {
     const std::string list = args->get("methods", "init,classic:20,classic:50");
@@ -214,11 +218,15 @@ int run_eval(const std::vector<std::string>& argv) {
       const std::size_t b = list.find(',', a);
       const std::string m = list.substr(a, b == std::string::npos ? std::string::npos : b - a);
       if (m == "init") {
-        methods.push_back({m, 0, {}, {}, {}, {}, {}, 0});
+        methods.emplace_back();
+        methods.back().name = m;
+        methods.back().iterations = 0;
       } else if (m.rfind("classic:", 0) == 0) {
         const int n = std::atoi(m.c_str() + 8);
         if (n < 1 || n > 1000) return usage_error("eval", Error{"method '" + m + "': iterations must be 1..1000"});
-        methods.push_back({m, n, {}, {}, {}, {}, {}, 0});
+        methods.emplace_back();
+        methods.back().name = m;
+        methods.back().iterations = n;
       } else if (m.rfind("nn:", 0) == 0) {
         return fail(Error{"method '" + m + "': the learned tracker has not landed in this build yet"});
       } else {
@@ -248,6 +256,7 @@ int run_eval(const std::vector<std::string>& argv) {
 
   iclk::TrackerOptions opt;
   opt.robust = robust.value();
+  opt.levels = levels.value();
   auto loc = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value());
   if (!loc.ok()) return fail(loc.error());
   raster::RenderOptions ro;
@@ -284,8 +293,12 @@ int run_eval(const std::vector<std::string>& argv) {
         est = out->T_live_ref;
         ms = out->ms_pyramid + out->ms_jacobian + out->ms_iterations;
         m.converged += out->converged;
+        m.ok.push_back(out->converged);
+        m.cost_init.push_back(out->cost_init);
+        m.cost_final.push_back(out->cost_final);
       } else {
         m.converged += 1;
+        m.ok.push_back(1);
       }
       if (!have_ref) {  // the reference for the metrics (the init method renders nothing)
         loc.value()->set_iterations(1);
@@ -328,14 +341,15 @@ int run_eval(const std::vector<std::string>& argv) {
   j["skipped"] = skipped;
   std::printf("%s vs %s, %d poses, seed %llu, altitude %g-%g m, tilt <= %g deg\n\n", args->get("ref-layer").c_str(),
               args->get("query-layer").c_str(), count.value(), seed, lo, hi, tilt.value());
-  std::printf("| method | 3-D EPE m (mean / median) | angle deg (mean / median) | trans m (mean / median) | 2-D EPE px (mean / median) | < 1 px | < 5 px | converged | ms (mean / median) |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|\n");
+  std::printf("| method | 3-D EPE m (mean / median) | angle deg (mean / median) | trans m (mean / median) | 2-D EPE px (mean / median) | < 1 px | < 5 px | converged | converged and < 5 px | ms (mean / median) |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
   for (const auto& m : methods) {
     const double n = static_cast<double>(m.epe_px.size());
-    int ok1 = 0, ok5 = 0;
-    for (double e : m.epe_px) {
-      ok1 += e < 1.0;
-      ok5 += e < 5.0;
+    int ok1 = 0, ok5 = 0, conv5 = 0;
+    for (std::size_t k = 0; k < m.epe_px.size(); ++k) {
+      ok1 += m.epe_px[k] < 1.0;
+      ok5 += m.epe_px[k] < 5.0;
+      conv5 += m.ok[k] && m.epe_px[k] < 5.0;
     }
     nlohmann::json mj;
     mj["epe_m"] = stats(m.epe_m);
@@ -345,8 +359,19 @@ int run_eval(const std::vector<std::string>& argv) {
     mj["success_rate"] = n > 0 ? ok1 / n : 0.0;
     mj["success_rate_5px"] = n > 0 ? ok5 / n : 0.0;
     mj["converged_fraction"] = n > 0 ? m.converged / n : 0.0;
+    // How far "converged" can be trusted: the fraction of converged answers within 5 px.
+    mj["converged_within_5px"] = m.converged > 0 ? conv5 / static_cast<double>(m.converged) : 0.0;
     const auto t = stats(m.ms);
     mj["ms"] = t.is_null() ? nlohmann::json(nullptr) : nlohmann::json{{"mean", t["mean"]}, {"median", t["median"]}};
+    // Per pose, for analysis: 2-D EPE, converged, and the costs behind the decision.
+    for (std::size_t k = 0; k < m.epe_px.size(); ++k) {
+      nlohmann::json sj = {{"epe_px", m.epe_px[k]}, {"epe_m", m.epe_m[k]}, {"converged", m.ok[k] != 0}};
+      if (k < m.cost_final.size()) {
+        sj["cost_init"] = m.cost_init[k];
+        sj["cost_final"] = m.cost_final[k];
+      }
+      mj["samples"].push_back(sj);
+    }
     j["methods"][m.name] = mj;
     if (n == 0) continue;
     auto mm = [&](const char* key) {
@@ -354,9 +379,10 @@ int run_eval(const std::vector<std::string>& argv) {
       std::snprintf(buf, sizeof buf, "%.3f / %.3f", mj[key]["mean"].get<double>(), mj[key]["median"].get<double>());
       return std::string(buf);
     };
-    std::printf("| %s | %s | %s | %s | %s | %.1f %% | %.1f %% | %.1f %% | %.1f / %.1f |\n", m.name.c_str(), mm("epe_m").c_str(),
-                mm("angle_deg").c_str(), mm("trans_m").c_str(), mm("epe_px").c_str(), 100.0 * ok1 / n, 100.0 * ok5 / n,
-                100.0 * m.converged / n, t["mean"].get<double>(), t["median"].get<double>());
+    std::printf("| %s | %s | %s | %s | %s | %.1f %% | %.1f %% | %.1f %% | %.1f %% | %.1f / %.1f |\n", m.name.c_str(),
+                mm("epe_m").c_str(), mm("angle_deg").c_str(), mm("trans_m").c_str(), mm("epe_px").c_str(), 100.0 * ok1 / n,
+                100.0 * ok5 / n, 100.0 * m.converged / n, m.iterations ? 100.0 * conv5 / std::max(m.converged, 1) : 0.0,
+                t["mean"].get<double>(), t["median"].get<double>());
   }
   if (args->has("json")) {
     const std::string text = j.dump(2) + "\n";

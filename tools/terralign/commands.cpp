@@ -32,13 +32,15 @@ const std::vector<Command>& commands() {
       {"eval", "the paper's evaluation: sampled poses, rendered pairs, error tables per method",
        "usage: terralign eval --map MAP.json --camera CAMERA.json --ref-layer A --query-layer B --count N\n"
        "                      --seed S --altitude LO:HI [--tilt DEG] [--methods init,classic:20,classic:50]\n"
-       "                      [--robust none|huber|tukey] [--json OUT] [--overlays DIR] [--threads N]\n\n"
+       "                      [--robust none|huber|tukey] [--levels L] [--json OUT] [--overlays DIR]\n"
+       "                      [--threads N]\n\n"
        "Samples N true poses with the whole footprint on the map (altitude above ground in\n"
        "[LO, HI] m, tilt off nadir up to DEG, any heading), perturbs each for the prior (rotation\n"
        "about a random axis by U[0, 6] deg, translation by U[0, 0.13 x altitude] m in a random\n"
        "direction), renders the reference from A at the prior and the query from B at the truth,\n"
        "runs each method from identity and prints a Markdown table of 3-D EPE (m), angle (deg),\n"
-       "translation (m), 2-D EPE (px), success rates (2-D EPE < 1 px and < 5 px) and time.\n",
+       "translation (m), 2-D EPE (px), success rates (2-D EPE < 1 px and < 5 px), the converged\n"
+       "fraction, how many converged answers are within 5 px, and the alignment time.\n",
        run_eval},
   };
   return list;

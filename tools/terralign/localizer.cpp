@@ -65,6 +65,8 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   out.converged = r.converged;
   out.reason = r.reason;
   out.iterations = r.iterations;
+  out.cost_init = r.cost_init;
+  out.cost_final = r.cost_final;
   out.ms_pyramid = r.ms_pyramid;
   out.ms_jacobian = r.ms_jacobian;
   out.ms_iterations = r.ms_iterations;

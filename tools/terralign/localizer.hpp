@@ -26,6 +26,7 @@ struct LocalizeOutput {
   bool converged = false;
   std::string reason;
   int iterations = 0;
+  double cost_init = 0, cost_final = 0;  // mean squared residual of the normalised images
   double ms_render = 0, ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
 };
 
