@@ -11,6 +11,14 @@ cmake -S . -B build/release -DCMAKE_BUILD_TYPE=Release -DTERRALIGN_WERROR=ON
 cmake --build build/release -j "$jobs"
 (cd build/release && ctest --output-on-failure -j "$jobs")
 
+# The installed package works for a downstream project.
+prefix=$(mktemp -d)
+cmake --install build/release --prefix "$prefix" >/dev/null
+cmake -S tests/install -B build/consumer -DCMAKE_PREFIX_PATH="$prefix" >/dev/null
+cmake --build build/consumer -j "$jobs" >/dev/null
+build/consumer/consumer
+rm -rf "$prefix"
+
 if [ "${TERRALIGN_SKIP_SANITIZE:-0}" != "1" ]; then
   cmake -S . -B build/sanitize -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRALIGN_SANITIZE=ON \
         -DTERRALIGN_WERROR=ON -DTERRALIGN_BUILD_BENCH=OFF
