@@ -1,13 +1,13 @@
 # cmake --install, then find_package(terralign) in another project.
 include(CMakePackageConfigHelpers)
 
-install(TARGETS terralign_geo terralign_raster terralign_iclk
+install(TARGETS terralign_geo terralign_raster terralign_nn terralign_iclk
         EXPORT terralignTargets
         ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
         LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}
         RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR}
         INCLUDES DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
-install(DIRECTORY src/geo/include/terralign src/raster/include/terralign src/iclk/include/terralign
+install(DIRECTORY src/geo/include/terralign src/raster/include/terralign src/nn/include/terralign src/iclk/include/terralign
         DESTINATION ${CMAKE_INSTALL_INCLUDEDIR})
 if(TERRALIGN_BUILD_TOOLS)
   install(TARGETS terralign_cli RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR})

@@ -8,7 +8,7 @@
 
 #include <terralign/raster/shade_kernels.hpp>
 #include <terralign/raster/terrain.hpp>
-#include <terralign/raster/thread_pool.hpp>
+#include <terralign/geo/thread_pool.hpp>
 
 namespace terralign::raster {
 namespace {

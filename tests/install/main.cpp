@@ -3,11 +3,11 @@
 
 #include <terralign/geo/pose.hpp>
 #include <terralign/iclk/se3.hpp>
-#include <terralign/raster/thread_pool.hpp>
+#include <terralign/geo/thread_pool.hpp>
 
 int main() {
   auto p = terralign::geo::parse_pose("1 2 3 1 0 0 0");
-  terralign::raster::ThreadPool pool(2);
+  terralign::ThreadPool pool(2);
   const auto T = terralign::iclk::SE3<double>::exp(terralign::iclk::Vec6<double>::Zero());
   const bool ok = p.ok() && pool.threads() == 2 && T.R.isIdentity();
   std::printf("find_package(terralign): %s\n", ok ? "ok" : "FAILED");

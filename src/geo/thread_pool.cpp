@@ -1,8 +1,8 @@
-#include <terralign/raster/thread_pool.hpp>
+#include <terralign/geo/thread_pool.hpp>
 
 #include <algorithm>
 
-namespace terralign::raster {
+namespace terralign {
 
 ThreadPool::ThreadPool(int threads) : threads_(std::max(1, threads)) {
   workers_.reserve(static_cast<std::size_t>(threads_ - 1));
@@ -58,4 +58,4 @@ void ThreadPool::worker(int id) {
   }
 }
 
-}  // namespace terralign::raster
+}  // namespace terralign

@@ -1,4 +1,4 @@
-// A fixed pool of worker threads for per-frame work split into independent tasks.
+// A fixed pool of worker threads (shared by the renderer and the inference engine) for per-frame work split into independent tasks.
 //
 // run(n, fn, ctx) calls fn(ctx, i) for every task i in [0, n); task i always runs on thread
 // i % threads (the caller's thread is thread 0), so which thread does what is fixed, and
@@ -11,7 +11,7 @@
 #include <thread>
 #include <vector>
 
-namespace terralign::raster {
+namespace terralign {
 
 class ThreadPool {
  public:
@@ -41,4 +41,4 @@ class ThreadPool {
   int tasks_ = 0;
 };
 
-}  // namespace terralign::raster
+}  // namespace terralign

@@ -1,0 +1,88 @@
+// Networks described by data. The architecture text of a weight file holds one or more
+// networks; each line is one node (names are unique within a network):
+//
+//   net NAME                          starts a network
+//   input NAME C                      an input of C channels (the caller fills it)
+//   conv NAME IN COUT DIL ACT PARAM   3x3 conv, stride 1, padding = dilation, weights
+//                                     PARAM.weight (COUT x CIN x 3 x 3) and PARAM.bias (COUT),
+//                                     batch norm folded in; ACT: none, elu, relu
+//   pool NAME IN                      2x2 average pooling (floor)
+//   upsample NAME IN                  2x bilinear (align_corners = False)
+//   mean NAME IN                      mean over channels -> 1 channel
+//   sigmoid NAME IN
+//   concat NAME IN1 IN2 ...           channels of the inputs, in order
+//   output NAME ...                   the nodes the caller may read
+//
+// A Network is planned once for an input size: every tensor is allocated then, forward()
+// allocates nothing. Work is split by output rows in fixed blocks, each row computed by one
+// thread in one order, so 1 and 2 threads give the same bytes.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <terralign/geo/result.hpp>
+#include <terralign/geo/thread_pool.hpp>
+#include <terralign/nn/kernels.hpp>
+#include <terralign/nn/tensor.hpp>
+#include <terralign/nn/weights.hpp>
+
+namespace terralign::nn {
+
+struct Node {
+  std::string op, name;
+  std::vector<std::string> inputs;
+  int channels = 0;   // input: C; conv: COUT
+  int dilation = 1;
+  Act act = Act::None;
+  std::string param;  // conv: tensor name prefix
+  int line = 0;
+};
+
+struct NetDesc {
+  std::string name;
+  std::vector<Node> nodes;
+  std::vector<std::string> outputs;
+};
+
+Result<std::vector<NetDesc>> parse_architecture(const std::string& text, const std::string& where);
+
+enum class Simd { Auto, Scalar, Avx2 };
+
+class Network {
+ public:
+  // Checks the description against the weights (every conv's tensors present with the
+  // right shapes; a tensor no network uses is an error), sizes every tensor for an input of
+  // width x height, and packs the weights.
+  static Result<std::unique_ptr<Network>> plan(const WeightFile& weights, const std::string& net, int width, int height,
+                                               int threads = 2, Simd simd = Simd::Auto);
+
+  // The input tensor to fill (h x w x c, see tensor.hpp), or null for an unknown name.
+  Tensor* input(const std::string& name);
+  const Tensor* output(const std::string& name) const;
+  void forward();
+  const char* simd_name() const { return conv_ == conv3x3_rows_scalar ? "scalar" : "avx2"; }
+  // Multiply-accumulates of one forward pass (3x3 convs), for benchmarks.
+  double macs() const;
+
+  struct Step {
+    const Node* node;
+    std::vector<int> in;  // tensor indices
+    int out;
+    int conv = -1;        // index into convs_
+  };
+
+ private:
+  Network() = default;
+  NetDesc desc_;
+  std::vector<Tensor> tensors_;
+  std::vector<std::string> names_;  // tensor names, by index
+  std::vector<ConvWeights> convs_;
+  std::vector<Step> steps_;
+  std::unique_ptr<ThreadPool> pool_;
+  ConvRowsFn conv_ = conv3x3_rows_scalar;
+  int index_of(const std::string& name) const;
+};
+
+}  // namespace terralign::nn

@@ -1,0 +1,106 @@
+#include <terralign/nn/kernels.hpp>
+
+#include <algorithm>
+#include <cmath>
+
+namespace terralign::nn {
+
+bool nn_cpu_has_avx2() {
+#if defined(TERRALIGN_NN_AVX2) && (defined(__x86_64__) || defined(__i386__))
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+#else
+  return false;
+#endif
+}
+
+ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act) {
+  ConvWeights w;
+  w.cin = cin;
+  w.cout = cout;
+  w.dilation = dilation;
+  w.act = act;
+  const int blocks = (cout + 7) / 8;
+  w.packed.assign(static_cast<std::size_t>(blocks) * 9 * static_cast<std::size_t>(cin) * 8, 0.0f);
+  w.bias.assign(static_cast<std::size_t>(blocks) * 8, 0.0f);
+  for (int co = 0; co < cout; ++co) {
+    w.bias[static_cast<std::size_t>(co)] = bias ? bias[co] : 0.0f;
+    for (int ci = 0; ci < cin; ++ci)
+      for (int k = 0; k < 9; ++k)
+        w.packed[((static_cast<std::size_t>(co / 8) * 9 + static_cast<std::size_t>(k)) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * 8 + static_cast<std::size_t>(co % 8)] =
+            oihw[(static_cast<std::size_t>(co) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * 9 + static_cast<std::size_t>(k)];
+  }
+  return w;
+}
+
+void avgpool2_rows(const Tensor& in, Tensor& out, int y0, int y1) {
+  for (int y = y0; y < y1; ++y)
+    for (int x = 0; x < out.w; ++x) {
+      const float* a = in.at(2 * y, 2 * x);
+      const float* b = in.at(2 * y, 2 * x + 1);
+      const float* c = in.at(2 * y + 1, 2 * x);
+      const float* d = in.at(2 * y + 1, 2 * x + 1);
+      float* o = out.at(y, x);
+      for (int k = 0; k < in.c; ++k) o[k] = ((a[k] + b[k]) + (c[k] + d[k])) * 0.25f;
+    }
+}
+
+void mean_channels_rows(const Tensor& in, Tensor& out, int y0, int y1) {
+  const float inv = 1.0f / static_cast<float>(in.c);
+  for (int y = y0; y < y1; ++y)
+    for (int x = 0; x < out.w; ++x) {
+      const float* p = in.at(y, x);
+      double s = 0;  // double: the mean of 128 channels keeps float's full precision
+      for (int k = 0; k < in.c; ++k) s += p[k];
+      out.at(y, x)[0] = static_cast<float>(s) * inv;
+    }
+}
+
+void sigmoid_rows(const Tensor& in, Tensor& out, int y0, int y1) {
+  for (int y = y0; y < y1; ++y)
+    for (int x = 0; x < out.w; ++x) {
+      const float* p = in.at(y, x);
+      float* o = out.at(y, x);
+      for (int k = 0; k < in.c; ++k) o[k] = 1.0f / (1.0f + std::exp(-p[k]));
+    }
+}
+
+void upsample2_rows(const Tensor& in, Tensor& out, int y0, int y1) {
+  // Source coordinate of output pixel i: (i + 0.5) / 2 - 0.5, clamped at 0 (PyTorch,
+  // align_corners = False); the far neighbour is clamped to the last pixel.
+  auto src = [](int i, int n, int& i0, int& i1, float& f) {
+    float s = (static_cast<float>(i) + 0.5f) * 0.5f - 0.5f;
+    s = std::max(s, 0.0f);
+    i0 = std::min(static_cast<int>(s), n - 1);
+    i1 = std::min(i0 + 1, n - 1);
+    f = s - static_cast<float>(i0);
+  };
+  for (int y = y0; y < y1; ++y) {
+    int ya, yb;
+    float fy;
+    src(y, in.h, ya, yb, fy);
+    for (int x = 0; x < out.w; ++x) {
+      int xa, xb;
+      float fx;
+      src(x, in.w, xa, xb, fx);
+      const float *a = in.at(ya, xa), *b = in.at(ya, xb), *c = in.at(yb, xa), *d = in.at(yb, xb);
+      float* o = out.at(y, x);
+      for (int k = 0; k < in.c; ++k)
+        o[k] = (1.0f - fy) * ((1.0f - fx) * a[k] + fx * b[k]) + fy * ((1.0f - fx) * c[k] + fx * d[k]);
+    }
+  }
+}
+
+void concat_rows(const Tensor* const* ins, int n, Tensor& out, int y0, int y1) {
+  for (int y = y0; y < y1; ++y)
+    for (int x = 0; x < out.w; ++x) {
+      float* o = out.at(y, x);
+      for (int i = 0; i < n; ++i) {
+        const float* p = ins[i]->at(y, x);
+        std::copy(p, p + ins[i]->c, o);
+        o += ins[i]->c;
+      }
+    }
+}
+
+}  // namespace terralign::nn

@@ -1,0 +1,247 @@
+#include <terralign/nn/network.hpp>
+
+#include <algorithm>
+#include <set>
+#include <sstream>
+
+namespace terralign::nn {
+
+Result<std::vector<NetDesc>> parse_architecture(const std::string& text, const std::string& where) {
+  std::vector<NetDesc> nets;
+  std::istringstream in(text);
+  std::string line;
+  int n = 0;
+  bool header = false;
+  while (std::getline(in, line)) {
+    ++n;
+    std::istringstream ls(line);
+    std::vector<std::string> t;
+    std::string tok;
+    while (ls >> tok) t.push_back(tok);
+    if (t.empty() || t[0][0] == '#') continue;
+    const std::string at = where + ": architecture line " + std::to_string(n);
+    if (!header) {
+      if (t.size() != 2 || t[0] != "terralign-net" || t[1] != "1")
+        return Error{at + ": expected 'terralign-net 1', found '" + line + "'"};
+      header = true;
+      continue;
+    }
+    if (t[0] == "net") {
+      if (t.size() != 2) return Error{at + ": 'net NAME'"};
+      nets.push_back({t[1], {}, {}});
+      continue;
+    }
+    if (nets.empty()) return Error{at + ": a node before any 'net'"};
+    NetDesc& net = nets.back();
+    if (t[0] == "output") {
+      if (t.size() < 2) return Error{at + ": 'output NAME ...'"};
+      net.outputs.insert(net.outputs.end(), t.begin() + 1, t.end());
+      continue;
+    }
+    Node node;
+    node.op = t[0];
+    node.line = n;
+    auto integer = [&](const std::string& s, int lo, int hi, int& out) -> Status {
+      char* end = nullptr;
+      const long v = std::strtol(s.c_str(), &end, 10);
+      if (s.empty() || *end || v < lo || v > hi)
+        return Error{at + ": '" + s + "' must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]"};
+      out = static_cast<int>(v);
+      return Ok{};
+    };
+    if (node.op == "input") {
+      if (t.size() != 3) return Error{at + ": 'input NAME C'"};
+      node.name = t[1];
+      TERRALIGN_TRY(integer(t[2], 1, 4096, node.channels));
+    } else if (node.op == "conv") {
+      if (t.size() != 7) return Error{at + ": 'conv NAME IN COUT DIL ACT PARAM'"};
+      node.name = t[1];
+      node.inputs = {t[2]};
+      TERRALIGN_TRY(integer(t[3], 1, 4096, node.channels));
+      TERRALIGN_TRY(integer(t[4], 1, kHalo, node.dilation));
+      if (t[5] == "elu") node.act = Act::Elu;
+      else if (t[5] == "relu") node.act = Act::Relu;
+      else if (t[5] == "none") node.act = Act::None;
+      else return Error{at + ": activation '" + t[5] + "' (none, elu, relu)"};
+      node.param = t[6];
+    } else if (node.op == "pool" || node.op == "upsample" || node.op == "mean" || node.op == "sigmoid") {
+      if (t.size() != 3) return Error{at + ": '" + node.op + " NAME IN'"};
+      node.name = t[1];
+      node.inputs = {t[2]};
+    } else if (node.op == "concat") {
+      if (t.size() < 4) return Error{at + ": 'concat NAME IN1 IN2 ...'"};
+      node.name = t[1];
+      node.inputs.assign(t.begin() + 2, t.end());
+    } else {
+      return Error{at + ": unknown operation '" + node.op + "'"};
+    }
+    for (const auto& other : net.nodes)
+      if (other.name == node.name) return Error{at + ": node '" + node.name + "' defined twice"};
+    net.nodes.push_back(node);
+  }
+  if (!header) return Error{where + ": empty architecture"};
+  return nets;
+}
+
+int Network::index_of(const std::string& name) const {
+  for (std::size_t i = 0; i < names_.size(); ++i)
+    if (names_[i] == name) return static_cast<int>(i);
+  return -1;
+}
+
+Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const std::string& net, int width, int height,
+                                               int threads, Simd simd) {
+  TERRALIGN_TRY_ASSIGN(const auto nets, parse_architecture(weights.architecture, weights.name));
+  // Every tensor must belong to a conv of some network.
+  std::set<std::string> used;
+  for (const auto& d : nets)
+    for (const auto& nd : d.nodes)
+      if (nd.op == "conv") {
+        used.insert(nd.param + ".weight");
+        used.insert(nd.param + ".bias");
+      }
+  for (const auto& t : weights.tensors)
+    if (!used.count(t.name)) return Error{weights.name + ": extra tensor " + t.name + " " + t.shape_text() + " is used by no layer"};
+  const NetDesc* desc = nullptr;
+  for (const auto& d : nets)
+    if (d.name == net) desc = &d;
+  if (!desc) return Error{weights.name + ": no network named '" + net + "'"};
+  if (width < 1 || height < 1 || width > 16384 || height > 16384)
+    return Error{"network " + net + ": input size " + std::to_string(width) + " x " + std::to_string(height) + " is outside 1..16384"};
+
+  std::unique_ptr<Network> N(new Network);
+  N->desc_ = *desc;
+  N->tensors_.reserve(N->desc_.nodes.size());
+  for (const auto& node : N->desc_.nodes) {
+    const std::string at = weights.name + ": " + net + " line " + std::to_string(node.line) + " (" + node.name + ")";
+    Step step{&node, {}, -1, -1};
+    for (const auto& in : node.inputs) {
+      const int i = N->index_of(in);
+      if (i < 0) return Error{at + ": input '" + in + "' is not defined above"};
+      step.in.push_back(i);
+    }
+    int h = height, w = width, c = node.channels;
+    if (!step.in.empty()) {
+      const Tensor& a = N->tensors_[static_cast<std::size_t>(step.in[0])];
+      h = a.h;
+      w = a.w;
+      c = a.c;
+    }
+    if (node.op == "pool") {
+      if (h < 2 || w < 2) return Error{at + ": cannot pool a " + std::to_string(w) + " x " + std::to_string(h) + " map"};
+      h /= 2;
+      w /= 2;
+    } else if (node.op == "upsample") {
+      h *= 2;
+      w *= 2;
+    } else if (node.op == "mean") {
+      c = 1;
+    } else if (node.op == "concat") {
+      c = 0;
+      for (int i : step.in) {
+        const Tensor& a = N->tensors_[static_cast<std::size_t>(i)];
+        if (a.h != h || a.w != w) return Error{at + ": concatenated inputs differ in size"};
+        c += a.c;
+      }
+    } else if (node.op == "conv") {
+      const int cin = c;
+      c = node.channels;
+      const TensorData* wt = weights.find(node.param + ".weight");
+      const TensorData* bt = weights.find(node.param + ".bias");
+      if (!wt) return Error{at + ": missing tensor " + node.param + ".weight"};
+      if (!bt) return Error{at + ": missing tensor " + node.param + ".bias"};
+      const std::vector<int> ws{c, cin, 3, 3}, bs{c};
+      auto text = [](const std::vector<int>& s) {
+        std::string r = "[";
+        for (std::size_t k = 0; k < s.size(); ++k) r += (k ? ", " : "") + std::to_string(s[k]);
+        return r + "]";
+      };
+      if (wt->shape != ws)
+        return Error{at + ": tensor " + wt->name + " is " + wt->shape_text() + ", the layer needs " + text(ws)};
+      if (bt->shape != bs)
+        return Error{at + ": tensor " + bt->name + " is " + bt->shape_text() + ", the layer needs " + text(bs)};
+      step.conv = static_cast<int>(N->convs_.size());
+      N->convs_.push_back(pack_conv(wt->data.data(), bt->data.data(), cin, c, node.dilation, node.act));
+    }
+    Tensor t;
+    t.allocate(h, w, c);
+    step.out = static_cast<int>(N->tensors_.size());
+    N->tensors_.push_back(std::move(t));
+    N->names_.push_back(node.name);
+    N->steps_.push_back(step);
+  }
+  for (auto& s : N->steps_) s.node = &N->desc_.nodes[static_cast<std::size_t>(&s - N->steps_.data())];
+  for (const auto& o : N->desc_.outputs)
+    if (N->index_of(o) < 0) return Error{weights.name + ": " + net + ": output '" + o + "' is not a node"};
+  const bool avx2 = nn_cpu_has_avx2();
+  if (simd == Simd::Avx2 && !avx2) return Error{"network " + net + ": AVX2 kernels requested but not available"};
+#if defined(TERRALIGN_NN_AVX2)
+  if (avx2 && simd != Simd::Scalar) N->conv_ = conv3x3_rows_avx2;
+#endif
+  N->pool_ = std::make_unique<ThreadPool>(threads);
+  return N;
+}
+
+Tensor* Network::input(const std::string& name) {
+  for (std::size_t i = 0; i < steps_.size(); ++i)
+    if (steps_[i].node->op == "input" && names_[i] == name) return &tensors_[i];
+  return nullptr;
+}
+
+const Tensor* Network::output(const std::string& name) const {
+  for (const auto& o : desc_.outputs)
+    if (o == name) return &tensors_[static_cast<std::size_t>(index_of(name))];
+  return nullptr;
+}
+
+double Network::macs() const {
+  double m = 0;
+  for (const auto& s : steps_)
+    if (s.conv >= 0) {
+      const Tensor& o = tensors_[static_cast<std::size_t>(s.out)];
+      m += 9.0 * o.h * o.w * o.c * convs_[static_cast<std::size_t>(s.conv)].cin;
+    }
+  return m;
+}
+
+namespace {
+struct StepCtx {
+  Network::Step const* step;
+  std::vector<Tensor>* tensors;
+  const ConvWeights* conv;
+  ConvRowsFn conv_fn;
+  int rows_per_task;
+};
+constexpr int kMaxConcat = 16;
+}  // namespace
+
+void Network::forward() {
+  for (const auto& s : steps_) {
+    if (s.node->op == "input") continue;
+    Tensor& out = tensors_[static_cast<std::size_t>(s.out)];
+    StepCtx ctx{&s, &tensors_, s.conv >= 0 ? &convs_[static_cast<std::size_t>(s.conv)] : nullptr, conv_, 2};
+    const int tasks = (out.h + ctx.rows_per_task - 1) / ctx.rows_per_task;
+    pool_->run(tasks, [](void* p, int i) {
+      auto* c = static_cast<StepCtx*>(p);
+      const Network::Step& st = *c->step;
+      std::vector<Tensor>& T = *c->tensors;
+      Tensor& o = T[static_cast<std::size_t>(st.out)];
+      const int y0 = i * c->rows_per_task, y1 = std::min(y0 + c->rows_per_task, o.h);
+      const Tensor& a = T[static_cast<std::size_t>(st.in[0])];
+      const std::string& op = st.node->op;
+      if (op == "conv") c->conv_fn(a, *c->conv, o, y0, y1);
+      else if (op == "pool") avgpool2_rows(a, o, y0, y1);
+      else if (op == "mean") mean_channels_rows(a, o, y0, y1);
+      else if (op == "sigmoid") sigmoid_rows(a, o, y0, y1);
+      else if (op == "upsample") upsample2_rows(a, o, y0, y1);
+      else if (op == "concat") {
+        const Tensor* ins[kMaxConcat];
+        const int n = std::min(static_cast<int>(st.in.size()), kMaxConcat);
+        for (int k = 0; k < n; ++k) ins[k] = &T[static_cast<std::size_t>(st.in[static_cast<std::size_t>(k)])];
+        concat_rows(ins, n, o, y0, y1);
+      }
+    }, &ctx);
+  }
+}
+
+}  // namespace terralign::nn

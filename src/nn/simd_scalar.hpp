@@ -1,0 +1,19 @@
+// The one-lane scalar vector wrapper: the scalar build of every kernel.
+#pragma once
+
+#include <cmath>
+
+namespace terralign::nn {
+
+struct VecScalar {
+  static constexpr int kWidth = 1;
+  float v;
+  static VecScalar load(const float* p) { return {*p}; }
+  static VecScalar set1(float x) { return {x}; }
+  void store(float* p) const { *p = v; }
+  friend VecScalar fmadd(VecScalar a, VecScalar b, VecScalar c) { return {a.v * b.v + c.v}; }
+  friend VecScalar elu(VecScalar a) { return {a.v > 0.0f ? a.v : std::expm1(a.v)}; }
+  friend VecScalar relu(VecScalar a) { return {a.v > 0.0f ? a.v : 0.0f}; }
+};
+
+}  // namespace terralign::nn

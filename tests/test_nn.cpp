@@ -1,0 +1,271 @@
+#include <cmath>
+#include <cstring>
+#include <random>
+
+#include <doctest/doctest.h>
+
+#include <terralign/geo/file.hpp>
+#include <terralign/nn/network.hpp>
+
+#include "alloc_counter.hpp"
+#include "support.hpp"
+
+using namespace terralign;
+using namespace terralign::nn;
+
+namespace {
+
+WeightFile load(const char* rel) {
+  auto w = read_weights(test::source_path(rel));
+  REQUIRE(w.ok());
+  return std::move(w.value());
+}
+
+// Copies channels [c0, c0 + c) of a C x H x W tensor into channels [at, at + c) of t.
+void fill(Tensor& t, const TensorData& chw, int at) {
+  const int c = chw.shape[0], h = chw.shape[1], w = chw.shape[2];
+  REQUIRE((h == t.h && w == t.w));
+  for (int k = 0; k < c; ++k)
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) t.at(y, x)[at + k] = chw.data[(static_cast<std::size_t>(k) * h + y) * w + x];
+}
+
+// Normalised mean squared error of channels of t against a C x H x W reference.
+double nmse(const Tensor& t, const TensorData& ref) {
+  const int c = ref.shape[0], h = ref.shape[1], w = ref.shape[2];
+  REQUIRE((h == t.h && w == t.w && c == t.c));
+  double num = 0, den = 0;
+  for (int k = 0; k < c; ++k)
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const double r = ref.data[(static_cast<std::size_t>(k) * h + y) * w + x];
+        const double d = t.at(y, x)[k] - r;
+        num += d * d;
+        den += r * r;
+      }
+  return num / den;
+}
+
+// Serialises a WeightFile as training/tlw.py does, for the bad-input cases.
+std::vector<std::uint8_t> serialise(const WeightFile& wf, std::uint32_t version = 1) {
+  std::vector<std::uint8_t> out;
+  auto put = [&](const void* p, std::size_t n) { out.insert(out.end(), static_cast<const std::uint8_t*>(p), static_cast<const std::uint8_t*>(p) + n); };
+  auto u = [&](std::uint64_t v, int bytes) { for (int i = 0; i < bytes; ++i) out.push_back(static_cast<std::uint8_t>(v >> (8 * i))); };
+  put("TLNNWGT", 8);
+  u(version, 4);
+  u(wf.architecture.size(), 4);
+  put(wf.architecture.data(), wf.architecture.size());
+  u(wf.tensors.size(), 4);
+  std::vector<std::uint8_t> blob;
+  for (const auto& t : wf.tensors) {
+    while (blob.size() % 16) blob.push_back(0);
+    u(t.name.size(), 2);
+    put(t.name.data(), t.name.size());
+    u(1, 1);
+    u(t.shape.size(), 1);
+    for (int d : t.shape) u(static_cast<std::uint64_t>(d), 4);
+    u(blob.size(), 8);
+    u(t.data.size() * 4, 8);
+    const auto* p = reinterpret_cast<const std::uint8_t*>(t.data.data());
+    blob.insert(blob.end(), p, p + t.data.size() * 4);
+  }
+  u(blob.size(), 8);
+  out.insert(out.end(), blob.begin(), blob.end());
+  std::uint64_t h = 0xcbf29ce484222325ull;
+  for (auto b : out) { h ^= b; h *= 0x100000001b3ull; }
+  u(h, 8);
+  return out;
+}
+
+std::string plan_error(const WeightFile& wf) {
+  auto bytes = serialise(wf);
+  auto parsed = parse_weights(bytes.data(), bytes.size(), "edited.tlw");
+  if (!parsed.ok()) return parsed.error().message;
+  auto n = Network::plan(parsed.value(), "encoder", 32, 32, 1);
+  return n.ok() ? std::string("(planned)") : n.error().message;
+}
+
+}  // namespace
+
+TEST_CASE("parity with PyTorch: Lv et al.'s encoder and M-estimator reproduce every level with NMSE <= 1e-7") {
+  const WeightFile weights = load("weights/lv19_tum_abc.tlw");
+  const WeightFile ref = load("tests/data/nn/lv19_tum_parity.tlw");
+  for (Simd simd : {Simd::Scalar, Simd::Auto}) {
+    auto enc = Network::plan(weights, "encoder", 160, 120, 2, simd);
+    REQUIRE(enc.ok());
+    MESSAGE("conv kernels: " << std::string(enc.value()->simd_name()));
+    // Frame a: its own input, then the other frame's; frame b the other way round.
+    std::vector<std::vector<float>> mean_out[2];
+    Tensor f[2][4];
+    for (int frame = 0; frame < 2; ++frame) {
+      Tensor* x = enc.value()->input("x");
+      REQUIRE(x);
+      fill(*x, *ref.find(frame == 0 ? "in_a" : "in_b"), 0);
+      fill(*x, *ref.find(frame == 0 ? "in_b" : "in_a"), 4);
+      enc.value()->forward();
+      const char* tag = frame == 0 ? "a" : "b";
+      for (int l = 0; l < 4; ++l) {
+        const Tensor* out = enc.value()->output("f" + std::to_string(l));
+        REQUIRE(out);
+        const double e = nmse(*out, *ref.find(std::string("f") + tag + std::to_string(l)));
+        CAPTURE(l);
+        CHECK(e <= 1e-7);
+        f[frame][l] = *out;
+      }
+      const double e3 = nmse(*enc.value()->output("e3_2"), *ref.find(std::string("e") + tag + "3"));
+      CHECK(e3 <= 1e-7);
+      MESSAGE("frame " << std::string(tag) << ": level-3 features NMSE " << e3);
+    }
+    // The M-estimator, coarse to fine, on r = f_b - f_a with the previous weight upsampled.
+    Tensor w_prev;
+    for (int l = 3; l >= 0; --l) {
+      const int h = f[0][l].h, w = f[0][l].w;
+      auto mest = Network::plan(weights, "mestimator", w, h, 2, simd);
+      REQUIRE(mest.ok());
+      Tensor* x = mest.value()->input("x");
+      Tensor up;
+      up.allocate(h, w, 1);
+      if (l == 3) {
+        for (int y = 0; y < h; ++y)
+          for (int xx = 0; xx < w; ++xx) up.at(y, xx)[0] = 1.0f;
+      } else {
+        upsample2_rows(w_prev, up, 0, h);
+      }
+      for (int y = 0; y < h; ++y)
+        for (int xx = 0; xx < w; ++xx) {
+          const float a = f[0][l].at(y, xx)[0], b = f[1][l].at(y, xx)[0];
+          float* p = x->at(y, xx);
+          p[0] = std::abs(b - a);
+          p[1] = a;
+          p[2] = b;
+          p[3] = up.at(y, xx)[0];
+        }
+      mest.value()->forward();
+      const double e = nmse(*mest.value()->output("w"), *ref.find("w" + std::to_string(l)));
+      CAPTURE(l);
+      CHECK(e <= 1e-7);
+      w_prev = *mest.value()->output("w");
+    }
+  }
+}
+
+TEST_CASE("the scalar and AVX2 convolutions agree on seeded random inputs") {
+  if (!nn_cpu_has_avx2()) {
+    MESSAGE("skipped: no AVX2 kernel on this CPU or build");
+    return;
+  }
+#if defined(TERRALIGN_NN_AVX2)
+  std::mt19937 rng(99);
+  std::normal_distribution<float> n01(0, 1);
+  for (int dil : {1, 2, 4})
+    for (auto [cin, cout] : {std::pair<int, int>{3, 5}, {16, 32}, {37, 24}, {64, 1}}) {
+      CAPTURE(dil);
+      CAPTURE(cin);
+      CAPTURE(cout);
+      Tensor in, a, b;
+      in.allocate(13, 29, cin);
+      a.allocate(13, 29, cout);
+      b.allocate(13, 29, cout);
+      for (int y = 0; y < 13; ++y)
+        for (int x = 0; x < 29; ++x)
+          for (int c = 0; c < cin; ++c) in.at(y, x)[c] = n01(rng);
+      std::vector<float> wt(static_cast<std::size_t>(cout) * cin * 9), bias(static_cast<std::size_t>(cout));
+      for (auto& v : wt) v = n01(rng) * 0.2f;
+      for (auto& v : bias) v = n01(rng);
+      const ConvWeights w = pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu);
+      conv3x3_rows_scalar(in, w, a, 0, 13);
+      conv3x3_rows_avx2(in, w, b, 0, 13);
+      // FMA rounds once where the scalar build rounds twice, and ELU's exp differs (libm
+      // versus a polynomial to 2e-7): bound |a - b| by 1e-5 of the output's scale.
+      double worst = 0, scale = 0;
+      for (int y = 0; y < 13; ++y)
+        for (int x = 0; x < 29; ++x)
+          for (int c = 0; c < cout; ++c) {
+            worst = std::max(worst, double(std::abs(a.at(y, x)[c] - b.at(y, x)[c])));
+            scale = std::max(scale, double(std::abs(a.at(y, x)[c])));
+          }
+      CHECK(worst <= 1e-5 * std::max(scale, 1.0));
+    }
+#endif
+}
+
+TEST_CASE("a forward pass gives the same bytes on 1 and 2 threads and allocates nothing") {
+  const WeightFile weights = load("weights/lv19_tum_abc.tlw");
+  auto one = Network::plan(weights, "encoder", 97, 61, 1);
+  auto two = Network::plan(weights, "encoder", 97, 61, 2);
+  REQUIRE((one.ok() && two.ok()));
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(-2, 2);
+  Tensor* a = one.value()->input("x");
+  Tensor* b = two.value()->input("x");
+  for (int y = 0; y < 61; ++y)
+    for (int x = 0; x < 97; ++x)
+      for (int c = 0; c < 8; ++c) a->at(y, x)[c] = b->at(y, x)[c] = u(rng);
+  one.value()->forward();
+  test::AllocationCounter count;
+  two.value()->forward();
+  CHECK(count.allocations() == 0);
+  for (const char* o : {"f0", "f3", "e3_2"})
+    CHECK(one.value()->output(o)->storage == two.value()->output(o)->storage);
+}
+
+TEST_CASE("bad weight files are refused with the tensor and the numbers") {
+  const WeightFile good = load("weights/lv19_tum_abc.tlw");
+  auto bytes = geo::read_file(test::source_path("weights/lv19_tum_abc.tlw"));
+  REQUIRE(bytes.ok());
+  auto err = [&](std::vector<std::uint8_t> b) {
+    auto r = parse_weights(b.data(), b.size(), "w.tlw");
+    return r.ok() ? std::string("(loaded)") : r.error().message;
+  };
+  SUBCASE("truncated, at many lengths") {
+    for (std::size_t len : {std::size_t{0}, std::size_t{7}, std::size_t{20}, std::size_t{300}, bytes->size() / 2, bytes->size() - 9}) {
+      CAPTURE(len);
+      std::vector<std::uint8_t> cut(bytes->begin(), bytes->begin() + static_cast<std::ptrdiff_t>(len));
+      CHECK(err(cut) != "(loaded)");
+    }
+    CHECK(err(std::vector<std::uint8_t>(bytes->begin(), bytes->end() - 100)).find("truncated") != std::string::npos);
+  }
+  SUBCASE("wrong magic") {
+    auto b = bytes.value();
+    b[0] = 'X';
+    CHECK(err(b).find("magic") != std::string::npos);
+  }
+  SUBCASE("another format version") {
+    auto b = serialise(good, 2);
+    CHECK(err(b).find("version 2") != std::string::npos);
+  }
+  SUBCASE("checksum mismatch") {
+    auto b = bytes.value();
+    b[b.size() / 2] ^= 0x40;
+    CHECK(err(b).find("checksum mismatch") != std::string::npos);
+  }
+  SUBCASE("missing tensor") {
+    WeightFile w = good;
+    w.tensors.erase(w.tensors.begin() + 2);
+    CHECK(plan_error(w).find("missing tensor encoder.net0.1.weight") != std::string::npos);
+  }
+  SUBCASE("extra tensor") {
+    WeightFile w = good;
+    w.tensors.push_back({"encoder.net9.0.weight", {2, 2}, {1, 2, 3, 4}});
+    CHECK(plan_error(w).find("extra tensor encoder.net9.0.weight [2, 2]") != std::string::npos);
+  }
+  SUBCASE("shape mismatch") {
+    WeightFile w = good;
+    for (auto& t : w.tensors)
+      if (t.name == "encoder.net0.1.weight") {
+        t.shape = {32, 16, 9, 1};
+      }
+    const std::string e = plan_error(w);
+    CHECK(e.find("encoder.net0.1.weight is [32, 16, 9, 1], the layer needs [32, 16, 3, 3]") != std::string::npos);
+  }
+  SUBCASE("a missing file") {
+    auto r = read_weights("/nonexistent/w.tlw");
+    REQUIRE(!r.ok());
+    CHECK(r.error().message.find("/nonexistent/w.tlw") != std::string::npos);
+  }
+  SUBCASE("a broken architecture line") {
+    WeightFile w = good;
+    w.architecture += "conv bad e3_2 8 9 elu x\n";  // dilation 9 exceeds the halo
+    CHECK(plan_error(w).find("must be an integer in [1, 4]") != std::string::npos);
+  }
+}

@@ -1,0 +1,49 @@
+"""Writer and reader of terralign's weight container (.tlw), shared by the converter and the
+parity-vector writer. Layout (little-endian), as read by src/nn/weights.cpp:
+
+  8 bytes   magic "TLNNWGT\\0"
+  u32       format version (1)
+  u32       architecture text length, then the text (UTF-8)
+  u32       tensor count; per tensor: u16 name length, name, u8 dtype (1 = float32),
+            u8 rank, u32 x rank dims, u64 offset into the data block, u64 byte count
+  u64       data block length, then the data (each tensor 16-byte aligned)
+  u64       FNV-1a 64 of every byte before it
+"""
+import struct
+
+import numpy as np
+
+MAGIC = b"TLNNWGT\0"
+VERSION = 1
+
+
+def fnv1a64(data):
+    h = 0xcbf29ce484222325
+    for b in data:
+        h ^= b
+        h = (h * 0x100000001b3) & 0xFFFFFFFFFFFFFFFF
+    return h
+
+
+def write(path, arch, tensors):
+    """tensors: list of (name, numpy float32 array)."""
+    head = bytearray(MAGIC)
+    head += struct.pack("<I", VERSION)
+    a = arch.encode()
+    head += struct.pack("<I", len(a)) + a
+    head += struct.pack("<I", len(tensors))
+    blob = bytearray()
+    for name, arr in tensors:
+        arr = np.ascontiguousarray(arr, dtype="<f4")
+        while len(blob) % 16:
+            blob.append(0)
+        n = name.encode()
+        head += struct.pack("<H", len(n)) + n + struct.pack("<BB", 1, arr.ndim)
+        head += struct.pack("<" + "I" * arr.ndim, *arr.shape)
+        head += struct.pack("<QQ", len(blob), arr.nbytes)
+        blob += arr.tobytes()
+    body = bytes(head) + struct.pack("<Q", len(blob)) + bytes(blob)
+    with open(path + ".tmp", "wb") as f:
+        f.write(body + struct.pack("<Q", fnv1a64(body)))
+    import os
+    os.replace(path + ".tmp", path)
