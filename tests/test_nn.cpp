@@ -90,7 +90,8 @@ std::string plan_error(const WeightFile& wf) {
 TEST_CASE("parity with PyTorch: Lv et al.'s encoder and M-estimator reproduce every level with NMSE <= 1e-7") {
   const WeightFile weights = load("weights/lv19_tum_abc.tlw");
   const WeightFile ref = load("tests/data/nn/lv19_tum_parity.tlw");
-  for (Simd simd : {Simd::Scalar, Simd::Auto}) {
+  for (Simd simd : {Simd::Scalar, Simd::Avx2, Simd::Avx512}) {
+    if ((simd == Simd::Avx2 && !nn_cpu_has_avx2()) || (simd == Simd::Avx512 && !nn_cpu_has_avx512())) continue;
     auto enc = Network::plan(weights, "encoder", 160, 120, 2, simd);
     REQUIRE(enc.ok());
     MESSAGE("conv kernels: " << std::string(enc.value()->simd_name()));
@@ -149,7 +150,7 @@ TEST_CASE("parity with PyTorch: Lv et al.'s encoder and M-estimator reproduce ev
   }
 }
 
-TEST_CASE("the scalar and AVX2 convolutions agree on seeded random inputs") {
+TEST_CASE("the scalar, AVX2 and AVX-512 convolutions agree on seeded random inputs") {
   if (!nn_cpu_has_avx2()) {
     MESSAGE("skipped: no AVX2 kernel on this CPU or build");
     return;
@@ -175,6 +176,20 @@ TEST_CASE("the scalar and AVX2 convolutions agree on seeded random inputs") {
       const ConvWeights w = pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu);
       conv3x3_rows_scalar(in, w, a, 0, 13);
       conv3x3_rows_avx2(in, w, b, 0, 13);
+      if (nn_cpu_has_avx512()) {
+        Tensor c;
+        c.allocate(13, 29, cout);
+        conv3x3_rows_avx512(in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu, 16), c, 0, 13);
+        double worst512 = 0;
+        for (int y = 0; y < 13; ++y)
+          for (int x = 0; x < 29; ++x)
+            for (int k = 0; k < cout; ++k) worst512 = std::max(worst512, double(std::abs(a.at(y, x)[k] - c.at(y, x)[k])));
+        double scale512 = 0;
+        for (int y = 0; y < 13; ++y)
+          for (int x = 0; x < 29; ++x)
+            for (int k = 0; k < cout; ++k) scale512 = std::max(scale512, double(std::abs(a.at(y, x)[k])));
+        CHECK(worst512 <= 1e-5 * std::max(scale512, 1.0));
+      }
       // FMA rounds once where the scalar build rounds twice, and ELU's exp differs (libm
       // versus a polynomial to 2e-7): bound |a - b| by 1e-5 of the output's scale.
       double worst = 0, scale = 0;

@@ -14,20 +14,31 @@ bool nn_cpu_has_avx2() {
 #endif
 }
 
-ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act) {
+bool nn_cpu_has_avx512() {
+#if defined(TERRALIGN_NN_AVX2) && (defined(__x86_64__) || defined(__i386__))
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx512f");
+#else
+  return false;
+#endif
+}
+
+ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act, int block) {
   ConvWeights w;
+  w.block = block;
   w.cin = cin;
   w.cout = cout;
   w.dilation = dilation;
   w.act = act;
-  const int blocks = (cout + 7) / 8;
-  w.packed.assign(static_cast<std::size_t>(blocks) * 9 * static_cast<std::size_t>(cin) * 8, 0.0f);
-  w.bias.assign(static_cast<std::size_t>(blocks) * 8, 0.0f);
+  const int blocks = (cout + block - 1) / block;
+  const std::size_t B = static_cast<std::size_t>(block);
+  w.packed.assign(static_cast<std::size_t>(blocks) * 9 * static_cast<std::size_t>(cin) * B, 0.0f);
+  w.bias.assign(static_cast<std::size_t>(blocks) * B, 0.0f);
   for (int co = 0; co < cout; ++co) {
     w.bias[static_cast<std::size_t>(co)] = bias ? bias[co] : 0.0f;
     for (int ci = 0; ci < cin; ++ci)
       for (int k = 0; k < 9; ++k)
-        w.packed[((static_cast<std::size_t>(co / 8) * 9 + static_cast<std::size_t>(k)) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * 8 + static_cast<std::size_t>(co % 8)] =
+        w.packed[((static_cast<std::size_t>(co / block) * 9 + static_cast<std::size_t>(k)) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * B + static_cast<std::size_t>(co % block)] =
             oihw[(static_cast<std::size_t>(co) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * 9 + static_cast<std::size_t>(k)];
   }
   return w;

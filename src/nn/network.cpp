@@ -1,6 +1,7 @@
 #include <terralign/nn/network.hpp>
 
 #include <algorithm>
+#include <chrono>
 #include <set>
 #include <sstream>
 
@@ -111,6 +112,21 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
 
   std::unique_ptr<Network> N(new Network);
   N->desc_ = *desc;
+  // The kernel, picked once: its block width decides how the weights are packed.
+  const bool avx2 = nn_cpu_has_avx2(), avx512 = nn_cpu_has_avx512();
+  if ((simd == Simd::Avx2 && !avx2) || (simd == Simd::Avx512 && !avx512))
+    return Error{"network " + net + ": the requested SIMD kernels are not available on this CPU or build"};
+  int block = 8;
+#if defined(TERRALIGN_NN_AVX2)
+  if (avx512 && (simd == Simd::Auto || simd == Simd::Avx512)) {
+    N->conv_ = conv3x3_rows_avx512;
+    N->simd_name_ = "avx512";
+    block = 16;
+  } else if (avx2 && (simd == Simd::Auto || simd == Simd::Avx2)) {
+    N->conv_ = conv3x3_rows_avx2;
+    N->simd_name_ = "avx2";
+  }
+#endif
   N->tensors_.reserve(N->desc_.nodes.size());
   for (const auto& node : N->desc_.nodes) {
     const std::string at = weights.name + ": " + net + " line " + std::to_string(node.line) + " (" + node.name + ")";
@@ -161,7 +177,7 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
       if (bt->shape != bs)
         return Error{at + ": tensor " + bt->name + " is " + bt->shape_text() + ", the layer needs " + text(bs)};
       step.conv = static_cast<int>(N->convs_.size());
-      N->convs_.push_back(pack_conv(wt->data.data(), bt->data.data(), cin, c, node.dilation, node.act));
+      N->convs_.push_back(pack_conv(wt->data.data(), bt->data.data(), cin, c, node.dilation, node.act, block));
     }
     Tensor t;
     t.allocate(h, w, c);
@@ -173,12 +189,8 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
   for (auto& s : N->steps_) s.node = &N->desc_.nodes[static_cast<std::size_t>(&s - N->steps_.data())];
   for (const auto& o : N->desc_.outputs)
     if (N->index_of(o) < 0) return Error{weights.name + ": " + net + ": output '" + o + "' is not a node"};
-  const bool avx2 = nn_cpu_has_avx2();
-  if (simd == Simd::Avx2 && !avx2) return Error{"network " + net + ": AVX2 kernels requested but not available"};
-#if defined(TERRALIGN_NN_AVX2)
-  if (avx2 && simd != Simd::Scalar) N->conv_ = conv3x3_rows_avx2;
-#endif
   N->pool_ = std::make_unique<ThreadPool>(threads);
+  N->step_ms_.assign(N->steps_.size(), 0.0);
   return N;
 }
 
@@ -215,9 +227,22 @@ struct StepCtx {
 constexpr int kMaxConcat = 16;
 }  // namespace
 
+std::vector<Network::StepTime> Network::step_times() const {
+  std::vector<StepTime> out;
+  for (std::size_t i = 0; i < steps_.size(); ++i) {
+    const Step& s = steps_[i];
+    if (s.node->op == "input") continue;
+    const Tensor& o = tensors_[static_cast<std::size_t>(s.out)];
+    const double m = s.conv >= 0 ? 9.0 * o.h * o.w * o.c * convs_[static_cast<std::size_t>(s.conv)].cin : 0.0;
+    out.push_back({names_[i], s.node->op, step_ms_[i], m});
+  }
+  return out;
+}
+
 void Network::forward() {
   for (const auto& s : steps_) {
     if (s.node->op == "input") continue;
+    const auto t0 = profile_ ? std::chrono::steady_clock::now() : std::chrono::steady_clock::time_point{};
     Tensor& out = tensors_[static_cast<std::size_t>(s.out)];
     StepCtx ctx{&s, &tensors_, s.conv >= 0 ? &convs_[static_cast<std::size_t>(s.conv)] : nullptr, conv_, 2};
     const int tasks = (out.h + ctx.rows_per_task - 1) / ctx.rows_per_task;
@@ -241,6 +266,9 @@ void Network::forward() {
         concat_rows(ins, n, o, y0, y1);
       }
     }, &ctx);
+    if (profile_)
+      step_ms_[static_cast<std::size_t>(&s - steps_.data())] =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   }
 }
 

@@ -36,6 +36,8 @@ inline __m256 expm1_neg_avx2(__m256 x) {
 
 struct VecAvx2 {
   static constexpr int kWidth = 8;
+  static constexpr int kBlock = 8;       // output channels a weight block holds
+  static constexpr int kTilePixels = 6;  // output pixels a register tile holds
   __m256 v;
   static VecAvx2 load(const float* p) { return {_mm256_loadu_ps(p)}; }
   static VecAvx2 set1(float x) { return {_mm256_set1_ps(x)}; }

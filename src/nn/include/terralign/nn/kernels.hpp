@@ -2,8 +2,9 @@
 // hidden state; rows [y0, y1) of the output only, so callers split work by rows.
 //
 // The 3x3 convolution is written once (conv_rows.hpp) against a thin vector wrapper and
-// built twice: with the one-lane scalar wrapper and with AVX2 + FMA. The two differ only in
-// rounding (FMA versus multiply-then-add): tests bound their difference.
+// built three times: with the one-lane scalar wrapper, with AVX2 + FMA and with AVX-512F.
+// They differ only in rounding (FMA versus multiply-then-add, and the ELU's exp): tests
+// bound their difference.
 #pragma once
 
 #include <terralign/nn/tensor.hpp>
@@ -12,23 +13,26 @@ namespace terralign::nn {
 
 enum class Act { None, Elu, Relu };
 
-// Weights packed for the kernels: for each block of 8 output channels, [3][3][cin][8].
+// Weights packed for the kernels: for each block of `block` output channels (8, or 16 for
+// AVX-512), [3][3][cin][block].
 struct ConvWeights {
-  int cin = 0, cout = 0, dilation = 1;
+  int cin = 0, cout = 0, dilation = 1, block = 8;
   Act act = Act::None;
-  std::vector<float> packed;  // (cout / 8 rounded up) x 9 x cin x 8
-  std::vector<float> bias;    // cout rounded up to 8
+  std::vector<float> packed;  // (cout / block rounded up) x 9 x cin x block
+  std::vector<float> bias;    // cout rounded up to block
 };
 
 // From PyTorch's OIHW layout (cout x cin x 3 x 3) and a bias of cout.
-ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act);
+ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act, int block = 8);
 
 using ConvRowsFn = void (*)(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
 void conv3x3_rows_scalar(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
 #if defined(TERRALIGN_NN_AVX2)
 void conv3x3_rows_avx2(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
+void conv3x3_rows_avx512(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
 #endif
 bool nn_cpu_has_avx2();
+bool nn_cpu_has_avx512();
 
 // 2x2 average pooling (floor sizes), mean over channels to one channel, sigmoid in place,
 // bilinear 2x upsampling (PyTorch's align_corners = False, edges clamped), concatenation

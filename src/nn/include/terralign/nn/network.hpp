@@ -48,7 +48,7 @@ struct NetDesc {
 
 Result<std::vector<NetDesc>> parse_architecture(const std::string& text, const std::string& where);
 
-enum class Simd { Auto, Scalar, Avx2 };
+enum class Simd { Auto, Scalar, Avx2, Avx512 };
 
 class Network {
  public:
@@ -62,9 +62,16 @@ class Network {
   Tensor* input(const std::string& name);
   const Tensor* output(const std::string& name) const;
   void forward();
-  const char* simd_name() const { return conv_ == conv3x3_rows_scalar ? "scalar" : "avx2"; }
+  const char* simd_name() const { return simd_name_; }
   // Multiply-accumulates of one forward pass (3x3 convs), for benchmarks.
   double macs() const;
+  // Per-node timing of forward() (no allocation; off by default), for benchmarks.
+  void set_profiling(bool on) { profile_ = on; }
+  struct StepTime {
+    std::string name, op;
+    double ms, macs;
+  };
+  std::vector<StepTime> step_times() const;
 
   struct Step {
     const Node* node;
@@ -82,6 +89,9 @@ class Network {
   std::vector<Step> steps_;
   std::unique_ptr<ThreadPool> pool_;
   ConvRowsFn conv_ = conv3x3_rows_scalar;
+  const char* simd_name_ = "scalar";
+  bool profile_ = false;
+  std::vector<double> step_ms_;
   int index_of(const std::string& name) const;
 };
 

@@ -1,5 +1,5 @@
 // Feature maps as the kernels want them: height x width x channels (channels fastest),
-// channels padded to a multiple of 8 (zeros), and a halo of kHalo zero pixels on every side
+// channels padded to a multiple of 16 (zeros; the widest kernel writes 16 at a time), and a halo of kHalo zero pixels on every side
 // so that a 3x3 convolution with dilation <= kHalo reads its neighbours without bounds
 // checks. Allocated once, at planning time.
 #pragma once
@@ -10,11 +10,11 @@
 namespace terralign::nn {
 
 constexpr int kHalo = 4;        // the largest dilation a plan accepts
-constexpr int kChannelBlock = 8;
+constexpr int kChannelBlock = 16;
 
 struct Tensor {
   int h = 0, w = 0, c = 0;      // logical size
-  int cp = 0;                   // channel stride (c rounded up to 8)
+  int cp = 0;                   // channel stride (c rounded up to 16)
   std::ptrdiff_t row = 0;       // floats between rows
   std::vector<float> storage;   // (h + 2 halo) x (w + 2 halo) x cp, zero-initialised
 

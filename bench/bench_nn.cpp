@@ -1,0 +1,134 @@
+// The inference engine on Lv et al.'s encoder: per layer and in total, milliseconds and
+// achieved GFLOP/s as a fraction of this CPU's FMA peak (measured by an FMA loop in the same
+// run), at 752x480 and 160x120, 1 and 2 threads; beside PyTorch on the CPU with two threads
+// (training/bench_torch_encoder.py, where /usr/bin/python3 has torch), with the speed ratio.
+//   build/release/bench/bench_nn
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <thread>
+#include <vector>
+
+#include <terralign/nn/network.hpp>
+
+#if defined(TERRALIGN_NN_AVX2)
+#include <immintrin.h>
+__attribute__((target("avx2,fma"))) static double fma_loop(long iters) {
+  __m256 a[10];
+  for (int i = 0; i < 10; ++i) a[i] = _mm256_set1_ps(static_cast<float>(i) * 1e-3f);
+  const __m256 m = _mm256_set1_ps(0.999999f), c = _mm256_set1_ps(1e-7f);
+  for (long k = 0; k < iters; ++k)
+    for (int i = 0; i < 10; ++i) a[i] = _mm256_fmadd_ps(a[i], m, c);
+  float s = 0, out[8];
+  for (int i = 0; i < 10; ++i) {
+    _mm256_storeu_ps(out, a[i]);
+    s += out[0];
+  }
+  return s;
+}
+__attribute__((target("avx512f"))) static double fma_loop512(long iters) {
+  __m512 a[12];
+  for (int i = 0; i < 12; ++i) a[i] = _mm512_set1_ps(static_cast<float>(i) * 1e-3f);
+  const __m512 m = _mm512_set1_ps(0.999999f), c = _mm512_set1_ps(1e-7f);
+  for (long k = 0; k < iters; ++k)
+    for (int i = 0; i < 12; ++i) a[i] = _mm512_fmadd_ps(a[i], m, c);
+  float s = 0, out[16];
+  for (int i = 0; i < 12; ++i) {
+    _mm512_storeu_ps(out, a[i]);
+    s += out[0];
+  }
+  return s;
+}
+#endif
+
+using namespace terralign;
+
+namespace {
+
+// FMA peak of the widest vector unit the kernels use: AVX-512 (12 chains of 16 lanes) or
+// AVX2 (10 chains of 8), best of 3 runs.
+double peak_gflops(int threads, bool avx512) {
+#if defined(TERRALIGN_NN_AVX2)
+  if (!nn::nn_cpu_has_avx2()) return 0;
+  const long iters = 40'000'000;
+  double best = 0;
+  for (int rep = 0; rep < 3; ++rep) {
+    const auto t0 = std::chrono::steady_clock::now();
+    std::vector<std::thread> ts;
+    std::vector<double> sink(static_cast<std::size_t>(threads));
+    for (int t = 0; t < threads; ++t)
+      ts.emplace_back([&, t] { sink[static_cast<std::size_t>(t)] = avx512 ? fma_loop512(iters) : fma_loop(iters); });
+    for (auto& t : ts) t.join();
+    const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const double flops = 2.0 * (avx512 ? 16 * 12 : 8 * 10) * static_cast<double>(iters) * threads;
+    best = std::max(best, flops / s / 1e9);
+  }
+  return best;
+#else
+  (void)threads;
+  (void)avx512;
+  return 0;
+#endif
+}
+
+double torch_ms(int w, int h, int threads) {
+  char cmd[512];
+  std::snprintf(cmd, sizeof cmd, "/usr/bin/python3 %s/training/bench_torch_encoder.py %d %d %d 2>/dev/null",
+                TERRALIGN_SOURCE_DIR, w, h, threads);
+  std::FILE* p = popen(cmd, "r");
+  if (!p) return -1;
+  char line[128] = {0};
+  double ms = -1;
+  if (std::fgets(line, sizeof line, p)) std::sscanf(line, "ms=%lf", &ms);
+  pclose(p);
+  return ms;
+}
+
+}  // namespace
+
+int main() {
+  auto weights = nn::read_weights(TERRALIGN_SOURCE_DIR "/weights/lv19_tum_abc.tlw");
+  if (!weights.ok()) {
+    std::fprintf(stderr, "%s\n", weights.error().message.c_str());
+    return 1;
+  }
+  const bool wide = nn::nn_cpu_has_avx512();
+  const double peak1 = peak_gflops(1, wide), peak2 = peak_gflops(2, wide);
+  std::printf("FMA peak (%s, measured): %.1f GFLOP/s on 1 thread, %.1f on 2\n\n", wide ? "AVX-512" : "AVX2", peak1, peak2);
+  for (auto [w, h] : {std::pair<int, int>{752, 480}, {160, 120}}) {
+    for (int threads : {1, 2}) {
+      auto net = nn::Network::plan(weights.value(), "encoder", w, h, threads);
+      if (!net.ok()) return 1;
+      net.value()->forward();
+      std::vector<double> totals;
+      for (int rep = 0; rep < (w > 200 ? 3 : 20); ++rep) {
+        const auto t0 = std::chrono::steady_clock::now();
+        net.value()->forward();
+        totals.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+      }
+      std::sort(totals.begin(), totals.end());
+      const double ms = totals.front();
+      const double peak = threads == 1 ? peak1 : peak2;
+      const double gf = 2.0 * net.value()->macs() / (ms * 1e6);
+      std::printf("encoder %dx%d, %d thread(s), %s: %.1f ms, %.2f GMAC, %.1f GFLOP/s = %.0f %% of peak\n", w, h, threads,
+                  net.value()->simd_name(), ms, net.value()->macs() / 1e9, gf, peak > 0 ? 100 * gf / peak : 0.0);
+      if (w == 752 && threads == 2) {
+        net.value()->set_profiling(true);
+        net.value()->forward();
+        std::printf("\n| layer | op | ms | GFLOP/s | %% of peak |\n|---|---|---|---|---|\n");
+        for (const auto& st : net.value()->step_times()) {
+          const double g = st.macs > 0 ? 2.0 * st.macs / (st.ms * 1e6) : 0.0;
+          std::printf("| %s | %s | %.2f | %.1f | %.0f |\n", st.name.c_str(), st.op.c_str(), st.ms, g, peak > 0 ? 100 * g / peak : 0.0);
+        }
+        std::printf("\n");
+      }
+      if (threads == 2) {
+        const double t = torch_ms(w, h, 2);
+        if (t > 0) std::printf("PyTorch (2 threads, best memory format) %dx%d: %.1f ms; terralign is %.2fx PyTorch's speed\n\n", w, h, t, t / ms);
+        else std::printf("(PyTorch not available: /usr/bin/python3 with torch is needed for the comparison)\n\n");
+      }
+    }
+  }
+  return 0;
+}

@@ -1,0 +1,11 @@
+// Built with -mavx512f.
+#include "conv_rows.hpp"
+#include "simd_avx512.hpp"
+
+namespace terralign::nn {
+
+void conv3x3_rows_avx512(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1) {
+  conv3x3_rows<VecAvx512>(in, w, out, y0, y1);
+}
+
+}  // namespace terralign::nn
