@@ -56,6 +56,7 @@ int main() {
       iclk::TrackerOptions opt;
       opt.iterations = iters;
       opt.step_tol = 0;  // run every iteration: the worst case the budget must hold
+      opt.threads = 2;
       if (dense) opt.block = {1, 1, 1, 1, 1, 1};
       iclk::Tracker<float, iclk::SE3DepthWarp<float>, 1> t(cam.width, cam.height, opt);
       std::vector<double> total, pyr, jac, it;

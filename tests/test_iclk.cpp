@@ -221,6 +221,26 @@ TEST_CASE("a pair with no texture reports failure instead of a pose") {
   CHECK(res.params.R == Mat3<double>::Identity());  // the initial pose, never NaN
 }
 
+TEST_CASE("1 and 2 threads give the same pose, bit for bit") {
+  auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(map.ok());
+  const geo::CameraModel cam = paper_camera();
+  const Pair p = render_pair(map.value(), cam, geo::pose_from_ypr({487450, 5207437, 1370}, 10, 1, 0),
+                             geo::pose_from_ypr({487458, 5207431, 1374}, 11, 0, 1), "2012", "2012");
+  const Pinhole<float> K{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
+  TrackerOptions o1, o2;
+  o1.threads = 1;
+  o2.threads = 2;
+  Tracker<float, SE3DepthWarp<float>, 1> t1(cam.width, cam.height, o1), t2(cam.width, cam.height, o2);
+  const auto& r1 = t1.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());
+  const auto& r2 = t2.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());
+  CHECK(r1.converged);
+  CHECK(r1.iterations == r2.iterations);
+  CHECK(r1.params.R == r2.params.R);
+  CHECK(r1.params.t == r2.params.t);
+  CHECK(r1.covariance == r2.covariance);
+}
+
 TEST_CASE("an alignment allocates nothing after set-up") {
   auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
   REQUIRE(map.ok());
@@ -229,6 +249,7 @@ TEST_CASE("an alignment allocates nothing after set-up") {
                              geo::pose_from_ypr({487455, 5207437, 1370}, 0.5, 0, 0), "2009", "2009");
   TrackerOptions opt;
   opt.robust = Robust::Huber;
+  opt.threads = 2;
   Tracker<float, SE3DepthWarp<float>, 1> tracker(cam.width, cam.height, opt);
   const Pinhole<float> K{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
   (void)tracker.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());

@@ -75,6 +75,8 @@ Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& option
   r_.resize(n * C);
   jac_.resize(n * C * DoF);
   abs_.resize(n);
+  partials_.resize(n / kChunk + 1);
+  pool_ = std::make_unique<ThreadPool>(std::max(1, opt_.threads));
   ok_.resize(n);
 }
 
@@ -194,15 +196,16 @@ int Tracker<S, Warp, C>::select_pixels(int level, const Pinhole<S>& K) {
 }
 
 template <class S, class Warp, int C>
-int Tracker<S, Warp, C>::evaluate(int n, const Params& p, const Pinhole<S>& K, Eigen::Matrix<double, DoF, 1>& g,
-                                  Eigen::Matrix<double, DoF, DoF>& H_out, double& cost, double& wsum) {
-  g.setZero();
-  H_out.setZero();
-  cost = 0;
-  wsum = 0;
-  int valid = 0;
+void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, const Pinhole<S>& K) {
+  Partial& P = partials_[static_cast<std::size_t>(chunk)];
+  P.g.setZero();
+  P.H_out.setZero();
+  P.cost = 0;
+  P.wsum = 0;
+  P.valid = 0;
   const Level& Lv = *cur_level_;
-  for (int i = 0; i < n; ++i) {
+  const int i1 = std::min(n, (chunk + 1) * kChunk);
+  for (int i = chunk * kChunk; i < i1; ++i) {
     const std::size_t k = static_cast<std::size_t>(i);
     S u, v;
     const Vec3<S> X(px_[k], py_[k], pz_[k]);
@@ -215,7 +218,7 @@ int Tracker<S, Warp, C>::evaluate(int n, const Params& p, const Pinhole<S>& K, E
       if (w > 0)
         for (int c = 0; c < C; ++c)
           for (int a = 0; a < DoF; ++a)
-            for (int b = 0; b <= a; ++b) H_out(a, b) += w * static_cast<double>(J[c * DoF + a]) * static_cast<double>(J[c * DoF + b]);
+            for (int b = 0; b <= a; ++b) P.H_out(a, b) += w * static_cast<double>(J[c * DoF + a]) * static_cast<double>(J[c * DoF + b]);
       continue;
     }
     const int x0 = std::min(static_cast<int>(u), Lv.w - 2), y0 = std::min(static_cast<int>(v), Lv.h - 2);
@@ -227,11 +230,42 @@ int Tracker<S, Warp, C>::evaluate(int n, const Params& p, const Pinhole<S>& K, E
       const S r = live - val_[k * C + static_cast<std::size_t>(c)];
       r_[k * C + static_cast<std::size_t>(c)] = r;
       const double wr = w * static_cast<double>(r);
-      for (int a2 = 0; a2 < DoF; ++a2) g[a2] += wr * static_cast<double>(J[c * DoF + a2]);
-      cost += wr * static_cast<double>(r);
+      for (int a2 = 0; a2 < DoF; ++a2) P.g[a2] += wr * static_cast<double>(J[c * DoF + a2]);
+      P.cost += wr * static_cast<double>(r);
     }
-    wsum += w;
-    ++valid;
+    P.wsum += w;
+    ++P.valid;
+  }
+}
+
+template <class S, class Warp, int C>
+int Tracker<S, Warp, C>::evaluate(int n, const Params& p, const Pinhole<S>& K, Eigen::Matrix<double, DoF, 1>& g,
+                                  Eigen::Matrix<double, DoF, DoF>& H_out, double& cost, double& wsum) {
+  // Fixed chunks of pixels, each summed by one thread, then the chunks summed in order: the
+  // result does not depend on the thread count.
+  const int chunks = (n + kChunk - 1) / kChunk;
+  struct Ctx {
+    Tracker* t;
+    int n;
+    const Params* p;
+    const Pinhole<S>* K;
+  } ctx{this, n, &p, &K};
+  pool_->run(chunks, [](void* c, int i) {
+    auto* x = static_cast<Ctx*>(c);
+    x->t->evaluate_chunk(i, x->n, *x->p, *x->K);
+  }, &ctx);
+  g.setZero();
+  H_out.setZero();
+  cost = 0;
+  wsum = 0;
+  int valid = 0;
+  for (int i = 0; i < chunks; ++i) {
+    const Partial& P = partials_[static_cast<std::size_t>(i)];
+    g += P.g;
+    H_out += P.H_out;
+    cost += P.cost;
+    wsum += P.wsum;
+    valid += P.valid;
   }
   H_out = H_out.template selfadjointView<Eigen::Lower>();
   return valid;

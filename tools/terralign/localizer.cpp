@@ -19,7 +19,9 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   L->ref_grey_.resize(camera.width, camera.height, 1);
   L->live_grey_.resize(camera.width, camera.height, 1);
   L->depth_.resize(camera.width, camera.height, 1);
-  L->tracker_ = std::make_unique<iclk::Tracker<float, iclk::SE3DepthWarp<float>, 1>>(camera.width, camera.height, options);
+  iclk::TrackerOptions topt = options;
+  topt.threads = threads;
+  L->tracker_ = std::make_unique<iclk::Tracker<float, iclk::SE3DepthWarp<float>, 1>>(camera.width, camera.height, topt);
   return L;
 }
 

@@ -26,11 +26,14 @@
 #pragma once
 
 #include <array>
+#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/StdVector>
 
 #include <terralign/geo/image.hpp>
+#include <terralign/geo/thread_pool.hpp>
 #include <terralign/iclk/se3.hpp>
 #include <terralign/iclk/warps.hpp>
 
@@ -56,6 +59,7 @@ struct TrackerOptions {
   double max_rotation = 0.35;        // rad: a final rotation farther from the initial one fails
   double max_translation = 0.5;      // times the median reference depth, likewise
   double min_information = 1e-9;     // smallest eigenvalue of H / largest: below is no texture
+  int threads = 1;                   // residuals in fixed chunks: same result on any count
   // Pixel selection per level (finest first): in each block x block cell the pixel with the
   // strongest gradient is used; 1 uses every pixel (as Lv et al. do). Sparse fine levels make
   // the classical solver about 10x faster for a small loss in precision (see bench_align).
@@ -127,6 +131,17 @@ class Tracker {
   std::vector<unsigned char> ok_;           // landed inside the live image
   std::vector<S> abs_;                      // scratch: absolute residuals
   const Level* cur_level_ = nullptr;
+  // Per chunk of kChunk pixels: partial sums, combined in chunk order.
+  static constexpr int kChunk = 2048;
+  struct Partial {
+    Eigen::Matrix<double, DoF, 1> g;
+    Eigen::Matrix<double, DoF, DoF> H_out;
+    double cost, wsum;
+    int valid;
+  };
+  std::vector<Partial, Eigen::aligned_allocator<Partial>> partials_;
+  std::unique_ptr<ThreadPool> pool_;
+  void evaluate_chunk(int chunk, int n, const Params& p, const Pinhole<S>& K);
   TrackResult<Warp> result_;
 };
 
