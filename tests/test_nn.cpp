@@ -284,3 +284,39 @@ TEST_CASE("bad weight files are refused with the tensor and the numbers") {
     CHECK(plan_error(w).find("must be an integer in [1, 4]") != std::string::npos);
   }
 }
+
+TEST_CASE("every conv kernel's ELU matches expm1 to 5e-7 (the vector wrappers' exp)") {
+  // A 1 -> 1 channel conv whose only non-zero weight is the centre tap: out = ELU(in).
+  std::vector<float> w(9, 0.0f);
+  w[4] = 1.0f;
+  const float bias = 0.0f;
+  Tensor in, out;
+  const int n = 400;
+  in.allocate(1, n, 1);
+  out.allocate(1, n, 1);
+  for (int i = 0; i < n; ++i) in.at(0, i)[0] = -20.0f + 21.0f * static_cast<float>(i) / n;  // -20 .. 1
+  std::vector<std::pair<const char*, ConvRowsFn>> kernels{{"scalar", conv3x3_rows_scalar}};
+  std::vector<int> blocks{8};
+#if defined(TERRALIGN_NN_AVX2)
+  if (nn_cpu_has_avx2()) {
+    kernels.push_back({"avx2", conv3x3_rows_avx2});
+    blocks.push_back(8);
+  }
+  if (nn_cpu_has_avx512()) {
+    kernels.push_back({"avx512", conv3x3_rows_avx512});
+    blocks.push_back(16);
+  }
+#endif
+  for (std::size_t k = 0; k < kernels.size(); ++k) {
+    CAPTURE(kernels[k].first);
+    const ConvWeights cw = pack_conv(w.data(), &bias, 1, 1, 1, Act::Elu, blocks[k]);
+    kernels[k].second(in, cw, out, 0, 1);
+    double worst = 0;
+    for (int i = 0; i < n; ++i) {
+      const double x = in.at(0, i)[0];
+      const double want = x > 0 ? x : std::expm1(x);
+      worst = std::max(worst, std::abs(out.at(0, i)[0] - want) / std::max(std::abs(want), 1e-3));
+    }
+    CHECK(worst < 5e-7);
+  }
+}

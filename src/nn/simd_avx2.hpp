@@ -5,6 +5,17 @@
 
 namespace terralign::nn {
 
+// 1 + t + t^2/2 + ... + t^6/720 - 1 = t (1 + t/2 + ... + t^5/720), by Horner.
+inline __m256 taylor6_avx2(__m256 t) {
+  __m256 q = _mm256_set1_ps(1.0f / 720.0f);
+  q = _mm256_fmadd_ps(q, t, _mm256_set1_ps(1.0f / 120.0f));
+  q = _mm256_fmadd_ps(q, t, _mm256_set1_ps(1.0f / 24.0f));
+  q = _mm256_fmadd_ps(q, t, _mm256_set1_ps(1.0f / 6.0f));
+  q = _mm256_fmadd_ps(q, t, _mm256_set1_ps(0.5f));
+  q = _mm256_fmadd_ps(q, t, _mm256_set1_ps(1.0f));
+  return _mm256_mul_ps(q, t);
+}
+
 // exp(x) - 1 for x <= 0 (ELU's negative branch), to about 2e-7 relative for x > -0.35 (a
 // Taylor polynomial, no cancellation near 0) and 1.5e-7 absolute below (exp by range
 // reduction x = n ln2 + r, |r| <= ln2 / 2, and a degree-6 polynomial).
@@ -14,23 +25,11 @@ inline __m256 expm1_neg_avx2(__m256 x) {
   const __m256 n = _mm256_round_ps(_mm256_mul_ps(x, _mm256_set1_ps(1.44269504088896341f)), _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
   const __m256 r = _mm256_fnmadd_ps(n, _mm256_set1_ps(0.693359375f), x);
   const __m256 rr = _mm256_fnmadd_ps(n, _mm256_set1_ps(-2.12194440e-4f), r);
-  __m256 p = _mm256_set1_ps(1.0f / 720.0f);
-  p = _mm256_fmadd_ps(p, rr, _mm256_set1_ps(1.0f / 120.0f));
-  p = _mm256_fmadd_ps(p, rr, _mm256_set1_ps(1.0f / 24.0f));
-  p = _mm256_fmadd_ps(p, rr, _mm256_set1_ps(1.0f / 6.0f));
-  p = _mm256_fmadd_ps(p, rr, _mm256_set1_ps(0.5f));
-  p = _mm256_fmadd_ps(p, rr, _mm256_set1_ps(1.0f));
-  const __m256 er = _mm256_fmadd_ps(p, rr, _mm256_set1_ps(1.0f));  // exp(r)
+  const __m256 er = _mm256_add_ps(taylor6_avx2(rr), _mm256_set1_ps(1.0f));  // exp(r)
   const __m256i e = _mm256_slli_epi32(_mm256_add_epi32(_mm256_cvtps_epi32(n), _mm256_set1_epi32(127)), 23);
   const __m256 big = _mm256_sub_ps(_mm256_mul_ps(er, _mm256_castsi256_ps(e)), _mm256_set1_ps(1.0f));
-  // Near zero: x + x^2/2 + x^3/6 + x^4/24 + x^5/120 + x^6/720 directly.
-  __m256 q = _mm256_set1_ps(1.0f / 720.0f);
-  q = _mm256_fmadd_ps(q, x, _mm256_set1_ps(1.0f / 120.0f));
-  q = _mm256_fmadd_ps(q, x, _mm256_set1_ps(1.0f / 24.0f));
-  q = _mm256_fmadd_ps(q, x, _mm256_set1_ps(1.0f / 6.0f));
-  q = _mm256_fmadd_ps(q, x, _mm256_set1_ps(0.5f));
-  q = _mm256_fmadd_ps(q, x, _mm256_set1_ps(1.0f));
-  const __m256 small = _mm256_mul_ps(q, x);
+  // Near zero the series directly (no cancellation).
+  const __m256 small = taylor6_avx2(x);
   return _mm256_blendv_ps(big, small, _mm256_cmp_ps(x, _mm256_set1_ps(-0.35f), _CMP_GT_OQ));
 }
 

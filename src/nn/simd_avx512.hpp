@@ -5,28 +5,27 @@
 
 namespace terralign::nn {
 
+// 1 + t + t^2/2 + ... + t^6/720 - 1 = t (1 + t/2 + ... + t^5/720), by Horner.
+inline __m512 taylor6_avx512(__m512 t) {
+  __m512 q = _mm512_set1_ps(1.0f / 720.0f);
+  q = _mm512_fmadd_ps(q, t, _mm512_set1_ps(1.0f / 120.0f));
+  q = _mm512_fmadd_ps(q, t, _mm512_set1_ps(1.0f / 24.0f));
+  q = _mm512_fmadd_ps(q, t, _mm512_set1_ps(1.0f / 6.0f));
+  q = _mm512_fmadd_ps(q, t, _mm512_set1_ps(0.5f));
+  q = _mm512_fmadd_ps(q, t, _mm512_set1_ps(1.0f));
+  return _mm512_mul_ps(q, t);
+}
+
 // exp(x) - 1 for x <= 0, as expm1_neg_avx2 (same polynomials, same accuracy).
 inline __m512 expm1_neg_avx512(__m512 x) {
   x = _mm512_max_ps(x, _mm512_set1_ps(-87.0f));
   const __m512 n = _mm512_roundscale_ps(_mm512_mul_ps(x, _mm512_set1_ps(1.44269504088896341f)), _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
   const __m512 r = _mm512_fnmadd_ps(n, _mm512_set1_ps(0.693359375f), x);
   const __m512 rr = _mm512_fnmadd_ps(n, _mm512_set1_ps(-2.12194440e-4f), r);
-  __m512 p = _mm512_set1_ps(1.0f / 720.0f);
-  p = _mm512_fmadd_ps(p, rr, _mm512_set1_ps(1.0f / 120.0f));
-  p = _mm512_fmadd_ps(p, rr, _mm512_set1_ps(1.0f / 24.0f));
-  p = _mm512_fmadd_ps(p, rr, _mm512_set1_ps(1.0f / 6.0f));
-  p = _mm512_fmadd_ps(p, rr, _mm512_set1_ps(0.5f));
-  p = _mm512_fmadd_ps(p, rr, _mm512_set1_ps(1.0f));
-  const __m512 er = _mm512_fmadd_ps(p, rr, _mm512_set1_ps(1.0f));
+  const __m512 er = _mm512_add_ps(taylor6_avx512(rr), _mm512_set1_ps(1.0f));  // exp(r)
   const __m512i e = _mm512_slli_epi32(_mm512_add_epi32(_mm512_cvtps_epi32(n), _mm512_set1_epi32(127)), 23);
   const __m512 big = _mm512_sub_ps(_mm512_mul_ps(er, _mm512_castsi512_ps(e)), _mm512_set1_ps(1.0f));
-  __m512 q = _mm512_set1_ps(1.0f / 720.0f);
-  q = _mm512_fmadd_ps(q, x, _mm512_set1_ps(1.0f / 120.0f));
-  q = _mm512_fmadd_ps(q, x, _mm512_set1_ps(1.0f / 24.0f));
-  q = _mm512_fmadd_ps(q, x, _mm512_set1_ps(1.0f / 6.0f));
-  q = _mm512_fmadd_ps(q, x, _mm512_set1_ps(0.5f));
-  q = _mm512_fmadd_ps(q, x, _mm512_set1_ps(1.0f));
-  const __m512 small = _mm512_mul_ps(q, x);
+  const __m512 small = taylor6_avx512(x);
   return _mm512_mask_blend_ps(_mm512_cmp_ps_mask(x, _mm512_set1_ps(-0.35f), _CMP_GT_OQ), big, small);
 }
 

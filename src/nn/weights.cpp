@@ -1,6 +1,7 @@
 #include <terralign/nn/weights.hpp>
 
-#include <cerrno>
+#include <terralign/geo/file.hpp>
+
 #include <cstdio>
 #include <cstring>
 
@@ -137,19 +138,7 @@ Result<WeightFile> parse_weights(const std::uint8_t* data, std::size_t size, con
 }
 
 Result<WeightFile> read_weights(const std::string& path, std::size_t max_bytes) {
-  std::FILE* f = std::fopen(path.c_str(), "rb");
-  if (!f) return Error{path + ": cannot open weight file (" + std::strerror(errno) + ")"};
-  std::vector<std::uint8_t> bytes;
-  std::uint8_t buf[1 << 16];
-  std::size_t n;
-  while ((n = std::fread(buf, 1, sizeof buf, f)) > 0) {
-    if (bytes.size() + n > max_bytes) {
-      std::fclose(f);
-      return Error{path + ": weight file is over " + std::to_string(max_bytes) + " bytes"};
-    }
-    bytes.insert(bytes.end(), buf, buf + n);
-  }
-  std::fclose(f);
+  TERRALIGN_TRY_ASSIGN(const auto bytes, geo::read_file(path, max_bytes));
   return parse_weights(bytes.data(), bytes.size(), path);
 }
 
