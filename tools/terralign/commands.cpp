@@ -42,6 +42,27 @@ const std::vector<Command>& commands() {
        "translation (m), 2-D EPE (px), success rates (2-D EPE < 1 px and < 5 px), the converged\n"
        "fraction, how many converged answers are within 5 px, and the alignment time.\n",
        run_eval},
+      {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
+       "usage: terralign flight --map MAP.json --camera CAMERA.json --layer NAME --path lawnmower|circle|FILE\n"
+       "                        --speed M/S --rate HZ --out DIR [--altitude M] [--duration S] [--tilt DEG]\n"
+       "                        [--noise SIGMA] [--blur R] [--exposure F] [--seed S]\n\n"
+       "Flies the path (FILE: one 'x y' waypoint a line) at ALTITUDE m above the terrain (default\n"
+       "800), heading along the path, and writes DIR/frames/NNNNNN.png, DIR/list.txt\n"
+       "('timestamp path' a line) and DIR/truth.txt ('timestamp x y z qw qx qy qz'). Per frame:\n"
+       "Gaussian noise of SIGMA grey levels, a box blur of radius R, an exposure gain in 1 +- F.\n",
+       run_flight},
+      {"track", "track a flight: each frame's prior from the last estimate (constant velocity)",
+       "usage: terralign track --map MAP.json --camera CAMERA.json --layer NAME --images LIST\n"
+       "                       --init \"x y z qw qx qy qz\" [--method classic|nn] [--out poses.csv]\n"
+       "                       [--truth POSES] [--json SUMMARY] [--iterations N] [--threads N]\n\n"
+       "LIST has 'timestamp image-path' lines. Each frame's prior is the last estimate, moved by\n"
+       "the velocity of the last two converged frames; a frame that fails (not converged, an\n"
+       "unreadable or wrongly sized image, a timestamp going backwards) keeps the prediction and\n"
+       "says why on stderr. The CSV has per frame: timestamp, pose, converged, reason, iterations,\n"
+       "ms, latitude, longitude, height (where the map has a CRS) and the 6x6 covariance (row-major,\n"
+       "[dtheta (rad, world axes); dp (m)]). With --truth, the summary (stderr and --json) has\n"
+       "frames, converged_fraction, position_rmse_m, angle_rmse_deg, the maxima and nees_mean.\n",
+       run_track},
   };
   return list;
 }

@@ -19,5 +19,7 @@ int run_info(const std::vector<std::string>& args);
 int run_render(const std::vector<std::string>& args);
 int run_align(const std::vector<std::string>& args);
 int run_eval(const std::vector<std::string>& args);
+int run_flight(const std::vector<std::string>& args);
+int run_track(const std::vector<std::string>& args);
 
 }  // namespace terralign::cli

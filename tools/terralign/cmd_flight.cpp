@@ -1,0 +1,187 @@
+// terralign flight: a synthetic flight over a map, rendered from one layer, for tracking.
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <sys/stat.h>
+
+#include <terralign/geo/file.hpp>
+#include <terralign/geo/image_io.hpp>
+
+#include "args.hpp"
+#include "commands.hpp"
+#include "common.hpp"
+#include "localizer.hpp"
+
+namespace terralign::cli {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+struct Waypoint {
+  double x, y;
+};
+
+// Normal deviates from a seeded SplitMix64 (the same on every platform).
+struct Noise {
+  std::uint64_t s;
+  double uniform() {
+    std::uint64_t z = (s += 0x9e3779b97f4a7c15ull);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return static_cast<double>((z ^ (z >> 31)) >> 11) * 0x1.0p-53;
+  }
+  double normal() {
+    const double u = std::max(uniform(), 1e-300), v = uniform();
+    return std::sqrt(-2 * std::log(u)) * std::cos(2 * kPi * v);
+  }
+};
+
+Result<std::vector<Waypoint>> path_points(const std::string& path, const geo::Extent& e, double margin) {
+  std::vector<Waypoint> pts;
+  const double x0 = e.min_x + margin, x1 = e.max_x - margin, y0 = e.min_y + margin, y1 = e.max_y - margin;
+  if (!(x1 > x0 && y1 > y0)) return Error{"the map is too small for a flight at this altitude (no room inside a margin of " + std::to_string(margin) + " m)"};
+  if (path == "lawnmower") {
+    const int legs = 3;
+    for (int k = 0; k <= legs; ++k) {
+      const double y = y1 - (y1 - y0) * k / legs;
+      if (k % 2 == 0) {
+        pts.push_back({x0, y});
+        pts.push_back({x1, y});
+      } else {
+        pts.push_back({x1, y});
+        pts.push_back({x0, y});
+      }
+    }
+  } else if (path == "circle") {
+    const double cx = 0.5 * (x0 + x1), cy = 0.5 * (y0 + y1), r = 0.5 * std::min(x1 - x0, y1 - y0);
+    for (int k = 0; k <= 72; ++k) pts.push_back({cx + r * std::cos(2 * kPi * k / 72), cy + r * std::sin(2 * kPi * k / 72)});
+  } else {
+    std::ifstream in(path);
+    if (!in) return Error{path + ": cannot open the path file (or say lawnmower or circle)"};
+    std::string line;
+    int n = 0;
+    while (std::getline(in, line)) {
+      ++n;
+      if (line.empty() || line[0] == '#') continue;
+      std::istringstream s(line);
+      Waypoint w;
+      if (!(s >> w.x >> w.y) || !std::isfinite(w.x) || !std::isfinite(w.y))
+        return Error{path + ":" + std::to_string(n) + ": expected 'x y' map coordinates"};
+      pts.push_back(w);
+    }
+    if (pts.size() < 2) return Error{path + ": a path needs at least 2 waypoints"};
+  }
+  return pts;
+}
+
+void box_blur(ImageU8& img, int r) {
+  if (r <= 0) return;
+  ImageU8 src = img;
+  for (int y = 0; y < img.height(); ++y)
+    for (int x = 0; x < img.width(); ++x)
+      for (int c = 0; c < 3; ++c) {
+        int s = 0, n = 0;
+        for (int dy = -r; dy <= r; ++dy)
+          for (int dx = -r; dx <= r; ++dx) {
+            const int xx = std::clamp(x + dx, 0, img.width() - 1), yy = std::clamp(y + dy, 0, img.height() - 1);
+            s += src.at(xx, yy, c);
+            ++n;
+          }
+        img.at(x, y, c) = static_cast<std::uint8_t>((s + n / 2) / n);
+      }
+}
+
+}  // namespace
+
+int run_flight(const std::vector<std::string>& argv) {
+  auto args = Args::parse(argv, {"map", "camera", "layer", "path", "speed", "rate", "out", "altitude", "duration", "noise",
+                                 "blur", "exposure", "seed", "tilt"}, {});
+  if (!args.ok()) return usage_error("flight", args.error());
+  for (const char* k : {"map", "camera", "layer", "path", "speed", "rate", "out"})
+    if (!args->has(k)) return usage_error("flight", Error{std::string("missing required option --") + k});
+  auto speed = args->get_double("speed", 20);
+  auto rate = args->get_double("rate", 2);
+  auto altitude = args->get_double("altitude", 800);
+  auto duration = args->get_double("duration", 60);
+  auto noise = args->get_double("noise", 0);
+  auto exposure = args->get_double("exposure", 0);
+  auto tilt = args->get_double("tilt", 0);
+  auto blur = args->get_int("blur", 0, 0, 10);
+  auto seed = args->get_int("seed", 1, 0, 1 << 30);
+  for (auto* r : {&speed, &rate, &altitude, &duration, &noise, &exposure, &tilt})
+    if (!r->ok()) return usage_error("flight", r->error());
+  if (!blur.ok()) return usage_error("flight", blur.error());
+  if (!seed.ok()) return usage_error("flight", seed.error());
+  if (!(speed.value() > 0) || !(rate.value() > 0) || !(altitude.value() > 0) || !(duration.value() > 0) ||
+      noise.value() < 0 || exposure.value() < 0 || exposure.value() >= 1 || tilt.value() < 0 || tilt.value() > 60)
+    return usage_error("flight", Error{"--speed, --rate, --altitude, --duration must be > 0; --noise >= 0; --exposure in [0, 1); --tilt in [0, 60]"});
+  auto map = geo::load_map(args->get("map"));
+  if (!map.ok()) return fail(map.error());
+  auto cam_in = geo::load_camera(args->get("camera"));
+  if (!cam_in.ok()) return fail(cam_in.error());
+  const geo::CameraModel cam = cam_in.value();
+  raster::RenderOptions ro;
+  auto renderer = raster::Renderer::create(map.value(), cam, ro);
+  if (!renderer.ok()) return fail(renderer.error());
+  auto frame = renderer.value()->make_output({args->get("layer")});
+  if (!frame.ok()) return fail(frame.error());
+  const double half_footprint = altitude.value() * std::hypot(cam.width / cam.fx, cam.height / cam.fy) / 2 * 1.2 +
+                                altitude.value() * std::tan(tilt.value() * kPi / 180);
+  auto pts = path_points(args->get("path"), map->common_extent(), half_footprint);
+  if (!pts.ok()) return fail(pts.error());
+  const std::string out = args->get("out");
+  ::mkdir(out.c_str(), 0755);
+  ::mkdir((out + "/frames").c_str(), 0755);
+  struct stat st {};
+  if (::stat((out + "/frames").c_str(), &st) != 0) return fail(Error{out + ": cannot create the output folder"});
+
+  Noise rng{static_cast<std::uint64_t>(seed.value())};
+  std::string list, truth;
+  const int frames = static_cast<int>(duration.value() * rate.value());
+  std::size_t leg = 0;
+  double along = 0;  // metres along the current leg
+  for (int i = 0; i < frames; ++i) {
+    // Advance along the path by speed / rate per frame.
+    if (i > 0) along += speed.value() / rate.value();
+    while (leg + 1 < pts->size()) {
+      const Waypoint& a = (*pts)[leg];
+      const Waypoint& b = (*pts)[leg + 1];
+      const double len = std::hypot(b.x - a.x, b.y - a.y);
+      if (along <= len) break;
+      along -= len;
+      ++leg;
+    }
+    if (leg + 1 >= pts->size()) break;  // the path ended before the duration
+    const Waypoint& a = (*pts)[leg];
+    const Waypoint& b = (*pts)[leg + 1];
+    const double len = std::max(std::hypot(b.x - a.x, b.y - a.y), 1e-9);
+    const double x = a.x + (b.x - a.x) * along / len, y = a.y + (b.y - a.y) * along / len;
+    const double heading = std::atan2(b.x - a.x, b.y - a.y) * 180 / kPi;  // clockwise from north
+    const double ground = map->dem.height_at(x, y);
+    const geo::Pose T = geo::pose_from_ypr({x, y, (std::isfinite(ground) ? ground : 0.0) + altitude.value()}, heading, 0, 0,
+                                           geo::tilted_mount(tilt.value()));
+    if (auto s = renderer.value()->render(T, frame.value()); !s.ok()) return fail(Error{"frame " + std::to_string(i) + ": " + s.error().message});
+    ImageU8 img = frame->rgb[0];
+    box_blur(img, blur.value());
+    const double gain = 1.0 + exposure.value() * (2 * rng.uniform() - 1);
+    for (auto& v : img.pixels())
+      v = static_cast<std::uint8_t>(std::clamp(std::lround(v * gain + noise.value() * rng.normal()), 0L, 255L));
+    char name[64];
+    std::snprintf(name, sizeof name, "frames/%06d.png", i);
+    if (auto s = geo::save_png(out + "/" + name, img.view()); !s.ok()) return fail(s.error());
+    char line[256];
+    const double t = i / rate.value();
+    std::snprintf(line, sizeof line, "%.6f %s\n", t, name);
+    list += line;
+    truth += std::to_string(t) + " " + geo::format_pose(T) + "\n";
+    std::fprintf(stderr, "\rframe %d/%d", i + 1, frames);
+  }
+  std::fprintf(stderr, "\n");
+  if (auto s = geo::write_file_atomic(out + "/list.txt", list.data(), list.size()); !s.ok()) return fail(s.error());
+  if (auto s = geo::write_file_atomic(out + "/truth.txt", truth.data(), truth.size()); !s.ok()) return fail(s.error());
+  std::printf("%s/list.txt, %s/truth.txt\n", out.c_str(), out.c_str());
+  return 0;
+}
+
+}  // namespace terralign::cli

@@ -1,0 +1,251 @@
+// terralign track: localise every frame of a flight, each from the previous result.
+#include <algorithm>
+#include <chrono>
+#include <numeric>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include <terralign/geo/file.hpp>
+
+#include "args.hpp"
+#include "commands.hpp"
+#include "common.hpp"
+#include "localizer.hpp"
+
+namespace terralign::cli {
+
+Result<ImageU8> load_rgb(const std::string& path);
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+struct Frame {
+  double t;
+  std::string path;
+  int line;
+};
+
+Result<std::vector<Frame>> read_list(const std::string& list) {
+  std::ifstream in(list);
+  if (!in) return Error{list + ": cannot open the image list"};
+  const auto slash = list.find_last_of('/');
+  const std::string dir = slash == std::string::npos ? "" : list.substr(0, slash + 1);
+  std::vector<Frame> frames;
+  std::string line;
+  int n = 0;
+  while (std::getline(in, line)) {
+    ++n;
+    if (line.find_first_not_of(" \t\r") == std::string::npos || line[0] == '#') continue;
+    std::istringstream s(line);
+    Frame f{0, "", n};
+    if (!(s >> f.t >> f.path) || !std::isfinite(f.t))
+      return Error{list + ":" + std::to_string(n) + ": expected 'timestamp image-path'"};
+    if (f.path[0] != '/') f.path = dir + f.path;
+    frames.push_back(f);
+  }
+  if (frames.empty()) return Error{list + ": no frames"};
+  return frames;
+}
+
+// Constant velocity: extrapolate from the last two estimates by dt / dt_prev.
+geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, double t_last, double t) {
+  const double s = (t - t_last) / std::max(t_last - t_prev, 1e-9);
+  geo::Pose p;
+  p.t_W_C = last.t_W_C + s * (last.t_W_C - prev.t_W_C);
+  const Eigen::AngleAxisd d(prev.q_W_C.conjugate() * last.q_W_C);  // body-frame rotation per step
+  p.q_W_C = (last.q_W_C * Eigen::Quaterniond(Eigen::AngleAxisd(d.angle() * s, d.axis()))).normalized();
+  return p;
+}
+
+}  // namespace
+
+int run_track(const std::vector<std::string>& argv) {
+  auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
+                                 "threads"}, {});
+  if (!args.ok()) return usage_error("track", args.error());
+  for (const char* k : {"map", "camera", "layer", "images", "init"})
+    if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
+  const std::string method = args->get("method", "classic");
+  if (method == "nn") return fail(Error{"--method nn: the learned tracker has not landed in this build yet; use --method classic"});
+  if (method != "classic") return usage_error("track", Error{"--method '" + method + "' must be classic or nn"});
+  auto iters = args->get_int("iterations", 20, 1, 1000);
+  auto threads = args->get_int("threads", 2, 1, 64);
+  if (!iters.ok()) return usage_error("track", iters.error());
+  if (!threads.ok()) return usage_error("track", threads.error());
+  auto init = geo::parse_pose(args->get("init"));
+  if (!init.ok()) return fail(Error{"--init: " + init.error().message});
+  auto frames = read_list(args->get("images"));
+  if (!frames.ok()) return fail(frames.error());
+  auto map = geo::load_map(args->get("map"));
+  if (!map.ok()) return fail(map.error());
+  auto cam_in = geo::load_camera(args->get("camera"));
+  if (!cam_in.ok()) return fail(cam_in.error());
+  const geo::CameraModel cam = pinhole_of(cam_in.value());
+  iclk::TrackerOptions opt;
+  opt.iterations = iters.value();
+  auto loc = Localizer::create(map.value(), cam, args->get("layer"), opt, threads.value());
+  if (!loc.ok()) return fail(loc.error());
+  std::vector<geo::Pose> truth;
+  if (args->has("truth")) {
+    std::ifstream in(args->get("truth"));
+    if (!in) return fail(Error{args->get("truth") + ": cannot open the true poses"});
+    std::string line;
+    int n = 0;
+    while (std::getline(in, line)) {
+      ++n;
+      if (line.empty() || line[0] == '#') continue;
+      const auto sp = line.find(' ');
+      auto p = geo::parse_pose(sp == std::string::npos ? "" : line.substr(sp + 1));
+      if (!p.ok()) return fail(Error{args->get("truth") + ":" + std::to_string(n) + ": " + p.error().message});
+      truth.push_back(p.value());
+    }
+    if (truth.size() != frames->size())
+      return fail(Error{args->get("truth") + ": " + std::to_string(truth.size()) + " poses for " + std::to_string(frames->size()) + " frames"});
+  }
+
+  std::string csv = "timestamp,x,y,z,qw,qx,qy,qz,converged,reason,iterations,ms,lat,lon,height";
+  for (int r = 0; r < 6; ++r)
+    for (int c = 0; c < 6; ++c) csv += ",cov" + std::to_string(r) + std::to_string(c);
+  csv += "\n";
+  geo::Pose last = init.value(), prev = init.value();
+  double t_last = 0, t_prev = 0;
+  int good_in_a_row = 0, converged = 0;
+  std::vector<double> pos_err, ang_err, nees, ms_all;
+  double last_t = -INFINITY;
+  const auto t_start = std::chrono::steady_clock::now();
+  for (std::size_t i = 0; i < frames->size(); ++i) {
+    const Frame& f = frames.value()[i];
+    geo::Pose prior = good_in_a_row >= 2 ? predict(prev, t_prev, last, t_last, f.t) : last;
+    geo::Pose estimate = prior;
+    bool ok = false;
+    std::string reason;
+    int iterations = 0;
+    double ms = 0;
+    Eigen::Matrix<double, 6, 6> cov = Eigen::Matrix<double, 6, 6>::Zero();
+    const auto t0 = std::chrono::steady_clock::now();
+    if (!(f.t > last_t)) {
+      reason = "timestamp " + std::to_string(f.t) + " does not follow " + std::to_string(last_t);
+    } else {
+      auto img = load_rgb(f.path);
+      if (!img.ok()) {
+        reason = img.error().message;
+      } else if (img->width() != cam.width || img->height() != cam.height) {
+        reason = f.path + ": image is " + std::to_string(img->width()) + " x " + std::to_string(img->height()) +
+                 ", the camera " + std::to_string(cam.width) + " x " + std::to_string(cam.height);
+      } else {
+        ImageU8 live = cam_in->model == geo::DistortionModel::None ? std::move(img.value()) : undistort(img->view(), cam_in.value());
+        auto out = loc.value()->localize(live.view(), prior);
+        if (!out.ok()) {
+          reason = out.error().message;
+        } else {
+          ok = out->converged;
+          reason = out->reason;
+          iterations = out->iterations;
+          if (ok) {
+            estimate = out->T_W_C;
+            cov = out->covariance;
+          }
+        }
+      }
+      last_t = f.t;
+    }
+    ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    ms_all.push_back(ms);
+    if (!ok) std::fprintf(stderr, "terralign track: frame %zu (t %.3f): not converged: %s\n", i, f.t, reason.c_str());
+    // The estimate (or, on failure, the prediction) becomes the next prior; velocity only
+    // from two converged frames in a row.
+    if (ok) {
+      ++converged;
+      if (good_in_a_row > 0) {
+        prev = last;
+        t_prev = t_last;
+      }
+      ++good_in_a_row;
+    } else {
+      good_in_a_row = 0;
+    }
+    last = estimate;
+    t_last = f.t;
+    if (!truth.empty()) {
+      const geo::Pose& T = truth[i];
+      const Eigen::Vector3d dp = T.t_W_C - estimate.t_W_C;
+      const Eigen::AngleAxisd dr(T.q_W_C * estimate.q_W_C.conjugate());  // world-frame rotation error
+      pos_err.push_back(dp.norm());
+      ang_err.push_back(dr.angle() * 180 / kPi);
+      if (ok) {
+        Eigen::Matrix<double, 6, 1> e;
+        e << dr.angle() * dr.axis(), dp;
+        const auto ldlt = cov.ldlt();
+        if (ldlt.info() == Eigen::Success && ldlt.isPositive()) nees.push_back(e.dot(ldlt.solve(e)));
+      }
+    }
+    char row[512];
+    std::snprintf(row, sizeof row, "%.6f,%.4f,%.4f,%.4f,%.9f,%.9f,%.9f,%.9f,%d,\"%s\",%d,%.2f", f.t, estimate.t_W_C.x(),
+                  estimate.t_W_C.y(), estimate.t_W_C.z(), estimate.q_W_C.w(), estimate.q_W_C.x(), estimate.q_W_C.y(),
+                  estimate.q_W_C.z(), ok ? 1 : 0, reason.substr(0, 200).c_str(), iterations, ms);
+    csv += row;
+    auto g = map->crs.to_geodetic(estimate.t_W_C.x(), estimate.t_W_C.y(), estimate.t_W_C.z());
+    char geo_txt[128];
+    if (g.ok()) std::snprintf(geo_txt, sizeof geo_txt, ",%.9f,%.9f,%.4f", g->lat_deg, g->lon_deg, g->height);
+    else std::snprintf(geo_txt, sizeof geo_txt, ",,,");
+    csv += geo_txt;
+    for (int r = 0; r < 6; ++r)
+      for (int c = 0; c < 6; ++c) {
+        char v[32];
+        std::snprintf(v, sizeof v, ",%.6g", cov(r, c));
+        csv += v;
+      }
+    csv += "\n";
+  }
+  const double total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  if (args->has("out")) {
+    if (auto s = geo::write_file_atomic(args->get("out"), csv.data(), csv.size()); !s.ok()) return fail(s.error());
+  } else {
+    std::printf("%s", csv.c_str());
+  }
+  const double n = static_cast<double>(frames->size());
+  nlohmann::json j;
+  j["frames"] = frames->size();
+  j["converged_fraction"] = converged / n;
+  j["fps"] = n / total_s;
+  std::vector<double> sorted_ms = ms_all;
+  std::sort(sorted_ms.begin(), sorted_ms.end());
+  j["ms"] = {{"mean", std::accumulate(ms_all.begin(), ms_all.end(), 0.0) / n}, {"median", sorted_ms[sorted_ms.size() / 2]}};
+  if (!truth.empty()) {
+    auto rmse = [](const std::vector<double>& v) {
+      double s = 0;
+      for (double x : v) s += x * x;
+      return std::sqrt(s / static_cast<double>(v.size()));
+    };
+    j["position_rmse_m"] = rmse(pos_err);
+    j["angle_rmse_deg"] = rmse(ang_err);
+    j["position_max_m"] = *std::max_element(pos_err.begin(), pos_err.end());
+    j["angle_max_deg"] = *std::max_element(ang_err.begin(), ang_err.end());
+    j["position_error_m"] = pos_err;
+    j["angle_error_deg"] = ang_err;
+    if (!nees.empty()) {
+      std::vector<double> s = nees;
+      std::sort(s.begin(), s.end());
+      j["nees_mean"] = std::accumulate(nees.begin(), nees.end(), 0.0) / static_cast<double>(nees.size());
+      j["nees_median"] = s[s.size() / 2];
+    } else {
+      j["nees_mean"] = nullptr;
+    }
+  }
+  const std::string text = j.dump(2) + "\n";
+  if (args->has("json")) {
+    if (auto s = geo::write_file_atomic(args->get("json"), text.data(), text.size()); !s.ok()) return fail(s.error());
+  }
+  nlohmann::json brief = j;
+  brief.erase("position_error_m");
+  brief.erase("angle_error_deg");
+  std::fprintf(stderr, "%s\n", brief.dump(2).c_str());
+  return 0;
+}
+
+}  // namespace terralign::cli
