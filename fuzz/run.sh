@@ -13,9 +13,12 @@ mkdir -p fuzz/artifacts
 for t in manifest camera world_file geotiff pfm pose; do
   work=$(mktemp -d)
   echo "fuzz_$t: ${seconds} s"
+  status=0
   build/fuzz/fuzz/fuzz_$t "$work" fuzz/corpus/$t -max_total_time="$seconds" -rss_limit_mb=2048 \
-    -artifact_prefix=fuzz/artifacts/$t- -print_final_stats=1 2>&1 | grep -E "^(stat::number_of_executed_units|stat::peak_rss|==|SUMMARY)" || true
-  status=${PIPESTATUS[0]}
+    -artifact_prefix=fuzz/artifacts/$t- -print_final_stats=1 >"$work.log" 2>&1 || status=$?
+  grep -E "^(stat::number_of_executed_units|stat::peak_rss_mb|SUMMARY)" "$work.log" || true
+  [ "$status" -eq 0 ] || tail -40 "$work.log"
+  rm -f "$work.log"
   rm -rf "$work"
   [ "$status" -eq 0 ] || { echo "fuzz_$t found a failure (see fuzz/artifacts)"; exit 1; }
 done
