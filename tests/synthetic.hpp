@@ -4,6 +4,7 @@
 #include <cmath>
 #include <functional>
 
+#include <terralign/geo/camera.hpp>
 #include <terralign/geo/map.hpp>
 
 namespace terralign::test {
@@ -63,6 +64,17 @@ inline geo::Map dem_map(int w, int h, double x0, double y0, double spacing,
   m.dem.max_height = hi;
   m.layers.push_back(std::move(layer));
   return m;
+}
+
+// The paper's evaluation camera: 752 x 480, f = 651.2 px, centred, no distortion.
+inline geo::CameraModel paper_camera() {
+  geo::CameraModel c;
+  c.width = 752;
+  c.height = 480;
+  c.fx = c.fy = 651.2;
+  c.cx = 375.5;
+  c.cy = 239.5;
+  return c;
 }
 
 }  // namespace terralign::test

@@ -143,15 +143,6 @@ double epe_px(const Pair& p, const SE3<double>& est) {
   return n ? sum / static_cast<double>(n) : INFINITY;
 }
 
-geo::CameraModel paper_camera() {
-  geo::CameraModel c;
-  c.width = 752;
-  c.height = 480;
-  c.fx = c.fy = 651.2;
-  c.cx = 375.5;
-  c.cy = 239.5;
-  return c;
-}
 
 }  // namespace
 
@@ -159,7 +150,7 @@ namespace {
 
 // Aligns a same-layer pair rendered at a known small offset; returns the final 2-D EPE.
 double converge_same_layer(const geo::Map& map, const std::string& layer) {
-  const geo::CameraModel cam = paper_camera();
+  const geo::CameraModel cam = test::paper_camera();
   const geo::Pose truth = geo::pose_from_ypr({487450, 5207437, 570 + 800}, 30, 2, -3);
   const geo::Pose prior = geo::pose_from_ypr({487450 + 12, 5207437 - 9, 570 + 806}, 31.5, 1, -2);
   const Pair p = render_pair(map, cam, prior, truth, layer, layer);
@@ -209,7 +200,7 @@ TEST_CASE("a pair with no texture reports failure instead of a pose") {
   const geo::Map map = test::flat_map(0.0, test::make_layer("grey", 400, 400, 0, 2000, 5.0, [](int, int, std::uint8_t* p) {
     p[0] = p[1] = p[2] = 120;
   }));
-  const geo::CameraModel cam = paper_camera();
+  const geo::CameraModel cam = test::paper_camera();
   const geo::Pose truth = geo::pose_from_ypr({1000, 1000, 800}, 0, 0, 0);
   const geo::Pose prior = geo::pose_from_ypr({1010, 1000, 800}, 1, 0, 0);
   const Pair p = render_pair(map, cam, prior, truth, "grey", "grey");
@@ -224,7 +215,7 @@ TEST_CASE("a pair with no texture reports failure instead of a pose") {
 TEST_CASE("1 and 2 threads give the same pose, bit for bit") {
   auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
   REQUIRE(map.ok());
-  const geo::CameraModel cam = paper_camera();
+  const geo::CameraModel cam = test::paper_camera();
   const Pair p = render_pair(map.value(), cam, geo::pose_from_ypr({487450, 5207437, 1370}, 10, 1, 0),
                              geo::pose_from_ypr({487458, 5207431, 1374}, 11, 0, 1), "2012", "2012");
   const Pinhole<float> K{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
@@ -244,7 +235,7 @@ TEST_CASE("1 and 2 threads give the same pose, bit for bit") {
 TEST_CASE("an alignment allocates nothing after set-up") {
   auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
   REQUIRE(map.ok());
-  const geo::CameraModel cam = paper_camera();
+  const geo::CameraModel cam = test::paper_camera();
   const Pair p = render_pair(map.value(), cam, geo::pose_from_ypr({487450, 5207437, 1370}, 0, 0, 0),
                              geo::pose_from_ypr({487455, 5207437, 1370}, 0.5, 0, 0), "2009", "2009");
   TrackerOptions opt;

@@ -3,21 +3,21 @@
 #include <algorithm>
 #include <cmath>
 
+#include <terralign/geo/cpu.hpp>
+
 namespace terralign::nn {
 
 bool nn_cpu_has_avx2() {
-#if defined(TERRALIGN_NN_AVX2) && (defined(__x86_64__) || defined(__i386__))
-  __builtin_cpu_init();
-  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+#if defined(TERRALIGN_NN_AVX2)
+  return cpu_features().avx2_fma;
 #else
   return false;
 #endif
 }
 
 bool nn_cpu_has_avx512() {
-#if defined(TERRALIGN_NN_AVX2) && (defined(__x86_64__) || defined(__i386__))
-  __builtin_cpu_init();
-  return __builtin_cpu_supports("avx512f");
+#if defined(TERRALIGN_NN_AVX2)
+  return cpu_features().avx512f;
 #else
   return false;
 #endif

@@ -1,11 +1,12 @@
 #include <terralign/raster/shade_kernels.hpp>
 
+#include <terralign/geo/cpu.hpp>
+
 namespace terralign::raster {
 
 bool cpu_has_avx2() {
-#if defined(TERRALIGN_HAVE_AVX2) && (defined(__x86_64__) || defined(__i386__))
-  __builtin_cpu_init();
-  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+#if defined(TERRALIGN_HAVE_AVX2)
+  return cpu_features().avx2_fma;
 #else
   return false;
 #endif

@@ -1,0 +1,18 @@
+#include <terralign/geo/cpu.hpp>
+
+namespace terralign {
+
+const CpuFeatures& cpu_features() {
+  static const CpuFeatures f = [] {
+    CpuFeatures c;
+#if defined(__x86_64__) || defined(__i386__)
+    __builtin_cpu_init();
+    c.avx2_fma = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    c.avx512f = c.avx2_fma && __builtin_cpu_supports("avx512f");
+#endif
+    return c;
+  }();
+  return f;
+}
+
+}  // namespace terralign
