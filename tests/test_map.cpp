@@ -52,7 +52,7 @@ TEST_CASE("the Christchurch maps: PNG layers placed by their world files in a lo
   CHECK(!m->crs.to_geodetic(10, 10, 0).ok());
 }
 
-TEST_CASE("DEM heights are bilinear between posts; no-data is NaN; outside is NaN") {
+TEST_CASE("DEM heights are bilinear between posts, NaN on no-data and outside") {
   auto m = manifest(R"({"dem": {"file": "dem_int16.tif"}, "layers": [{"name": "a", "file": "rgb_strips_lzw.tif"}]})");
   REQUIRE(m.ok());
   const Dem& d = m->dem;

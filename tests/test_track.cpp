@@ -22,7 +22,7 @@ int run(const std::string& cmd) { return std::system((cmd + " 2>/dev/null >/dev/
 
 }  // namespace
 
-TEST_CASE("a rendered flight is tracked; a frame of pure noise is flagged and the track recovers") {
+TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged and the track recovers") {
   const std::string tl = TERRALIGN_CLI;
   const std::string dir = test::temp_dir() + "/flight";
   const std::string map = test::source_path("data/naip_west/map.json");

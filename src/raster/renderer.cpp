@@ -508,8 +508,8 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
       const std::int64_t ex = t.X[k1] - t.X[k], ey = t.Y[k1] - t.Y[k];
       const bool top_left = (ey == 0 && ex > 0) || ey < 0;
       E[k] = ex * (py - t.Y[k]) - ey * (px - t.X[k]) - (top_left ? 0 : 1);
-      dEx[k] = -ey << kSubBits;
-      dEy[k] = ex << kSubBits;
+      dEx[k] = -ey * (std::int64_t{1} << kSubBits);
+      dEy[k] = ex * (std::int64_t{1} << kSubBits);
     }
     // 1/z relative to the box corner, in float (exact enough for the depth test only).
     const float A = static_cast<float>(t.A[0]), B = static_cast<float>(t.B[0]);
