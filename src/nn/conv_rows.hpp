@@ -56,9 +56,16 @@ inline void conv3x3_rows(const Tensor& in, const ConvWeights& w, Tensor& out, in
   constexpr int NP = V::kTilePixels;
   TERRALIGN_DEBUG_ASSERT(w.block == V::kBlock, "conv3x3_rows: weights packed for another kernel");
   const int blocks = (w.cout + V::kBlock - 1) / V::kBlock;
+  constexpr int NB = V::kTileBlocks;
   for (int y = y0; y < y1; ++y) {
     int block = 0;
-    for (; block + 2 <= blocks; block += 2) {
+    for (; block + NB <= blocks; block += NB) {
+      int x = 0;
+      for (; x + NP <= out.w; x += NP) conv_tile<V, NP, NB>(in, w, out, y, x, block);
+      for (; x < out.w; ++x) conv_tile<V, 1, NB>(in, w, out, y, x, block);
+    }
+    // The remaining blocks: in pairs where the tile is wider than two, then one by one.
+    for (; NB > 2 && block + 2 <= blocks; block += 2) {
       int x = 0;
       for (; x + NP <= out.w; x += NP) conv_tile<V, NP, 2>(in, w, out, y, x, block);
       for (; x < out.w; ++x) conv_tile<V, 1, 2>(in, w, out, y, x, block);

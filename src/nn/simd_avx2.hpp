@@ -37,6 +37,7 @@ struct VecAvx2 {
   static constexpr int kWidth = 8;
   static constexpr int kBlock = 8;       // output channels a weight block holds
   static constexpr int kTilePixels = 6;  // output pixels a register tile holds
+  static constexpr int kTileBlocks = 2;  // weight blocks a register tile holds
   __m256 v;
   static VecAvx2 load(const float* p) { return {_mm256_loadu_ps(p)}; }
   static VecAvx2 set1(float x) { return {_mm256_set1_ps(x)}; }

@@ -32,7 +32,8 @@ inline __m512 expm1_neg_avx512(__m512 x) {
 struct VecAvx512 {
   static constexpr int kWidth = 16;
   static constexpr int kBlock = 16;       // output channels a weight block holds
-  static constexpr int kTilePixels = 12;  // 12 pixels x 2 blocks = 24 of the 32 registers
+  static constexpr int kTilePixels = 6;   // 6 pixels x 4 blocks (64 channels) = 24 of the 32 registers
+  static constexpr int kTileBlocks = 4;
   __m512 v;
   static VecAvx512 load(const float* p) { return {_mm512_loadu_ps(p)}; }
   static VecAvx512 set1(float x) { return {_mm512_set1_ps(x)}; }

@@ -9,6 +9,7 @@ struct VecScalar {
   static constexpr int kWidth = 1;
   static constexpr int kBlock = 8;       // output channels a weight block holds
   static constexpr int kTilePixels = 6;  // output pixels a register tile holds
+  static constexpr int kTileBlocks = 2;  // weight blocks a register tile holds
   float v;
   static VecScalar load(const float* p) { return {*p}; }
   static VecScalar set1(float x) { return {x}; }
