@@ -100,3 +100,44 @@ TEST_CASE("track reports bad frames by name and goes on: a missing image, a wron
 }
 
 #endif  // TERRALIGN_CLI
+
+#if defined(TERRALIGN_CLI)
+TEST_CASE("dataset: the same seed gives the same bytes, and training and validation ground do not overlap") {
+  const std::string tl = TERRALIGN_CLI;
+  const std::string map = test::source_path("data/naip_west/map.json");
+  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
+  const std::string a = test::temp_dir() + "/ds_a", b = test::temp_dir() + "/ds_b";
+  for (const auto& d : {a, b})
+    REQUIRE(std::system((tl + " dataset --map " + map + " --camera " + cam + " --count 6 --seed 9 --scale 0.125 " +
+                         "--altitude 400:450 --layers 2009,2020 --out " + d + " >/dev/null 2>&1").c_str()) == 0);
+  auto slurp = [](const std::string& p) {
+    std::ifstream f(p, std::ios::binary);
+    std::stringstream s;
+    s << f.rdbuf();
+    return s.str();
+  };
+  const std::string index = slurp(a + "/index.csv");
+  CHECK(index == slurp(b + "/index.csv"));
+  CHECK(slurp(a + "/train/000002/query_2020.png") == slurp(b + "/train/000002/query_2020.png"));
+  CHECK(slurp(a + "/val/000000/ref_depth.pfm") == slurp(b + "/val/000000/ref_depth.pfm"));
+  // 6 poses x 2 x 2 ordered layer pairs; the NAIP map is taller than wide, so validation is
+  // the northern strip: every validation footprint lies north of every training one.
+  std::stringstream lines(index);
+  std::string line;
+  std::getline(lines, line);
+  int rows = 0;
+  double train_max_y = -1e300, val_min_y = 1e300;
+  while (std::getline(lines, line)) {
+    ++rows;
+    const auto truth = line.substr(line.rfind(",\"") + 2);
+    std::stringstream ts(truth);
+    double x, y;
+    ts >> x >> y;
+    if (line.rfind("train,", 0) == 0) train_max_y = std::max(train_max_y, y);
+    else val_min_y = std::min(val_min_y, y);
+  }
+  CHECK(rows == 24);
+  // Camera centres: a footprint at 400-450 m reaches at most ~300 m from its centre.
+  CHECK(val_min_y - train_max_y > 300);
+}
+#endif

@@ -14,6 +14,7 @@
 #include "commands.hpp"
 #include "common.hpp"
 #include "localizer.hpp"
+#include "sampling.hpp"
 
 namespace terralign::cli {
 
@@ -22,86 +23,6 @@ Result<iclk::Robust> parse_robust(const std::string& s);
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-
-// SplitMix64: the same stream on every platform and standard library.
-struct Rng {
-  std::uint64_t s;
-  std::uint64_t next() {
-    std::uint64_t z = (s += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    return z ^ (z >> 31);
-  }
-  double uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
-  double uniform(double a, double b) { return a + (b - a) * uniform(); }
-  Eigen::Vector3d unit() {  // uniform on the sphere
-    const double z = uniform(-1, 1), phi = uniform(0, 2 * kPi), r = std::sqrt(1 - z * z);
-    return {r * std::cos(phi), r * std::sin(phi), z};
-  }
-};
-
-struct Sample {
-  geo::Pose truth, prior;
-  double altitude;
-};
-
-// The ground point seen along the camera ray through pixel (u, v), on the plane z = h.
-bool ground_hit(const geo::Pose& T, const geo::CameraModel& cam, double u, double v, double h, Eigen::Vector3d& p) {
-  const Eigen::Vector3d d = T.R() * Eigen::Vector3d((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0);
-  if (!(d.z() < -1e-6)) return false;
-  const double t = (h - T.t_W_C.z()) / d.z();
-  p = T.t_W_C + t * d;
-  return true;
-}
-
-Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, int count, std::uint64_t seed,
-                                         double lo, double hi, double tilt_deg) {
-  Rng rng{seed};
-  const geo::Extent e = map.common_extent();
-  std::vector<Sample> out;
-  for (int i = 0; i < count; ++i) {
-    bool placed = false;
-    for (int attempt = 0; attempt < 2000 && !placed; ++attempt) {
-      const double alt = rng.uniform(lo, hi), heading = rng.uniform(0, 360);
-      const double tilt = rng.uniform(0, tilt_deg), tilt_dir = rng.uniform(0, 2 * kPi);
-      const double x = rng.uniform(e.min_x, e.max_x), y = rng.uniform(e.min_y, e.max_y);
-      const double ground = map.dem.height_at(x, y);
-      if (!std::isfinite(ground)) continue;
-      geo::Pose T = geo::pose_from_ypr({x, y, ground + alt}, heading, 0, 0);
-      // Tilt off nadir by `tilt` about a horizontal axis at a random azimuth.
-      const Eigen::Vector3d axis(std::cos(tilt_dir), std::sin(tilt_dir), 0);
-      T.q_W_C = Eigen::Quaterniond(Eigen::AngleAxisd(tilt * kPi / 180, axis)) * T.q_W_C;
-      bool inside = true;
-      for (int k = 0; k < 5 && inside; ++k) {
-        const double u = k == 4 ? cam.cx : (k & 1) * (cam.width - 1.0), v = k == 4 ? cam.cy : (k >> 1) * (cam.height - 1.0);
-        Eigen::Vector3d p;
-        inside = ground_hit(T, cam, u, v, ground, p) && e.contains(p.x(), p.y());
-        if (inside) {
-          const double hp = map.dem.height_at(p.x(), p.y());
-          inside = std::isfinite(hp) && ground_hit(T, cam, u, v, hp, p) && e.contains(p.x(), p.y());
-        }
-      }
-      if (!inside) continue;
-      Sample s;
-      s.truth = T;
-      s.altitude = alt;
-      // The prior: rotated about a random axis by U[0, 6] deg (in the camera frame), moved by
-      // U[0, 0.13 alt] m in a random direction.
-      const double angle = rng.uniform(0, 6) * kPi / 180;
-      const Eigen::Vector3d raxis = rng.unit();
-      const double len = rng.uniform(0, 0.13 * alt);
-      const Eigen::Vector3d dir = rng.unit();
-      s.prior.q_W_C = (T.q_W_C * Eigen::Quaterniond(Eigen::AngleAxisd(angle, raxis))).normalized();
-      s.prior.t_W_C = T.t_W_C + len * dir;
-      out.push_back(s);
-      placed = true;
-    }
-    if (!placed)
-      return Error{"cannot place pose " + std::to_string(i) + ": no position in 2000 tries shows only the map at altitude " +
-                   std::to_string(lo) + ".." + std::to_string(hi) + " m (map too small for the altitude?)"};
-  }
-  return out;
-}
 
 struct Errors {
   double epe_m, angle_deg, trans_m, epe_px;
@@ -251,7 +172,7 @@ int run_eval(const std::vector<std::string>& argv) {
     if (::stat(overlays.c_str(), &st) != 0 && ::mkdir(overlays.c_str(), 0755) != 0)
       return fail(Error{overlays + ": cannot create the overlay folder"});
   }
-  auto samples = sample_poses(map.value(), cam, count.value(), seed, lo, hi, tilt.value());
+  auto samples = sample_poses(map.value(), cam, map->common_extent(), count.value(), seed, lo, hi, tilt.value());
   if (!samples.ok()) return fail(samples.error());
 
   iclk::TrackerOptions opt;

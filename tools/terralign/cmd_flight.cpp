@@ -12,6 +12,7 @@
 #include "commands.hpp"
 #include "common.hpp"
 #include "localizer.hpp"
+#include "sampling.hpp"
 
 namespace terralign::cli {
 namespace {
@@ -20,21 +21,6 @@ constexpr double kPi = 3.14159265358979323846;
 
 struct Waypoint {
   double x, y;
-};
-
-// Normal deviates from a seeded SplitMix64 (the same on every platform).
-struct Noise {
-  std::uint64_t s;
-  double uniform() {
-    std::uint64_t z = (s += 0x9e3779b97f4a7c15ull);
-    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
-    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
-    return static_cast<double>((z ^ (z >> 31)) >> 11) * 0x1.0p-53;
-  }
-  double normal() {
-    const double u = std::max(uniform(), 1e-300), v = uniform();
-    return std::sqrt(-2 * std::log(u)) * std::cos(2 * kPi * v);
-  }
 };
 
 Result<std::vector<Waypoint>> path_points(const std::string& path, const geo::Extent& e, double margin) {
@@ -136,7 +122,7 @@ int run_flight(const std::vector<std::string>& argv) {
   struct stat st {};
   if (::stat((out + "/frames").c_str(), &st) != 0) return fail(Error{out + ": cannot create the output folder"});
 
-  Noise rng{static_cast<std::uint64_t>(seed.value())};
+  Rng rng{static_cast<std::uint64_t>(seed.value())};
   std::string list, truth;
   const int frames = static_cast<int>(duration.value() * rate.value());
   std::size_t leg = 0;

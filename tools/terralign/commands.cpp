@@ -63,6 +63,18 @@ const std::vector<Command>& commands() {
        "[dtheta (rad, world axes); dp (m)]). With --truth, the summary (stderr and --json) has\n"
        "frames, converged_fraction, position_rmse_m, angle_rmse_deg, the maxima and nees_mean.\n",
        run_track},
+      {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
+       "usage: terralign dataset --map MAP.json --camera CAMERA.json --count N --seed S --out DIR\n"
+       "                         [--altitude LO:HI] [--tilt DEG] [--split-fraction F] [--scale S]\n"
+       "                         [--layers all|NAME,...] [--no-augment]\n\n"
+       "Samples poses as eval does (default 700:900 m, tilt 10 deg), a fraction F (default 0.2) in\n"
+       "a strip at the east (or north) end of the map for validation and the rest beside it, so\n"
+       "that no ground is in both. Per pose DIR/<split>/<id>/ holds ref_<layer>.png for every layer at the prior,\n"
+       "ref_depth.pfm, and query_<layer>.png at the true pose (augmented: exposure, white balance,\n"
+       "blur, noise; --no-augment turns it off). DIR/index.csv lists every ordered pair of layers\n"
+       "per pose with intrinsics and T_query_ref. --scale resizes the camera (0.25: 188x120).\n"
+       "The same seed gives the same bytes.\n",
+       run_dataset},
   };
   return list;
 }

@@ -21,5 +21,6 @@ int run_align(const std::vector<std::string>& args);
 int run_eval(const std::vector<std::string>& args);
 int run_flight(const std::vector<std::string>& args);
 int run_track(const std::vector<std::string>& args);
+int run_dataset(const std::vector<std::string>& args);
 
 }  // namespace terralign::cli

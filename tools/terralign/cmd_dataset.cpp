@@ -1,0 +1,193 @@
+// terralign dataset: training pairs from the renderer, for the learned tracker.
+#include <cmath>
+#include <cstdio>
+#include <sys/stat.h>
+
+#include <terralign/geo/file.hpp>
+#include <terralign/geo/image_io.hpp>
+
+#include "args.hpp"
+#include "commands.hpp"
+#include "common.hpp"
+#include "localizer.hpp"
+#include "sampling.hpp"
+
+namespace terralign::cli {
+namespace {
+
+std::vector<std::string> split_list(const std::string& s) {
+  std::vector<std::string> out;
+  std::size_t a = 0;
+  while (a <= s.size()) {
+    const std::size_t b = s.find(',', a);
+    out.push_back(s.substr(a, b == std::string::npos ? std::string::npos : b - a));
+    if (b == std::string::npos) break;
+    a = b + 1;
+  }
+  return out;
+}
+
+// Photometric augmentation of a query image, seeded: exposure gain U[0.8, 1.2], white
+// balance gains U[0.9, 1.1] per channel, a 3x3 box blur with probability 0.3, Gaussian noise
+// of sigma U[0, 3] grey levels. These stand for the changes between a real camera and a map.
+void augment(ImageU8& img, Rng& rng) {
+  const double exposure = rng.uniform(0.8, 1.2);
+  double wb[3];
+  for (double& g : wb) g = exposure * rng.uniform(0.9, 1.1);
+  const bool blur = rng.uniform() < 0.3;
+  const double sigma = rng.uniform(0, 3);
+  if (blur) {
+    const ImageU8 src = img;
+    for (int y = 0; y < img.height(); ++y)
+      for (int x = 0; x < img.width(); ++x)
+        for (int c = 0; c < 3; ++c) {
+          int s = 0;
+          for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx)
+              s += src.at(std::clamp(x + dx, 0, img.width() - 1), std::clamp(y + dy, 0, img.height() - 1), c);
+          img.at(x, y, c) = static_cast<std::uint8_t>((s + 4) / 9);
+        }
+  }
+  for (int y = 0; y < img.height(); ++y)
+    for (int x = 0; x < img.width(); ++x)
+      for (int c = 0; c < 3; ++c) {
+        const double v = img.at(x, y, c) * wb[c] + sigma * rng.normal();
+        img.at(x, y, c) = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+      }
+}
+
+Status make_dir(const std::string& d) {
+  struct stat st {};
+  if (::stat(d.c_str(), &st) == 0) return S_ISDIR(st.st_mode) ? Status(Ok{}) : Status(Error{d + ": exists and is not a folder"});
+  if (::mkdir(d.c_str(), 0755) != 0) return Error{d + ": cannot create the folder"};
+  return Ok{};
+}
+
+}  // namespace
+
+int run_dataset(const std::vector<std::string>& argv) {
+  auto args = Args::parse(argv, {"map", "camera", "count", "seed", "out", "altitude", "tilt", "split-fraction", "scale", "layers"},
+                          {"no-augment"});
+  if (!args.ok()) return usage_error("dataset", args.error());
+  for (const char* k : {"map", "camera", "count", "seed", "out"})
+    if (!args->has(k)) return usage_error("dataset", Error{std::string("missing required option --") + k});
+  auto count = args->get_int("count", 0, 1, 1000000);
+  auto seed = args->get_int("seed", 0, 0, 1 << 30);
+  auto tilt = args->get_double("tilt", 10);
+  auto fraction = args->get_double("split-fraction", 0.2);
+  auto scale = args->get_double("scale", 1.0);
+  if (!count.ok()) return usage_error("dataset", count.error());
+  if (!seed.ok()) return usage_error("dataset", seed.error());
+  if (!tilt.ok() || tilt.value() < 0 || tilt.value() > 60) return usage_error("dataset", Error{"--tilt must be in [0, 60] degrees"});
+  if (!fraction.ok() || !(fraction.value() > 0 && fraction.value() < 1))
+    return usage_error("dataset", Error{"--split-fraction must be in (0, 1)"});
+  if (!scale.ok() || !(scale.value() > 0 && scale.value() <= 4)) return usage_error("dataset", Error{"--scale must be in (0, 4]"});
+  double lo = 700, hi = 900;
+  if (args->has("altitude") &&
+      (std::sscanf(args->get("altitude").c_str(), "%lf:%lf", &lo, &hi) != 2 || !(lo > 0) || !(hi >= lo)))
+    return usage_error("dataset", Error{"--altitude '" + args->get("altitude") + "' must be LO:HI metres with 0 < LO <= HI"});
+  auto map = geo::load_map(args->get("map"));
+  if (!map.ok()) return fail(map.error());
+  auto cam_in = geo::load_camera(args->get("camera"));
+  if (!cam_in.ok()) return fail(cam_in.error());
+  geo::CameraModel cam = pinhole_of(cam_in.value());
+  const double s = scale.value();
+  cam = cam.scaled(s, static_cast<int>(std::lround(cam.width * s)), static_cast<int>(std::lround(cam.height * s)));
+  std::vector<std::string> layers;
+  if (args->get("layers", "all") == "all") {
+    for (const auto& L : map->layers) layers.push_back(L.name);
+  } else {
+    layers = split_list(args->get("layers"));
+    for (const auto& n : layers)
+      if (!map->find_layer(n)) return fail(Error{"no layer named '" + n + "' (layers: " + map->layer_names() + ")"});
+  }
+  raster::RenderOptions ro;
+  auto renderer = raster::Renderer::create(map.value(), cam, ro);
+  if (!renderer.ok()) return fail(renderer.error());
+  auto view = renderer.value()->make_output(layers);
+  if (!view.ok()) return fail(view.error());
+
+  // Spatially disjoint areas: validation is a strip at the east (or north, if the map is
+  // taller than wide) end of the common extent, training the rest; every footprint lies
+  // wholly inside its area, so no ground is in both.
+  const geo::Extent all = map->common_extent();
+  const bool by_x = all.width() >= all.height();
+  const double split_at = by_x ? all.max_x - fraction.value() * all.width() : all.max_y - fraction.value() * all.height();
+  const geo::Extent train_area = by_x ? geo::Extent{all.min_x, all.min_y, split_at, all.max_y}
+                                      : geo::Extent{all.min_x, all.min_y, all.max_x, split_at};
+  const geo::Extent val_area = by_x ? geo::Extent{split_at, all.min_y, all.max_x, all.max_y}
+                                    : geo::Extent{all.min_x, split_at, all.max_x, all.max_y};
+  const int n_val = std::max(1, static_cast<int>(std::lround(count.value() * fraction.value())));
+  const int n_train = std::max(0, count.value() - n_val);
+  auto train = sample_poses(map.value(), cam, train_area, n_train, static_cast<std::uint64_t>(seed.value()), lo, hi, tilt.value());
+  if (!train.ok()) return fail(with_context("training area", train.error()));
+  auto val = sample_poses(map.value(), cam, val_area, n_val, static_cast<std::uint64_t>(seed.value()) + 1, lo, hi, tilt.value());
+  if (!val.ok())
+    return fail(with_context(std::string("validation area (the ") + (by_x ? "eastern " : "northern ") +
+                                 std::to_string(fraction.value()) + " of the map; fly lower or give a larger --split-fraction)",
+                             val.error()));
+
+  const std::string out = args->get("out");
+  for (const std::string& d : {out, out + "/train", out + "/val"})
+    if (auto st = make_dir(d); !st.ok()) return fail(st.error());
+  std::string index =
+      "split,pose,ref_layer,query_layer,ref_image,ref_depth,query_image,width,height,fx,fy,cx,cy,altitude,"
+      "t_x,t_y,t_z,q_w,q_x,q_y,q_z,prior,truth\n";
+  const bool aug = !args->has("no-augment");
+  const int total = n_train + n_val;
+  int done = 0;
+  for (int part = 0; part < 2; ++part) {
+    const std::vector<Sample>& samples = part == 0 ? train.value() : val.value();
+    const std::string split = part == 0 ? "train" : "val";
+    for (std::size_t i = 0; i < samples.size(); ++i) {
+      const Sample& smp = samples[i];
+      char id[16];
+      std::snprintf(id, sizeof id, "%06zu", i);
+      const std::string dir = out + "/" + split + "/" + id;
+      if (auto st = make_dir(dir); !st.ok()) return fail(st.error());
+      // The reference: every layer at the prior, with its depth (NaN where no terrain).
+      if (auto st = renderer.value()->render(smp.prior, view.value()); !st.ok())
+        return fail(Error{split + " pose " + id + ": " + st.error().message});
+      for (std::size_t l = 0; l < layers.size(); ++l)
+        if (auto st = geo::save_png(dir + "/ref_" + layers[l] + ".png", view->rgb[l].view()); !st.ok()) return fail(st.error());
+      if (auto st = geo::save_pfm(dir + "/ref_depth.pfm", view->depth.view()); !st.ok()) return fail(st.error());
+      // The query: every layer at the truth, augmented.
+      if (auto st = renderer.value()->render(smp.truth, view.value()); !st.ok())
+        return fail(Error{split + " pose " + id + ": " + st.error().message});
+      Rng rng{static_cast<std::uint64_t>(seed.value()) * 1000003u + static_cast<std::uint64_t>(part) * 7919u + i};
+      for (std::size_t l = 0; l < layers.size(); ++l) {
+        ImageU8 q = view->rgb[l];
+        if (aug) augment(q, rng);
+        if (auto st = geo::save_png(dir + "/query_" + layers[l] + ".png", q.view()); !st.ok()) return fail(st.error());
+      }
+      // T_query_ref = T_C1_W T_W_Cref: maps reference-camera points into the query camera.
+      const geo::Pose rel = smp.truth.inverse() * smp.prior;
+      for (const auto& a : layers)
+        for (const auto& b : layers) {
+          char row[1024];
+          std::snprintf(row, sizeof row, "%s,%s,%s,%s,%s/%s/ref_%s.png,%s/%s/ref_depth.pfm,%s/%s/query_%s.png,%d,%d,%.9g,%.9g,%.9g,%.9g,%.3f,%s,\"%s\",\"%s\"\n",
+                        split.c_str(), id, a.c_str(), b.c_str(), split.c_str(), id, a.c_str(), split.c_str(), id, split.c_str(), id,
+                        b.c_str(), cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, smp.altitude,
+                        [&] {
+                          static thread_local char buf[256];
+                          std::snprintf(buf, sizeof buf, "%.6f,%.6f,%.6f,%.9f,%.9f,%.9f,%.9f", rel.t_W_C.x(), rel.t_W_C.y(),
+                                        rel.t_W_C.z(), rel.q_W_C.w(), rel.q_W_C.x(), rel.q_W_C.y(), rel.q_W_C.z());
+                          return buf;
+                        }(),
+                        geo::format_pose(smp.prior).c_str(), geo::format_pose(smp.truth).c_str());
+          index += row;
+        }
+      ++done;
+      const int w = 40, bar = done * w / total;
+      std::fprintf(stderr, "\r[%.*s%*s] %d/%d", bar, "========================================", w - bar, "", done, total);
+    }
+  }
+  std::fprintf(stderr, "\n");
+  if (auto st = geo::write_file_atomic(out + "/index.csv", index.data(), index.size()); !st.ok()) return fail(st.error());
+  std::printf("%s/index.csv: %d training and %d validation poses, %zu layers, %zu pairs; validation %s of %s = %.1f\n",
+              out.c_str(), n_train, n_val, layers.size(), static_cast<std::size_t>(total) * layers.size() * layers.size(),
+              by_x ? "east" : "north", by_x ? "x" : "y", split_at);
+  return 0;
+}
+
+}  // namespace terralign::cli

@@ -1,0 +1,36 @@
+// Pose sampling for eval and dataset: the paper's protocol (a true pose with the whole
+// footprint inside an area, a prior perturbed from it), reproducible on every platform.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <terralign/geo/camera.hpp>
+#include <terralign/geo/map.hpp>
+#include <terralign/geo/pose.hpp>
+
+namespace terralign::cli {
+
+// SplitMix64: the same stream on every platform and standard library.
+struct Rng {
+  std::uint64_t s;
+  std::uint64_t next();
+  double uniform();  // [0, 1)
+  double uniform(double a, double b) { return a + (b - a) * uniform(); }
+  double normal();
+  Eigen::Vector3d unit();  // uniform on the sphere
+};
+
+struct Sample {
+  geo::Pose truth, prior;
+  double altitude;  // above the terrain, metres
+};
+
+// `count` true poses whose whole footprint (corners and centre, on the terrain) lies in
+// `area`: altitude above ground in [lo, hi], tilt off nadir up to tilt_deg in a random
+// direction, any heading; each prior rotated about a random axis by U[0, 6] deg and moved by
+// U[0, 0.13 x altitude] m in a random direction.
+Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, const geo::Extent& area, int count,
+                                         std::uint64_t seed, double lo, double hi, double tilt_deg);
+
+}  // namespace terralign::cli
