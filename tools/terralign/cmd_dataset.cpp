@@ -141,7 +141,7 @@ int run_dataset(const std::vector<std::string>& argv) {
     const std::string split = part == 0 ? "train" : "val";
     for (std::size_t i = 0; i < samples.size(); ++i) {
       const Sample& smp = samples[i];
-      char id[16];
+      char id[24];
       std::snprintf(id, sizeof id, "%06zu", i);
       const std::string dir = out + "/" + split + "/" + id;
       if (auto st = make_dir(dir); !st.ok()) return fail(st.error());
@@ -162,21 +162,18 @@ int run_dataset(const std::vector<std::string>& argv) {
       }
       // T_query_ref = T_C1_W T_W_Cref: maps reference-camera points into the query camera.
       const geo::Pose rel = smp.truth.inverse() * smp.prior;
+      char rel_txt[256];
+      std::snprintf(rel_txt, sizeof rel_txt, "%.6f,%.6f,%.6f,%.9f,%.9f,%.9f,%.9f", rel.t_W_C.x(), rel.t_W_C.y(), rel.t_W_C.z(),
+                    rel.q_W_C.w(), rel.q_W_C.x(), rel.q_W_C.y(), rel.q_W_C.z());
+      char geom[160];
+      std::snprintf(geom, sizeof geom, "%d,%d,%.9g,%.9g,%.9g,%.9g,%.3f", cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy,
+                    smp.altitude);
+      const std::string where = split + "," + id + ",";
+      const std::string prefix = split + "/" + id + "/";
       for (const auto& a : layers)
-        for (const auto& b : layers) {
-          char row[1024];
-          std::snprintf(row, sizeof row, "%s,%s,%s,%s,%s/%s/ref_%s.png,%s/%s/ref_depth.pfm,%s/%s/query_%s.png,%d,%d,%.9g,%.9g,%.9g,%.9g,%.3f,%s,\"%s\",\"%s\"\n",
-                        split.c_str(), id, a.c_str(), b.c_str(), split.c_str(), id, a.c_str(), split.c_str(), id, split.c_str(), id,
-                        b.c_str(), cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, smp.altitude,
-                        [&] {
-                          static thread_local char buf[256];
-                          std::snprintf(buf, sizeof buf, "%.6f,%.6f,%.6f,%.9f,%.9f,%.9f,%.9f", rel.t_W_C.x(), rel.t_W_C.y(),
-                                        rel.t_W_C.z(), rel.q_W_C.w(), rel.q_W_C.x(), rel.q_W_C.y(), rel.q_W_C.z());
-                          return buf;
-                        }(),
-                        geo::format_pose(smp.prior).c_str(), geo::format_pose(smp.truth).c_str());
-          index += row;
-        }
+        for (const auto& b : layers)
+          index += where + a + "," + b + "," + prefix + "ref_" + a + ".png," + prefix + "ref_depth.pfm," + prefix + "query_" + b +
+                   ".png," + geom + "," + rel_txt + ",\"" + geo::format_pose(smp.prior) + "\",\"" + geo::format_pose(smp.truth) + "\"\n";
       ++done;
       const int w = 40, bar = done * w / total;
       std::fprintf(stderr, "\r[%.*s%*s] %d/%d", bar, "========================================", w - bar, "", done, total);
