@@ -3,6 +3,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
+#include <sys/stat.h>
 
 namespace terralign::cli {
 
@@ -54,6 +55,28 @@ Result<double> Args::get_double(const std::string& key, double def) const {
   const double v = std::strtod(s.c_str(), &end);
   if (s.empty() || *end || !std::isfinite(v)) return Error{"--" + key + " '" + s + "' must be a finite number"};
   return v;
+}
+
+std::vector<std::string> split_commas(const std::string& s) {
+  std::vector<std::string> out;
+  std::size_t a = 0;
+  while (a <= s.size()) {
+    const std::size_t b = s.find(',', a);
+    out.push_back(s.substr(a, b == std::string::npos ? std::string::npos : b - a));
+    if (b == std::string::npos) break;
+    a = b + 1;
+  }
+  return out;
+}
+
+Status ensure_dir(const std::string& dir) {
+  struct stat st {};
+  if (::stat(dir.c_str(), &st) == 0) {
+    if (!S_ISDIR(st.st_mode)) return Error{dir + ": exists and is not a folder"};
+    return Ok{};
+  }
+  if (::mkdir(dir.c_str(), 0755) != 0) return Error{dir + ": cannot create the output folder"};
+  return Ok{};
 }
 
 }  // namespace terralign::cli

@@ -25,4 +25,11 @@ class Args {
   std::map<std::string, std::string> values_;
 };
 
+// "a,b,c" -> {"a", "b", "c"} (empty fields kept, so callers can refuse them by name).
+std::vector<std::string> split_commas(const std::string& s);
+
+// Creates a folder if it is missing; an error names the path if it cannot, or if a file is
+// in the way.
+Status ensure_dir(const std::string& dir);
+
 }  // namespace terralign::cli

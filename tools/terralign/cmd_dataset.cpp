@@ -15,18 +15,6 @@
 namespace terralign::cli {
 namespace {
 
-std::vector<std::string> split_list(const std::string& s) {
-  std::vector<std::string> out;
-  std::size_t a = 0;
-  while (a <= s.size()) {
-    const std::size_t b = s.find(',', a);
-    out.push_back(s.substr(a, b == std::string::npos ? std::string::npos : b - a));
-    if (b == std::string::npos) break;
-    a = b + 1;
-  }
-  return out;
-}
-
 // Photometric augmentation of a query image, seeded: exposure gain U[0.8, 1.2], white
 // balance gains U[0.9, 1.1] per channel, a 3x3 box blur with probability 0.3, Gaussian noise
 // of sigma U[0, 3] grey levels. These stand for the changes between a real camera and a map.
@@ -54,13 +42,6 @@ void augment(ImageU8& img, Rng& rng) {
         const double v = img.at(x, y, c) * wb[c] + sigma * rng.normal();
         img.at(x, y, c) = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
       }
-}
-
-Status make_dir(const std::string& d) {
-  struct stat st {};
-  if (::stat(d.c_str(), &st) == 0) return S_ISDIR(st.st_mode) ? Status(Ok{}) : Status(Error{d + ": exists and is not a folder"});
-  if (::mkdir(d.c_str(), 0755) != 0) return Error{d + ": cannot create the folder"};
-  return Ok{};
 }
 
 }  // namespace
@@ -97,7 +78,7 @@ int run_dataset(const std::vector<std::string>& argv) {
   if (args->get("layers", "all") == "all") {
     for (const auto& L : map->layers) layers.push_back(L.name);
   } else {
-    layers = split_list(args->get("layers"));
+    layers = split_commas(args->get("layers"));
     for (const auto& n : layers)
       if (!map->find_layer(n)) return fail(Error{"no layer named '" + n + "' (layers: " + map->layer_names() + ")"});
   }
@@ -129,7 +110,7 @@ int run_dataset(const std::vector<std::string>& argv) {
 
   const std::string out = args->get("out");
   for (const std::string& d : {out, out + "/train", out + "/val"})
-    if (auto st = make_dir(d); !st.ok()) return fail(st.error());
+    if (auto st = ensure_dir(d); !st.ok()) return fail(st.error());
   std::string index =
       "split,pose,ref_layer,query_layer,ref_image,ref_depth,query_image,width,height,fx,fy,cx,cy,altitude,"
       "t_x,t_y,t_z,q_w,q_x,q_y,q_z,prior,truth\n";
@@ -144,7 +125,7 @@ int run_dataset(const std::vector<std::string>& argv) {
       char id[24];
       std::snprintf(id, sizeof id, "%06zu", i);
       const std::string dir = out + "/" + split + "/" + id;
-      if (auto st = make_dir(dir); !st.ok()) return fail(st.error());
+      if (auto st = ensure_dir(dir); !st.ok()) return fail(st.error());
       // The reference: every layer at the prior, with its depth (NaN where no terrain).
       if (auto st = renderer.value()->render(smp.prior, view.value()); !st.ok())
         return fail(Error{split + " pose " + id + ": " + st.error().message});

@@ -133,11 +133,7 @@ int run_eval(const std::vector<std::string>& argv) {
   if (!levels.ok()) return usage_error("eval", levels.error());
   std::vector<Method> methods;
   {
-    const std::string list = args->get("methods", "init,classic:20,classic:50");
-    std::size_t a = 0;
-    while (a <= list.size()) {
-      const std::size_t b = list.find(',', a);
-      const std::string m = list.substr(a, b == std::string::npos ? std::string::npos : b - a);
+    for (const std::string& m : split_commas(args->get("methods", "init,classic:20,classic:50"))) {
       if (m == "init") {
         methods.emplace_back();
         methods.back().name = m;
@@ -153,8 +149,6 @@ int run_eval(const std::vector<std::string>& argv) {
       } else {
         return usage_error("eval", Error{"unknown method '" + m + "' (init, classic:N)"});
       }
-      if (b == std::string::npos) break;
-      a = b + 1;
     }
   }
 
@@ -167,11 +161,8 @@ int run_eval(const std::vector<std::string>& argv) {
     if (!map->find_layer(args->get(k)))
       return fail(Error{"--" + std::string(k) + ": no layer named '" + args->get(k) + "' (layers: " + map->layer_names() + ")"});
   const std::string overlays = args->get("overlays");
-  if (!overlays.empty()) {
-    struct stat st {};
-    if (::stat(overlays.c_str(), &st) != 0 && ::mkdir(overlays.c_str(), 0755) != 0)
-      return fail(Error{overlays + ": cannot create the overlay folder"});
-  }
+  if (!overlays.empty())
+    if (auto st = ensure_dir(overlays); !st.ok()) return fail(st.error());
   auto samples = sample_poses(map.value(), cam, map->common_extent(), count.value(), seed, lo, hi, tilt.value());
   if (!samples.ok()) return fail(samples.error());
 

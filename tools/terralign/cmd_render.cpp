@@ -17,18 +17,6 @@
 namespace terralign::cli {
 namespace {
 
-std::vector<std::string> split_commas(const std::string& s) {
-  std::vector<std::string> out;
-  std::size_t a = 0;
-  while (a <= s.size()) {
-    const std::size_t b = s.find(',', a);
-    out.push_back(s.substr(a, b == std::string::npos ? std::string::npos : b - a));
-    if (b == std::string::npos) break;
-    a = b + 1;
-  }
-  return out;
-}
-
 // A false-colour preview of depth: near bright, far dark, no terrain black.
 ImageU8 depth_preview(const ImageF& depth) {
   float lo = INFINITY, hi = -INFINITY;
@@ -54,16 +42,6 @@ Status write_outputs(const std::string& dir, const raster::RenderOutput& out) {
   TERRALIGN_TRY(geo::save_pfm(dir + "/depth.pfm", out.depth.view()));
   const ImageU8 preview = depth_preview(out.depth);
   return geo::save_png(dir + "/depth.png", preview.view());
-}
-
-Status ensure_dir(const std::string& dir) {
-  struct stat st {};
-  if (::stat(dir.c_str(), &st) == 0) {
-    if (!S_ISDIR(st.st_mode)) return Error{dir + ": exists and is not a folder"};
-    return Ok{};
-  }
-  if (::mkdir(dir.c_str(), 0755) != 0) return Error{dir + ": cannot create the output folder"};
-  return Ok{};
 }
 
 }  // namespace
