@@ -256,13 +256,20 @@ const char* Renderer::simd_name() const { return impl_->simd; }
 Result<RenderOutput> Renderer::make_output(const std::vector<std::string>& names) const {
   RenderOutput out;
   const bool all = names.empty() || (names.size() == 1 && names[0] == "all");
-  if (all) {
-    for (const auto& L : impl_->layers) out.layer_names.push_back(L.name);
-  } else {
+  for (std::size_t i = 0; i < impl_->layers.size(); ++i)
+    if (all) {
+      out.layer_names.push_back(impl_->layers[i].name);
+      out.layer_index.push_back(static_cast<int>(i));
+    }
+  if (!all) {
     for (const auto& n : names) {
-      if (!impl_->map->find_layer(n))
+      int index = -1;
+      for (std::size_t i = 0; i < impl_->layers.size(); ++i)
+        if (impl_->layers[i].name == n) index = static_cast<int>(i);
+      if (index < 0)
         return Error{"no layer named '" + n + "' in " + impl_->map->path + " (layers: " + impl_->map->layer_names() + ")"};
       out.layer_names.push_back(n);
+      out.layer_index.push_back(index);
     }
   }
   const int w = impl_->camera.width, h = impl_->camera.height;
@@ -662,7 +669,8 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
     std::fill(out.depth.pixels().begin(), out.depth.pixels().end(), NAN);
   };
   if (out.depth.width() != m.camera.width || out.depth.height() != m.camera.height ||
-      out.rgb.size() != out.layer_names.size() || out.valid.size() != out.layer_names.size())
+      out.rgb.size() != out.layer_names.size() || out.valid.size() != out.layer_names.size() ||
+      out.layer_index.size() != out.layer_names.size())
     return Error{"render: the output was not made by this renderer's make_output()"};
   const Eigen::Vector3d& t = T_W_C.t_W_C;
   if (!t.allFinite() || !T_W_C.q_W_C.coeffs().allFinite() || std::abs(T_W_C.q_W_C.norm() - 1.0) > 1e-3) {
@@ -758,9 +766,7 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
     const int w = im.camera.width;
     const int r0 = i * x->rows_per_task, r1 = std::min(r0 + x->rows_per_task, im.camera.height);
     for (std::size_t l = 0; l < x->out->layer_names.size(); ++l) {
-      const LayerTexture* T = nullptr;
-      for (const auto& lt : im.layers)
-        if (lt.name == x->out->layer_names[l]) T = &lt;
+      const LayerTexture* T = &im.layers[static_cast<std::size_t>(x->out->layer_index[l])];
       ShadeParams p{T->texels.data(), T->levels.data(), static_cast<int>(T->levels.size()),
                     static_cast<float>(T->a0), static_cast<float>(T->a1), static_cast<float>(T->a2),
                     static_cast<float>(T->b0), static_cast<float>(T->b1), static_cast<float>(T->b2), T->lod_bias};

@@ -1,7 +1,6 @@
 // terralign dataset: training pairs from the renderer, for the learned tracker.
 #include <cmath>
 #include <cstdio>
-#include <sys/stat.h>
 
 #include <terralign/geo/file.hpp>
 #include <terralign/geo/image_io.hpp>

@@ -3,7 +3,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <sys/stat.h>
 
 #include <nlohmann/json.hpp>
 

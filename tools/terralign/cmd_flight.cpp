@@ -3,7 +3,6 @@
 #include <cstdio>
 #include <fstream>
 #include <sstream>
-#include <sys/stat.h>
 
 #include <terralign/geo/file.hpp>
 #include <terralign/geo/image_io.hpp>
@@ -117,10 +116,8 @@ int run_flight(const std::vector<std::string>& argv) {
   auto pts = path_points(args->get("path"), map->common_extent(), half_footprint);
   if (!pts.ok()) return fail(pts.error());
   const std::string out = args->get("out");
-  ::mkdir(out.c_str(), 0755);
-  ::mkdir((out + "/frames").c_str(), 0755);
-  struct stat st {};
-  if (::stat((out + "/frames").c_str(), &st) != 0) return fail(Error{out + ": cannot create the output folder"});
+  for (const std::string& d : {out, out + "/frames"})
+    if (auto st = ensure_dir(d); !st.ok()) return fail(st.error());
 
   Rng rng{static_cast<std::uint64_t>(seed.value())};
   std::string list, truth;

@@ -2,7 +2,6 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
-#include <sys/stat.h>
 
 #include <terralign/geo/camera.hpp>
 #include <terralign/geo/image_io.hpp>

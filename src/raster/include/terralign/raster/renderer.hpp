@@ -46,6 +46,7 @@ struct RenderOptions {
 // What render() fills. Make one with Renderer::make_output() (it sizes everything once).
 struct RenderOutput {
   std::vector<std::string> layer_names;   // the layers shaded, in this order
+  std::vector<int> layer_index;           // their indices in the map (set by make_output)
   std::vector<ImageU8> rgb;               // per layer: 3 channels
   std::vector<ImageU8> valid;             // per layer: 255 where the colour is valid, else 0
   ImageF depth;                           // metres along the optical axis; NaN: no terrain
