@@ -66,6 +66,8 @@ Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& option
     L.ref.resize(w, h, C);
     L.live.resize(w, h, C);
     L.depth.resize(w, h, 1);
+    L.abs_r.resize(w, h, 1);
+    L.weight.resize(w, h, 1);
     w = std::max(1, w / 2);
     h = std::max(1, h / 2);
   }
@@ -96,36 +98,58 @@ void Tracker<S, Warp, C>::build_pyramids(ImageView<const float> ref, ImageView<c
     std::copy(live.row(y), live.row(y) + L0.w * C, &L0.live.at(0, y, 0));
     std::copy(depth.row(y), depth.row(y) + L0.w, &L0.depth.at(0, y, 0));
   }
+  build_depth_pyramid();
   for (std::size_t l = 1; l < levels_.size(); ++l) {
     const Level& A = levels_[l - 1];
     Level& B = levels_[l];
     for (int y = 0; y < B.h; ++y)
       for (int x = 0; x < B.w; ++x) {
-        // Reference and depth: the mean of the valid children; live: the plain mean.
-        float d = 0;
+        // Reference: the mean of the children with depth; live: the plain mean.
         int nd = 0;
         float f[C] = {}, g[C] = {};
         for (int k = 0; k < 4; ++k) {
           const int sx = std::min(2 * x + (k & 1), A.w - 1), sy = std::min(2 * y + (k >> 1), A.h - 1);
-          const float dz = A.depth.at(sx, sy);
           for (int c = 0; c < C; ++c) g[c] += A.live.at(sx, sy, c);
-          if (!std::isfinite(dz)) continue;
-          d += dz;
+          if (!std::isfinite(A.depth.at(sx, sy))) continue;
           ++nd;
           for (int c = 0; c < C; ++c) f[c] += A.ref.at(sx, sy, c);
         }
-        B.depth.at(x, y) = nd ? d / static_cast<float>(nd) : NAN;
         for (int c = 0; c < C; ++c) {
           B.ref.at(x, y, c) = nd ? f[c] / static_cast<float>(nd) : 0.0f;
           B.live.at(x, y, c) = g[c] * 0.25f;
         }
       }
   }
+  normalize_levels();
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::normalize_levels() {
   if (opt_.normalize)
     for (auto& L : levels_) {
       normalize(L.ref, &L.depth);
       normalize(L.live, nullptr);
     }
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::build_depth_pyramid() {
+  for (std::size_t l = 1; l < levels_.size(); ++l) {
+    const Level& A = levels_[l - 1];
+    Level& B = levels_[l];
+    for (int y = 0; y < B.h; ++y)
+      for (int x = 0; x < B.w; ++x) {
+        float d = 0;
+        int nd = 0;
+        for (int k = 0; k < 4; ++k) {
+          const float dz = A.depth.at(std::min(2 * x + (k & 1), A.w - 1), std::min(2 * y + (k >> 1), A.h - 1));
+          if (!std::isfinite(dz)) continue;
+          d += dz;
+          ++nd;
+        }
+        B.depth.at(x, y) = nd ? d / static_cast<float>(nd) : NAN;
+      }
+  }
 }
 
 template <class S, class Warp, int C>
@@ -205,6 +229,11 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
   P.valid = 0;
   const Level& Lv = *cur_level_;
   const int i1 = std::min(n, (chunk + 1) * kChunk);
+  // Within a chunk the sums run in S (float: vectorisable, and 2048 terms lose less than the
+  // residuals' own precision); chunks are combined in double.
+  S g_s[DoF] = {};
+  S cost_s = 0, wsum_s = 0;
+  int valid = 0;
   for (int i = chunk * kChunk; i < i1; ++i) {
     const std::size_t k = static_cast<std::size_t>(i);
     S u, v;
@@ -229,13 +258,17 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
       const S live = (S(1) - fy) * ((S(1) - fx) * a + fx * b) + fy * ((S(1) - fx) * d + fx * e);
       const S r = live - val_[k * C + static_cast<std::size_t>(c)];
       r_[k * C + static_cast<std::size_t>(c)] = r;
-      const double wr = w * static_cast<double>(r);
-      for (int a2 = 0; a2 < DoF; ++a2) P.g[a2] += wr * static_cast<double>(J[c * DoF + a2]);
-      P.cost += wr * static_cast<double>(r);
+      const S wr = w_[k] * r;
+      for (int a2 = 0; a2 < DoF; ++a2) g_s[a2] += wr * J[c * DoF + a2];
+      cost_s += wr * r;
     }
-    P.wsum += w;
-    ++P.valid;
+    wsum_s += w_[k];
+    ++valid;
   }
+  for (int a2 = 0; a2 < DoF; ++a2) P.g[a2] = static_cast<double>(g_s[a2]);
+  P.cost = static_cast<double>(cost_s);
+  P.wsum = static_cast<double>(wsum_s);
+  P.valid = valid;
 }
 
 template <class S, class Warp, int C>
@@ -291,6 +324,75 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::align(ImageView<const float> ref, 
   TrackResult<Warp>& R = result_;
   R = TrackResult<Warp>{};
   R.params = init;
+  TERRALIGN_ASSERT(ref.width == width_ && ref.height == height_ && live.width == width_ && live.height == height_ &&
+                       ref_depth.width == width_ && ref_depth.height == height_,
+                   "Tracker::align: image size differs from the size the tracker was built for");
+  TERRALIGN_ASSERT(ref.channels == C && live.channels == C && ref_depth.channels == 1, "Tracker::align: channels");
+  const auto t0 = Clock::now();
+  build_pyramids(ref, ref_depth, live);
+  R.ms_pyramid = ms(t0, Clock::now());
+  return solve(K0, init, weights, nullptr);
+}
+
+template <class S, class Warp, int C>
+const TrackResult<Warp>& Tracker<S, Warp, C>::align_levels(const ImageView<const float>* ref_levels,
+                                                            ImageView<const float> ref_depth,
+                                                            const ImageView<const float>* live_levels,
+                                                            const Pinhole<S>& K0, const Params& init,
+                                                            LevelWeights* weights) {
+  TrackResult<Warp>& R = result_;
+  R = TrackResult<Warp>{};
+  R.params = init;
+  TERRALIGN_ASSERT(ref_depth.width == width_ && ref_depth.height == height_ && ref_depth.channels == 1,
+                   "Tracker::align_levels: depth size differs from the size the tracker was built for");
+  const auto t0 = Clock::now();
+  for (std::size_t l = 0; l < levels_.size(); ++l) {
+    Level& L = levels_[l];
+    const ImageView<const float>& A = ref_levels[l];
+    const ImageView<const float>& B = live_levels[l];
+    TERRALIGN_ASSERT(A.width == L.w && A.height == L.h && B.width == L.w && B.height == L.h && A.channels == C &&
+                         B.channels == C,
+                     "Tracker::align_levels: a level's feature image has the wrong size or channels");
+    for (int y = 0; y < L.h; ++y) {
+      std::copy(A.row(y), A.row(y) + L.w * C, &L.ref.at(0, y, 0));
+      std::copy(B.row(y), B.row(y) + L.w * C, &L.live.at(0, y, 0));
+    }
+  }
+  for (int y = 0; y < height_; ++y) std::copy(ref_depth.row(y), ref_depth.row(y) + width_, &levels_[0].depth.at(0, y, 0));
+  build_depth_pyramid();
+  normalize_levels();
+  R.ms_pyramid = ms(t0, Clock::now());
+  return solve(K0, init, nullptr, weights);
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::learned_weights(int n, int level, const Params& p, const Pinhole<S>& K, LevelWeights& lw) {
+  Level& L = levels_[static_cast<std::size_t>(level)];
+  Eigen::Matrix<double, DoF, 1> g;
+  Eigen::Matrix<double, DoF, DoF> Hout;
+  double cost = 0, wsum = 0;
+  std::fill(w_.begin(), w_.begin() + n, S(1));  // evaluate() reads w_; only r_ and ok_ are used here
+  evaluate(n, p, K, g, Hout, cost, wsum);
+  std::fill(L.abs_r.data(), L.abs_r.data() + L.abs_r.size(), 0.0f);
+  for (int i = 0; i < n; ++i) {
+    const std::size_t k = static_cast<std::size_t>(i);
+    if (!ok_[k]) continue;
+    double a = 0;
+    for (int c = 0; c < C; ++c) a += static_cast<double>(r_[k * C + static_cast<std::size_t>(c)]) * static_cast<double>(r_[k * C + static_cast<std::size_t>(c)]);
+    L.abs_r.at(static_cast<int>(pu_[k]), static_cast<int>(pv_[k])) = static_cast<float>(std::sqrt(a));
+  }
+  lw.weights(level, L.abs_r.view(), L.ref.view(), L.live.view(), L.weight.view());
+  for (int i = 0; i < n; ++i) {
+    const std::size_t k = static_cast<std::size_t>(i);
+    const float wv = L.weight.at(static_cast<int>(pu_[k]), static_cast<int>(pv_[k]));
+    w_[k] = std::isfinite(wv) && wv > 0 ? static_cast<S>(wv) : S(0);
+  }
+}
+
+template <class S, class Warp, int C>
+const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const Params& init,
+                                                     const ImageView<const float>* weights, LevelWeights* level_weights) {
+  TrackResult<Warp>& R = result_;
   auto fail = [&](const char* why) -> const TrackResult<Warp>& {
     R.params = init;
     R.converged = false;
@@ -298,15 +400,6 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::align(ImageView<const float> ref, 
     R.covariance.setZero();
     return R;
   };
-  TERRALIGN_ASSERT(ref.width == width_ && ref.height == height_ && live.width == width_ && live.height == height_ &&
-                       ref_depth.width == width_ && ref_depth.height == height_,
-                   "Tracker::align: image size differs from the size the tracker was built for");
-  TERRALIGN_ASSERT(ref.channels == C && live.channels == C && ref_depth.channels == 1, "Tracker::align: channels");
-  const auto t0 = Clock::now();
-  build_pyramids(ref, ref_depth, live);
-  const auto t1 = Clock::now();
-  R.ms_pyramid = ms(t0, t1);
-
   Pinhole<S> K[6];
   K[0] = K0;
   for (int l = 1; l < opt_.levels; ++l) K[l] = K[l - 1].half();
@@ -319,7 +412,8 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::align(ImageView<const float> ref, 
     const auto tj = Clock::now();
     const int n = select_pixels(level, K[level]);
     robust_weights(n, weights, level);
-    if (!weights && opt_.robust != Robust::None && n > 0) {
+    if (level_weights && n > 0) learned_weights(n, level, p, K[level], *level_weights);
+    if (!weights && !level_weights && opt_.robust != Robust::None && n > 0) {
       // Robust weights from the residuals at the pose this level starts from, with the scale
       // 1.4826 x the median absolute residual of the pixels that land inside.
       evaluate(n, p, K[level], g, Hout, cost, wsum);
@@ -414,7 +508,15 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::align(ImageView<const float> ref, 
       R.cost_final = wsum > 0 ? cost / wsum : 0;
       Hv = H - Hout;
       if (valid < opt_.min_valid_pixels) return fail("too few pixels land inside the live image");
-      Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, DoF, DoF>> eig(Hv, Eigen::EigenvaluesOnly);
+      // Information per unit of rotation and of translation / median depth, so that the
+      // test does not depend on the units (rad against m at some altitude).
+      Eigen::Matrix<double, DoF, DoF> Hs = Hv;
+      if (Warp::kNeedsDepth) {
+        Eigen::Matrix<double, DoF, 1> s = Eigen::Matrix<double, DoF, 1>::Ones();
+        s.template tail<3>().setConstant(depth_scale);
+        Hs = s.asDiagonal() * Hv * s.asDiagonal();
+      }
+      Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, DoF, DoF>> eig(Hs, Eigen::EigenvaluesOnly);
       const double emax = eig.eigenvalues().maxCoeff(), emin = eig.eigenvalues().minCoeff();
       if (!(emax > 0) || !(emin > opt_.min_information * emax))
         return fail("no texture: the image does not constrain every degree of freedom");

@@ -79,4 +79,11 @@ Status ensure_dir(const std::string& dir) {
   return Ok{};
 }
 
+Result<nn::WeightFile> learned_weights(const Args& args) {
+  const std::string path = args.get("weights", TERRALIGN_DEFAULT_WEIGHTS);
+  auto w = nn::read_weights(path);
+  if (!w.ok()) return Error{"the learned tracker's weights: " + w.error().message};
+  return w;
+}
+
 }  // namespace terralign::cli

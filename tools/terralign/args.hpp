@@ -7,6 +7,7 @@
 #include <vector>
 
 #include <terralign/geo/result.hpp>
+#include <terralign/nn/weights.hpp>
 
 namespace terralign::cli {
 
@@ -31,5 +32,9 @@ std::vector<std::string> split_commas(const std::string& s);
 // Creates a folder if it is missing; an error names the path if it cannot, or if a file is
 // in the way.
 Status ensure_dir(const std::string& dir);
+
+// The learned tracker's weights: --weights FILE, else the shipped file
+// (weights/deep_iclk_s16.tlw in the source tree the program was built from).
+Result<nn::WeightFile> learned_weights(const Args& args);
 
 }  // namespace terralign::cli

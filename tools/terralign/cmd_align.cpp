@@ -1,6 +1,7 @@
 // terralign align: one camera image against the map, from a prior pose.
 #include <chrono>
 #include <cstdio>
+#include <optional>
 
 #include <nlohmann/json.hpp>
 
@@ -41,14 +42,12 @@ nlohmann::json pose_json(const geo::Pose& p) {
 }
 
 int run_align(const std::vector<std::string>& argv) {
-  auto args = Args::parse(argv, {"map", "camera", "image", "prior", "layer", "method", "iterations", "robust", "threads"}, {});
+  auto args = Args::parse(argv, {"map", "camera", "image", "prior", "layer", "method", "iterations", "robust", "threads", "weights"}, {});
   if (!args.ok()) return usage_error("align", args.error());
   for (const char* k : {"map", "camera", "image", "prior", "layer"})
     if (!args->has(k)) return usage_error("align", Error{std::string("missing required option --") + k});
   const std::string method = args->get("method", "classic");
-  if (method == "nn")
-    return fail(Error{"--method nn: the learned tracker has not landed in this build yet; use --method classic"});
-  if (method != "classic") return usage_error("align", Error{"--method '" + method + "' must be classic or nn"});
+  if (method != "classic" && method != "nn") return usage_error("align", Error{"--method '" + method + "' must be classic or nn"});
   auto iters = args->get_int("iterations", 20, 1, 1000);
   if (!iters.ok()) return usage_error("align", iters.error());
   auto threads = args->get_int("threads", 2, 1, 64);
@@ -75,7 +74,14 @@ int run_align(const std::vector<std::string>& argv) {
   iclk::TrackerOptions opt;
   opt.iterations = iters.value();
   opt.robust = robust.value();
-  auto loc = Localizer::create(map.value(), pinhole_of(cam.value()), args->get("layer"), opt, threads.value());
+  std::optional<nn::WeightFile> weights;
+  if (method == "nn") {
+    auto w = learned_weights(args.value());
+    if (!w.ok()) return fail(w.error());
+    weights = std::move(w.value());
+  }
+  auto loc = Localizer::create(map.value(), pinhole_of(cam.value()), args->get("layer"), opt, threads.value(),
+                               weights ? &*weights : nullptr);
   if (!loc.ok()) return fail(loc.error());
   const double ms_load = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   auto out = loc.value()->localize(live.view(), prior.value());
@@ -93,10 +99,10 @@ int run_align(const std::vector<std::string>& argv) {
   j["converged"] = out->converged;
   j["reason"] = out->reason;
   j["iterations"] = out->iterations;
-  j["method"] = "classic";
-  j["ms"] = {{"load", ms_load}, {"render", out->ms_render}, {"pyramid", out->ms_pyramid},
-             {"jacobian", out->ms_jacobian}, {"iterations", out->ms_iterations},
-             {"align", out->ms_pyramid + out->ms_jacobian + out->ms_iterations}};
+  j["method"] = method;
+  j["ms"] = {{"load", ms_load}, {"render", out->ms_render}, {"encoder", out->ms_encoder}, {"pyramid", out->ms_pyramid},
+             {"jacobian", out->ms_jacobian}, {"mestimator", out->ms_mestimator}, {"iterations", out->ms_iterations},
+             {"align", out->ms_encoder + out->ms_pyramid + out->ms_jacobian + out->ms_iterations}};
   if (!map->crs.is_local()) {
     auto g = map->crs.to_geodetic(out->T_W_C.t_W_C.x(), out->T_W_C.t_W_C.y(), out->T_W_C.t_W_C.z());
     if (g.ok()) j["lat_lon_height"] = {g->lat_deg, g->lon_deg, g->height};

@@ -70,6 +70,7 @@ nlohmann::json stats(std::vector<double> v) {
 struct Method {
   std::string name;
   int iterations;  // 0: init
+  bool learned = false;
   std::vector<double> epe_m, angle, trans, epe_px, ms;
   std::vector<char> ok;  // reported converged
   std::vector<double> cost_init, cost_final;
@@ -107,7 +108,7 @@ ImageU8 overlay(const ImageF& ref_grey, const ImageF& depth, const ImageF& query
 
 int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
-                                 "json", "overlays", "threads", "robust", "levels"}, {});
+                                 "json", "overlays", "threads", "robust", "levels", "weights", "area"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -144,9 +145,14 @@ int run_eval(const std::vector<std::string>& argv) {
         methods.back().name = m;
         methods.back().iterations = n;
       } else if (m.rfind("nn:", 0) == 0) {
-        return fail(Error{"method '" + m + "': the learned tracker has not landed in this build yet"});
+        const int n = std::atoi(m.c_str() + 3);
+        if (n < 1 || n > 1000) return usage_error("eval", Error{"method '" + m + "': iterations must be 1..1000"});
+        methods.emplace_back();
+        methods.back().name = m;
+        methods.back().iterations = n;
+        methods.back().learned = true;
       } else {
-        return usage_error("eval", Error{"unknown method '" + m + "' (init, classic:N)"});
+        return usage_error("eval", Error{"unknown method '" + m + "' (init, classic:N, nn:N)"});
       }
     }
   }
@@ -162,7 +168,15 @@ int run_eval(const std::vector<std::string>& argv) {
   const std::string overlays = args->get("overlays");
   if (!overlays.empty())
     if (auto st = ensure_dir(overlays); !st.ok()) return fail(st.error());
-  auto samples = sample_poses(map.value(), cam, map->common_extent(), count.value(), seed, lo, hi, tilt.value());
+  geo::Extent area = map->common_extent();
+  if (args->has("area")) {
+    geo::Extent a;
+    if (std::sscanf(args->get("area").c_str(), "%lf,%lf,%lf,%lf", &a.min_x, &a.min_y, &a.max_x, &a.max_y) != 4 || a.empty())
+      return usage_error("eval", Error{"--area '" + args->get("area") + "' must be MINX,MINY,MAXX,MAXY in map coordinates"});
+    area = area.intersect(a);
+    if (area.empty()) return fail(Error{"--area '" + args->get("area") + "' does not overlap the map"});
+  }
+  auto samples = sample_poses(map.value(), cam, area, count.value(), seed, lo, hi, tilt.value());
   if (!samples.ok()) return fail(samples.error());
 
   iclk::TrackerOptions opt;
@@ -170,6 +184,14 @@ int run_eval(const std::vector<std::string>& argv) {
   opt.levels = levels.value();
   auto loc = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value());
   if (!loc.ok()) return fail(loc.error());
+  std::unique_ptr<Localizer> learned;
+  if (std::any_of(methods.begin(), methods.end(), [](const Method& m) { return m.learned; })) {
+    auto w = learned_weights(args.value());
+    if (!w.ok()) return fail(w.error());
+    auto l = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value(), &w.value());
+    if (!l.ok()) return fail(l.error());
+    learned = std::move(l.value());
+  }
   raster::RenderOptions ro;
   ro.threads = threads.value();
   auto query_renderer = raster::Renderer::create(map.value(), cam, ro);
@@ -194,15 +216,16 @@ int run_eval(const std::vector<std::string>& argv) {
       iclk::SE3<double> est = iclk::SE3<double>::identity();
       double ms = 0;
       if (m.iterations > 0) {
-        loc.value()->set_iterations(m.iterations);
-        auto out = loc.value()->localize(query->rgb[0].view(), s.prior);
+        Localizer& L = m.learned ? *learned : *loc.value();
+        L.set_iterations(m.iterations);
+        auto out = L.localize(query->rgb[0].view(), s.prior);
         if (!out.ok()) {
           std::fprintf(stderr, "terralign eval: sample %zu: %s\n", i, out.error().message.c_str());
           break;
         }
-        have_ref = true;
+        have_ref = have_ref || !m.learned;  // the metrics use the classical (full-size) reference
         est = out->T_live_ref;
-        ms = out->ms_pyramid + out->ms_jacobian + out->ms_iterations;
+        ms = out->ms_encoder + out->ms_pyramid + out->ms_jacobian + out->ms_iterations;
         m.converged += out->converged;
         m.ok.push_back(out->converged);
         m.cost_init.push_back(out->cost_init);

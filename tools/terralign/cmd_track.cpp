@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <optional>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
@@ -66,13 +67,12 @@ geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, d
 
 int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
-                                 "threads"}, {});
+                                 "threads", "weights"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
   const std::string method = args->get("method", "classic");
-  if (method == "nn") return fail(Error{"--method nn: the learned tracker has not landed in this build yet; use --method classic"});
-  if (method != "classic") return usage_error("track", Error{"--method '" + method + "' must be classic or nn"});
+  if (method != "classic" && method != "nn") return usage_error("track", Error{"--method '" + method + "' must be classic or nn"});
   auto iters = args->get_int("iterations", 20, 1, 1000);
   auto threads = args->get_int("threads", 2, 1, 64);
   if (!iters.ok()) return usage_error("track", iters.error());
@@ -88,7 +88,13 @@ int run_track(const std::vector<std::string>& argv) {
   const geo::CameraModel cam = pinhole_of(cam_in.value());
   iclk::TrackerOptions opt;
   opt.iterations = iters.value();
-  auto loc = Localizer::create(map.value(), cam, args->get("layer"), opt, threads.value());
+  std::optional<nn::WeightFile> weights;
+  if (method == "nn") {
+    auto w = learned_weights(args.value());
+    if (!w.ok()) return fail(w.error());
+    weights = std::move(w.value());
+  }
+  auto loc = Localizer::create(map.value(), cam, args->get("layer"), opt, threads.value(), weights ? &*weights : nullptr);
   if (!loc.ok()) return fail(loc.error());
   std::vector<geo::Pose> truth;
   if (args->has("truth")) {

@@ -21,26 +21,32 @@ const std::vector<Command>& commands() {
       {"align", "align one camera image to the map from a prior pose; prints the pose as JSON",
        "usage: terralign align --map MAP.json --camera CAMERA.json --image IMG --prior \"x y z qw qx qy qz\"\n"
        "                       --layer NAME [--method classic|nn] [--iterations N] [--robust none|huber|tukey]\n"
-       "                       [--threads N]\n\n"
+       "                       [--threads N] [--weights FILE]\n\n"
        "Renders LAYER at the prior, aligns the image to it (inverse-compositional LM on SE(3),\n"
        "4 levels, N iterations per level, default 20) and prints {\"pose\", \"covariance\",\n"
        "\"converged\", \"reason\", \"iterations\", \"ms\"}. The covariance is 6x6 over\n"
        "[dtheta (rad, world axes) ; dp (m, camera centre, world axes)]. A camera with distortion has\n"
        "its image undistorted to the same pinhole first. Exit code 3 when it did not converge (the\n"
-       "pose printed is then the prior).\n",
+       "pose printed is then the prior).\n"
+       "--method nn: the learned tracker (encoder features, learned M-estimator, the same LM) at\n"
+       "the weights' working size (half the camera's for the shipped weights); --weights FILE\n"
+       "for weights other than the shipped weights/deep_iclk_s16.tlw.\n",
        run_align},
       {"eval", "the paper's evaluation: sampled poses, rendered pairs, error tables per method",
        "usage: terralign eval --map MAP.json --camera CAMERA.json --ref-layer A --query-layer B --count N\n"
        "                      --seed S --altitude LO:HI [--tilt DEG] [--methods init,classic:20,classic:50]\n"
        "                      [--robust none|huber|tukey] [--levels L] [--json OUT] [--overlays DIR]\n"
-       "                      [--threads N]\n\n"
+       "                      [--threads N] [--weights FILE] [--area MINX,MINY,MAXX,MAXY]\n\n"
        "Samples N true poses with the whole footprint on the map (altitude above ground in\n"
        "[LO, HI] m, tilt off nadir up to DEG, any heading), perturbs each for the prior (rotation\n"
        "about a random axis by U[0, 6] deg, translation by U[0, 0.13 x altitude] m in a random\n"
        "direction), renders the reference from A at the prior and the query from B at the truth,\n"
        "runs each method from identity and prints a Markdown table of 3-D EPE (m), angle (deg),\n"
        "translation (m), 2-D EPE (px), success rates (2-D EPE < 1 px and < 5 px), the converged\n"
-       "fraction, how many converged answers are within 5 px, and the alignment time.\n",
+       "fraction, how many converged answers are within 5 px, and the alignment time (nn: with both\n"
+       "encoders; neither includes rendering). Methods: init, classic:N, nn:N (the learned tracker,\n"
+       "N iterations per level; --weights as for align). --area keeps every footprint inside a part\n"
+       "of the map (e.g. ground the learned tracker was not trained on).\n",
        run_eval},
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
        "usage: terralign flight --map MAP.json --camera CAMERA.json --layer NAME --path lawnmower|circle|FILE\n"
@@ -54,14 +60,16 @@ const std::vector<Command>& commands() {
       {"track", "track a flight: each frame's prior from the last estimate (constant velocity)",
        "usage: terralign track --map MAP.json --camera CAMERA.json --layer NAME --images LIST\n"
        "                       --init \"x y z qw qx qy qz\" [--method classic|nn] [--out poses.csv]\n"
-       "                       [--truth POSES] [--json SUMMARY] [--iterations N] [--threads N]\n\n"
+       "                       [--truth POSES] [--json SUMMARY] [--iterations N] [--threads N]\n"
+       "                       [--weights FILE]\n\n"
        "LIST has 'timestamp image-path' lines. Each frame's prior is the last estimate, moved by\n"
        "the velocity of the last two converged frames; a frame that fails (not converged, an\n"
        "unreadable or wrongly sized image, a timestamp going backwards) keeps the prediction and\n"
        "says why on stderr. The CSV has per frame: timestamp, pose, converged, reason, iterations,\n"
        "ms, latitude, longitude, height (where the map has a CRS) and the 6x6 covariance (row-major,\n"
        "[dtheta (rad, world axes); dp (m)]). With --truth, the summary (stderr and --json) has\n"
-       "frames, converged_fraction, position_rmse_m, angle_rmse_deg, the maxima and nees_mean.\n",
+       "frames, converged_fraction, position_rmse_m, angle_rmse_deg, the maxima and nees_mean.\n"
+       "--method nn tracks with the learned tracker (--weights as for align).\n",
        run_track},
       {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
        "usage: terralign dataset --map MAP.json --camera CAMERA.json --count N --seed S --out DIR\n"

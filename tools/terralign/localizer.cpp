@@ -7,18 +7,32 @@ namespace terralign::cli {
 
 Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const geo::CameraModel& camera,
                                                      const std::string& layer, const iclk::TrackerOptions& options,
-                                                     int threads) {
+                                                     int threads, const nn::WeightFile* weights) {
   if (camera.model != geo::DistortionModel::None)
     return Error{"Localizer: the camera must be a pinhole (undistort the live image first)"};
   std::unique_ptr<Localizer> L(new Localizer);
   L->camera_ = camera;
+  L->work_ = camera;
+  if (weights) {
+    // The learned tracker renders and aligns at the size its network was trained at.
+    TERRALIGN_TRY_ASSIGN(const double s, DeepAligner::input_scale(*weights));
+    const int w = static_cast<int>(std::lround(camera.width * s)), h = static_cast<int>(std::lround(camera.height * s));
+    if (w < 1 || h < 1 || camera.width % w || camera.height % h || camera.width / w != camera.height / h)
+      return Error{weights->name + ": input scale " + std::to_string(s) + " is not 1/n of the camera's " +
+                   std::to_string(camera.width) + " x " + std::to_string(camera.height)};
+    L->work_ = camera.scaled(s, w, h);
+    TERRALIGN_TRY_ASSIGN(L->deep_, DeepAligner::create(*weights, w, h, options, threads));
+    L->ref_rgb_.resize(w, h, 3);
+    L->live_rgb_.resize(w, h, 3);
+  }
   raster::RenderOptions ro;
   ro.threads = threads;
-  TERRALIGN_TRY_ASSIGN(L->renderer_, raster::Renderer::create(map, camera, ro));
+  TERRALIGN_TRY_ASSIGN(L->renderer_, raster::Renderer::create(map, L->work_, ro));
   TERRALIGN_TRY_ASSIGN(L->ref_, L->renderer_->make_output({layer}));
+  L->depth_.resize(L->work_.width, L->work_.height, 1);
+  if (L->deep_) return L;
   L->ref_grey_.resize(camera.width, camera.height, 1);
   L->live_grey_.resize(camera.width, camera.height, 1);
-  L->depth_.resize(camera.width, camera.height, 1);
   // The renderer takes the threads; the sparse classical alignment stays on one (measured:
   // 22.5 ms on one thread, 30 ms on two: its work per iteration is too small to repay the
   // hand-off; bench_align).
@@ -29,6 +43,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
 }
 
 void Localizer::set_iterations(int n) {
+  if (deep_) return deep_->set_iterations(n);
   auto o = tracker_->options();
   o.iterations = n;
   tracker_->set_options(o);
@@ -59,14 +74,36 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   auto st = renderer_->render(prior, ref_);
   if (!st.ok()) return st.error();
   out.ms_render = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-  iclk::rgb_to_grey(ref_.rgb[0].view(), ref_grey_);
-  iclk::rgb_to_grey(live, live_grey_);
   // Depth where the reference layer has colour; NaN elsewhere (sky, off the layer).
   for (std::size_t k = 0; k < depth_.size(); ++k)
     depth_.data()[k] = ref_.valid[0].data()[k] ? ref_.depth.data()[k] : NAN;
-  const iclk::Pinhole<float> K{static_cast<float>(camera_.fx), static_cast<float>(camera_.fy),
-                               static_cast<float>(camera_.cx), static_cast<float>(camera_.cy)};
-  const auto& r = tracker_->align(ref_grey_.view(), depth_.view(), live_grey_.view(), K, iclk::SE3<float>::identity());
+  const iclk::Pinhole<float> K{static_cast<float>(work_.fx), static_cast<float>(work_.fy), static_cast<float>(work_.cx),
+                               static_cast<float>(work_.cy)};
+  const iclk::TrackResult<iclk::SE3DepthWarp<float>>* rp = nullptr;
+  if (deep_) {
+    // The reference as float RGB; the live image box-averaged down to the working size.
+    for (std::size_t k = 0; k < ref_rgb_.size(); ++k) ref_rgb_.data()[k] = ref_.rgb[0].data()[k];
+    const int f = camera_.width / work_.width;
+    const float inv = 1.0f / static_cast<float>(f * f);
+    for (int y = 0; y < work_.height; ++y)
+      for (int x = 0; x < work_.width; ++x)
+        for (int c = 0; c < 3; ++c) {
+          int sum = 0;
+          for (int dy = 0; dy < f; ++dy)
+            for (int dx = 0; dx < f; ++dx) sum += live.at(x * f + dx, y * f + dy, c);
+          live_rgb_.at(x, y, c) = static_cast<float>(sum) * inv;
+        }
+    rp = &deep_->align(ref_rgb_.view(), depth_.view(), live_rgb_.view(), K, iclk::SE3<float>::identity());
+  } else {
+    iclk::rgb_to_grey(ref_.rgb[0].view(), ref_grey_);
+    iclk::rgb_to_grey(live, live_grey_);
+    rp = &tracker_->align(ref_grey_.view(), depth_.view(), live_grey_.view(), K, iclk::SE3<float>::identity());
+  }
+  const auto& r = *rp;
+  if (deep_) {
+    out.ms_encoder = deep_->ms_encoder();
+    out.ms_mestimator = deep_->ms_mestimator();
+  }
   out.converged = r.converged;
   out.reason = r.reason;
   out.iterations = r.iterations;

@@ -1,6 +1,7 @@
-// The classical localisation pipeline shared by align, eval (and later track): render the
-// reference at the prior, align the live image to it, return the map pose with its
-// covariance. Everything is sized at construction; localize() allocates nothing.
+// The localisation pipeline shared by align, eval and track: render the reference at the
+// prior, align the live image to it (classical: grey images; learned: DeepAligner at the
+// weights' working scale), return the map pose with its covariance. Everything is sized at
+// construction; localize() allocates nothing.
 #pragma once
 
 #include <memory>
@@ -13,7 +14,10 @@
 #include <terralign/geo/map.hpp>
 #include <terralign/geo/pose.hpp>
 #include <terralign/iclk/tracker.hpp>
+#include <terralign/nn/weights.hpp>
 #include <terralign/raster/renderer.hpp>
+
+#include "deep_iclk.hpp"
 
 namespace terralign::cli {
 
@@ -28,23 +32,31 @@ struct LocalizeOutput {
   int iterations = 0;
   double cost_init = 0, cost_final = 0;  // mean squared residual of the normalised images
   double ms_render = 0, ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
+  double ms_encoder = 0, ms_mestimator = 0;  // learned: both encoders; the M-estimator (inside ms_jacobian)
 };
 
 class Localizer {
  public:
   // `camera` must be a pinhole (undistort the live image first); `layer` is the reference.
+  // With `weights` the learned tracker aligns (its size must halve exactly three times at
+  // the weights' input scale), else the classical one.
   static Result<std::unique_ptr<Localizer>> create(const geo::Map& map, const geo::CameraModel& camera,
                                                    const std::string& layer, const iclk::TrackerOptions& options,
-                                                   int threads);
+                                                   int threads, const nn::WeightFile* weights = nullptr);
   // live: the camera image, 3-channel RGB of the camera's size.
   Result<LocalizeOutput> localize(ImageView<const std::uint8_t> live, const geo::Pose& prior);
   void set_iterations(int n);
   const raster::RenderOutput& reference() const { return ref_; }
   const ImageF& reference_depth() const { return depth_; }
+  // The camera the reference is rendered with (the working size of the learned tracker).
+  const geo::CameraModel& reference_camera() const { return work_; }
+  bool learned() const { return deep_ != nullptr; }
 
  private:
   Localizer() = default;
-  geo::CameraModel camera_;
+  geo::CameraModel camera_, work_;
+  std::unique_ptr<DeepAligner> deep_;
+  ImageF ref_rgb_, live_rgb_;  // learned: float RGB at the working size
   std::unique_ptr<raster::Renderer> renderer_;
   raster::RenderOutput ref_;
   ImageF ref_grey_, live_grey_, depth_;

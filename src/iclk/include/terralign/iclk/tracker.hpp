@@ -84,6 +84,18 @@ struct TrackResult {
   double ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
 };
 
+// Per-pixel weights computed when a level starts (a learned M-estimator). The tracker hands
+// over, on the level's reference grid: |r| at the pose the level starts from (0 where a
+// pixel is not used or lands outside the live image), the level's reference and live
+// feature images (normalised when TrackerOptions::normalize), and an image to fill with
+// weights (0 or NaN: the pixel is not used). Called from align(), on the caller's thread.
+class LevelWeights {
+ public:
+  virtual ~LevelWeights() = default;
+  virtual void weights(int level, ImageView<const float> abs_r, ImageView<const float> ref, ImageView<const float> live,
+                       ImageView<float> out) = 0;
+};
+
 template <class S, class Warp, int C = 1>
 class Tracker {
  public:
@@ -104,14 +116,28 @@ class Tracker {
                                  ImageView<const float> live, const Pinhole<S>& K0,
                                  const Params& init, const ImageView<const float>* weights = nullptr);
 
+  // Pyramids from outside (learned features): ref_levels and live_levels hold
+  // options().levels views each, finest first, level l of size (w >> l, h >> l) (floor);
+  // the depth pyramid is built from the full-resolution ref_depth. `weights` (optional) is
+  // asked for each level's weights when the level starts.
+  const TrackResult<Warp>& align_levels(const ImageView<const float>* ref_levels, ImageView<const float> ref_depth,
+                                        const ImageView<const float>* live_levels, const Pinhole<S>& K0,
+                                        const Params& init, LevelWeights* weights);
+
   const TrackResult<Warp>& result() const { return result_; }
 
  private:
   struct Level {
     int w = 0, h = 0;
     ImageF ref, live, depth;
+    ImageF abs_r, weight;  // for LevelWeights
   };
   void build_pyramids(ImageView<const float> ref, ImageView<const float> depth, ImageView<const float> live);
+  void build_depth_pyramid();
+  void normalize_levels();
+  const TrackResult<Warp>& solve(const Pinhole<S>& K0, const Params& init, const ImageView<const float>* weights,
+                                 LevelWeights* level_weights);
+  void learned_weights(int n, int level, const Params& p, const Pinhole<S>& K, LevelWeights& lw);
   int select_pixels(int level, const Pinhole<S>& K);
   void robust_weights(int n, const ImageView<const float>* weights, int level);
   // Residuals and J^T W r at `p`; returns the valid count, fills cost (sum w r^2), sum of w

@@ -1,0 +1,101 @@
+// The whole localisation of one 752x480 camera image, render + align, as `terralign align`
+// and `track` run it: the classical tracker (20 iterations per level) and the learned one
+// (20 iterations per level) for each weight file given, on the same pairs (NAIP 2016 map,
+// 2017 camera images, the eval protocol's priors: 700-900 m, tilt 10 deg, seed 3), 2 threads.
+// Prints medians per stage, frames per second, and the ratio to the classical tracker.
+//   build/release/bench/bench_localize [N] [weights.tlw ...]   (default: 20 pairs, the shipped weights)
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+#include <vector>
+
+#include <terralign/geo/map.hpp>
+#include <terralign/nn/weights.hpp>
+#include <terralign/raster/renderer.hpp>
+
+#include "localizer.hpp"
+#include "sampling.hpp"
+
+using namespace terralign;
+using Clock = std::chrono::steady_clock;
+
+namespace {
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0.0 : v[v.size() / 2];
+}
+}  // namespace
+
+int main(int argc, char** argv) {
+  const int n = argc > 1 ? std::max(1, std::atoi(argv[1])) : 20;
+  std::vector<std::string> files;
+  for (int i = 2; i < argc; ++i) files.push_back(argv[i]);
+  if (files.empty()) files.push_back(TERRALIGN_SOURCE_DIR "/weights/deep_iclk_s16.tlw");
+  auto map = geo::load_map(TERRALIGN_SOURCE_DIR "/data/naip_west/map.json");
+  auto cam = geo::load_camera(TERRALIGN_SOURCE_DIR "/data/cameras/uav_752x480.json");
+  if (!map.ok() || !cam.ok()) {
+    std::fprintf(stderr, "bench_localize: %s\n", (!map.ok() ? map.error() : cam.error()).message.c_str());
+    return 1;
+  }
+  auto samples = cli::sample_poses(map.value(), cam.value(), map->common_extent(), n, 3, 700, 900, 10);
+  if (!samples.ok()) return 1;
+  // The camera images: 2017 at the true poses.
+  auto qr = raster::Renderer::create(map.value(), cam.value());
+  auto qo = qr.value()->make_output({"2017"});
+  std::vector<ImageU8> live;
+  for (const auto& s : samples.value()) {
+    if (!qr.value()->render(s.truth, qo.value()).ok()) return 1;
+    live.push_back(qo->rgb[0]);
+  }
+  struct Row {
+    std::string name;
+    double render, encoder, mest, align, total;
+    int converged;
+  };
+  std::vector<Row> rows;
+  auto run = [&](const std::string& name, const nn::WeightFile* w) -> bool {
+    iclk::TrackerOptions opt;
+    opt.iterations = 20;
+    auto loc = cli::Localizer::create(map.value(), cam.value(), "2016", opt, 2, w);
+    if (!loc.ok()) {
+      std::fprintf(stderr, "bench_localize: %s: %s\n", name.c_str(), loc.error().message.c_str());
+      return false;
+    }
+    std::vector<double> render, encoder, mest, align, total;
+    int conv = 0;
+    for (int rep = 0; rep < 2; ++rep)  // the first pass warms caches; the second is measured
+      for (std::size_t i = 0; i < live.size(); ++i) {
+        const auto t0 = Clock::now();
+        auto out = loc.value()->localize(live[i].view(), samples.value()[i].prior);
+        const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+        if (!out.ok() || rep == 0) continue;
+        render.push_back(out->ms_render);
+        encoder.push_back(out->ms_encoder);
+        mest.push_back(out->ms_mestimator);
+        align.push_back(out->ms_pyramid + out->ms_jacobian - out->ms_mestimator + out->ms_iterations);
+        total.push_back(ms);
+        conv += out->converged;
+      }
+    rows.push_back({name, median(render), median(encoder), median(mest), median(align), median(total), conv});
+    return true;
+  };
+  if (!run("classic:20", nullptr)) return 1;
+  for (const auto& f : files) {
+    auto w = nn::read_weights(f);
+    if (!w.ok()) {
+      std::fprintf(stderr, "bench_localize: %s\n", w.error().message.c_str());
+      return 1;
+    }
+    const auto slash = f.find_last_of('/');
+    if (!run("nn:20 " + f.substr(slash == std::string::npos ? 0 : slash + 1), &w.value())) return 1;
+  }
+  std::printf("752x480 camera, NAIP 2016 map, 2017 images, %d pairs, 2 threads, medians in ms\n\n", n);
+  std::printf("| method | render | encoders | M-estimator | solver | total | frames/s | x classic | converged |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|\n");
+  for (const auto& r : rows)
+    std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.0f | %.2f | %d/%d |\n", r.name.c_str(), r.render, r.encoder,
+                r.mest, r.align, r.total, 1000.0 / r.total, r.total / rows[0].total, r.converged, n);
+  return 0;
+}

@@ -1,0 +1,125 @@
+// The learned tracker in C++ (tools/terralign/deep_iclk.cpp) against the PyTorch model that
+// trained its weights (training/deep_iclk.py), on committed validation pairs.
+#include <cmath>
+#include <cstring>
+
+#include <doctest/doctest.h>
+
+#include <terralign/nn/weights.hpp>
+
+#include "alloc_counter.hpp"
+#include "deep_iclk.hpp"
+#include "support.hpp"
+
+using namespace terralign;
+
+namespace {
+
+nn::WeightFile load(const char* rel) {
+  auto w = nn::read_weights(test::source_path(rel));
+  REQUIRE_MESSAGE(w.ok(), (w.ok() ? "" : w.error().message));
+  return std::move(w.value());
+}
+
+struct Pair {
+  ImageF ref, depth, live;
+  iclk::Pinhole<float> K{};
+  double altitude = 0;
+  Eigen::Matrix3d R;
+  Eigen::Vector3d t;
+};
+
+Pair pair_of(const nn::WeightFile& v, int k) {
+  const std::string s = std::to_string(k);
+  Pair p;
+  auto image = [&](const std::string& name, int channels, ImageF& out) {
+    const nn::TensorData* t = v.find(name);
+    REQUIRE(t);
+    REQUIRE(t->shape.size() == (channels == 1 ? 2u : 3u));
+    out.resize(t->shape[1], t->shape[0], channels);
+    std::memcpy(out.data(), t->data.data(), t->data.size() * sizeof(float));
+  };
+  image("ref_" + s, 3, p.ref);
+  image("depth_" + s, 1, p.depth);
+  image("live_" + s, 3, p.live);
+  const float* K = v.find("K_" + s)->data.data();
+  p.K = {K[0], K[1], K[2], K[3]};
+  p.altitude = v.find("altitude_" + s)->data[0];
+  const float* R = v.find("R_" + s)->data.data();
+  const float* t = v.find("t_" + s)->data.data();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) p.R(r, c) = R[r * 3 + c];
+    p.t[r] = t[r];
+  }
+  return p;
+}
+
+iclk::TrackerOptions options() {
+  iclk::TrackerOptions o;
+  o.iterations = 20;
+  return o;
+}
+
+}  // namespace
+
+TEST_CASE("learned tracker: the C++ pipeline ends where PyTorch ends on the committed validation pairs") {
+  const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
+  const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
+  int pairs = 0;
+  while (vectors.find("ref_" + std::to_string(pairs))) ++pairs;
+  REQUIRE(pairs >= 2);
+  for (int k = 0; k < pairs; ++k) {
+    const Pair p = pair_of(vectors, k);
+    auto D = cli::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 2);
+    REQUIRE_MESSAGE(D.ok(), (D.ok() ? "" : D.error().message));
+    const auto& r = D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
+    CAPTURE(k);
+    const std::string why = r.reason;
+    CAPTURE(why);
+    CHECK(r.converged);
+    const iclk::SE3<double> T = r.params.cast<double>();
+    // The bound: 1e-4 rad and 1e-3 of the altitude. Both sides are float32 with
+    // double 6x6 solves; they differ in summation order (chunked sums here, BLAS there), so
+    // agreement is to float rounding amplified by 80 iterations, not to the bit.
+    const double angle = Eigen::AngleAxisd(T.R * p.R.transpose()).angle();
+    const double dt = (T.t - p.t).norm();
+    MESSAGE("pair " << k << ": rotation differs by " << angle << " rad, translation by " << dt << " m (altitude "
+                    << p.altitude << " m)");
+    CHECK(angle <= 1e-4);
+    CHECK(dt <= 1e-3 * p.altitude);
+  }
+}
+
+TEST_CASE("learned tracker: same bytes on 1 and 2 threads, and no heap allocation per pair") {
+  const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
+  const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
+  const Pair p = pair_of(vectors, 0);
+  auto one = cli::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 1);
+  auto two = cli::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 2);
+  REQUIRE(one.ok());
+  REQUIRE(two.ok());
+  const auto a = one.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
+  long allocations = 0;
+  iclk::TrackResult<cli::DeepAligner::Warp> b;
+  {
+    test::AllocationCounter count;
+    b = two.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
+    allocations = count.allocations();
+  }
+  CHECK(allocations == 0);
+  CHECK(std::memcmp(a.params.R.data(), b.params.R.data(), sizeof(float) * 9) == 0);
+  CHECK(std::memcmp(a.params.t.data(), b.params.t.data(), sizeof(float) * 3) == 0);
+  CHECK(a.iterations == b.iterations);
+}
+
+TEST_CASE("learned tracker: refuses a size that does not halve three times and weights without an M-estimator") {
+  const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
+  auto odd = cli::DeepAligner::create(weights, 188, 120, options(), 1);
+  REQUIRE_FALSE(odd.ok());
+  CHECK(odd.error().message.find("188 x 120") != std::string::npos);
+  // Lv et al.'s converted checkpoint has an encoder of 8 input channels: not this pipeline's.
+  const nn::WeightFile lv = load("weights/lv19_tum_abc.tlw");
+  auto other = cli::DeepAligner::create(lv, 184, 120, options(), 1);
+  REQUIRE_FALSE(other.ok());
+  MESSAGE(other.error().message);
+}

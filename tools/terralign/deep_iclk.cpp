@@ -1,0 +1,152 @@
+#include "deep_iclk.hpp"
+
+#include <chrono>
+#include <cstdlib>
+#include <sstream>
+
+#include <terralign/nn/kernels.hpp>
+
+namespace terralign::cli {
+namespace {
+
+// Lv et al.'s colour normalisation, as training/deep_iclk.py.
+constexpr float kMean[3] = {0.4914f, 0.4822f, 0.4465f};
+constexpr float kStd[3] = {0.2023f, 0.1994f, 0.2010f};
+
+double elapsed_ms(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+}  // namespace
+
+Result<double> DeepAligner::input_scale(const nn::WeightFile& weights) {
+  std::istringstream in(weights.architecture);
+  std::string line;
+  while (std::getline(in, line)) {
+    const std::string key = "# input-scale ";
+    if (line.compare(0, key.size(), key) != 0) continue;
+    char* end = nullptr;
+    const double s = std::strtod(line.c_str() + key.size(), &end);
+    if (!(s > 0 && s <= 1) || (*end && *end != ' '))
+      return Error{weights.name + ": '" + line + "': the input scale must be in (0, 1]"};
+    return s;
+  }
+  return 0.5;
+}
+
+Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& weights, int width, int height,
+                                                         const iclk::TrackerOptions& options, int threads) {
+  if (width < 16 || height < 16 || width % (1 << (kLevels - 1)) || height % (1 << (kLevels - 1)))
+    return Error{"the learned tracker's working size " + std::to_string(width) + " x " + std::to_string(height) +
+                 " must be at least 16 x 16 and divisible by " + std::to_string(1 << (kLevels - 1)) +
+                 " (each level halves it exactly)"};
+  std::unique_ptr<DeepAligner> D(new DeepAligner);
+  D->width_ = width;
+  D->height_ = height;
+  TERRALIGN_TRY_ASSIGN(D->encoder_, nn::Network::plan(weights, "encoder", width, height, threads));
+  if (const nn::Tensor* x = D->encoder_->input("x"); !x || x->c != 3)
+    return Error{weights.name + ": the encoder must take x, 3 channels of normalised RGB" +
+                 (x ? " (this one takes " + std::to_string(x->c) + ")" : std::string(" (it has no input x)"))};
+  for (int l = 0; l < kLevels; ++l) {
+    const std::string name = "f" + std::to_string(l);
+    const nn::Tensor* f = D->encoder_->output(name);
+    if (!f || f->c != 1 || f->w != width >> l || f->h != height >> l)
+      return Error{weights.name + ": the encoder must output " + name + ", one channel of " + std::to_string(width >> l) +
+                   " x " + std::to_string(height >> l)};
+    auto& m = D->mest_[static_cast<std::size_t>(l)];
+    TERRALIGN_TRY_ASSIGN(m, nn::Network::plan(weights, "mestimator", width >> l, height >> l, threads));
+    const nn::Tensor* x = m->input("x");
+    const nn::Tensor* w = m->output("w");
+    if (!x || x->c != 4 || !w || w->c != 1)
+      return Error{weights.name + ": the mestimator must take x (4 channels) and output w (1 channel)"};
+    D->ref_f_[static_cast<std::size_t>(l)].resize(width >> l, height >> l, 1);
+    D->live_f_[static_cast<std::size_t>(l)].resize(width >> l, height >> l, 1);
+    D->w_[static_cast<std::size_t>(l)].resize(width >> l, height >> l, 1);
+    D->ref_v_[static_cast<std::size_t>(l)] = D->ref_f_[static_cast<std::size_t>(l)].view();
+    D->live_v_[static_cast<std::size_t>(l)] = D->live_f_[static_cast<std::size_t>(l)].view();
+  }
+  D->up_.allocate(height, width, 1);  // used at each level's size (h and w set per level; the row stride stays)
+  iclk::TrackerOptions o = options;
+  o.levels = kLevels;
+  o.normalize = true;
+  o.block.fill(1);
+  o.robust = iclk::Robust::None;
+  // Every pixel of four levels: enough work per iteration for the threads to pay off
+  // (unlike the sparse classical selection); chunked sums keep the result thread-count free.
+  o.threads = threads;
+  D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 1>>(width, height, o);
+  return D;
+}
+
+void DeepAligner::set_iterations(int n) {
+  auto o = tracker_->options();
+  o.iterations = n;
+  tracker_->set_options(o);
+}
+
+void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kLevels>& out) {
+  nn::Tensor* x = encoder_->input("x");
+  for (int y = 0; y < height_; ++y) {
+    const float* s = rgb.row(y);
+    for (int i = 0; i < width_; ++i, s += 3) {
+      float* p = x->at(y, i);
+      for (int c = 0; c < 3; ++c) p[c] = (s[c] / 255.0f - kMean[c]) / kStd[c];
+    }
+  }
+  encoder_->forward();
+  for (int l = 0; l < kLevels; ++l) {
+    const nn::Tensor* f = encoder_->output("f" + std::to_string(l));
+    ImageF& o = out[static_cast<std::size_t>(l)];
+    for (int y = 0; y < f->h; ++y)
+      for (int i = 0; i < f->w; ++i) o.at(i, y) = f->at(y, i)[0];
+  }
+}
+
+void DeepAligner::weights(int level, ImageView<const float> abs_r, ImageView<const float> ref,
+                          ImageView<const float> live, ImageView<float> out) {
+  const auto t0 = std::chrono::steady_clock::now();
+  nn::Network& m = *mest_[static_cast<std::size_t>(level)];
+  nn::Tensor* x = m.input("x");
+  const int w = abs_r.width, h = abs_r.height;
+  // The previous (coarser) level's weights, bilinear x2 (align_corners = False); ones at the
+  // coarsest level.
+  const bool coarsest = level == kLevels - 1;
+  if (!coarsest) {
+    const nn::Tensor* prev = mest_[static_cast<std::size_t>(level + 1)]->output("w");
+    up_.h = h;
+    up_.w = w;
+    nn::upsample2_rows(*prev, up_, 0, h);
+  }
+  for (int y = 0; y < h; ++y)
+    for (int i = 0; i < w; ++i) {
+      float* p = x->at(y, i);
+      p[0] = abs_r.at(i, y);
+      p[1] = ref.at(i, y);
+      p[2] = live.at(i, y);
+      p[3] = coarsest ? 1.0f : up_.at(y, i)[0];
+    }
+  m.forward();
+  const nn::Tensor* wt = m.output("w");
+  ImageF& keep = w_[static_cast<std::size_t>(level)];
+  for (int y = 0; y < h; ++y)
+    for (int i = 0; i < w; ++i) out.at(i, y) = keep.at(i, y) = wt->at(y, i)[0];
+  ms_mest_ += elapsed_ms(t0);
+}
+
+const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align(ImageView<const float> ref_rgb,
+                                                               ImageView<const float> ref_depth,
+                                                               ImageView<const float> live_rgb,
+                                                               const iclk::Pinhole<float>& K,
+                                                               const iclk::SE3<float>& init) {
+  TERRALIGN_ASSERT(ref_rgb.width == width_ && ref_rgb.height == height_ && live_rgb.width == width_ &&
+                       live_rgb.height == height_ && ref_rgb.channels == 3 && live_rgb.channels == 3,
+                   "DeepAligner::align: images of another size than the aligner was built for");
+  const auto t0 = std::chrono::steady_clock::now();
+  encode(ref_rgb, ref_f_);
+  encode(live_rgb, live_f_);
+  ms_encoder_ = elapsed_ms(t0);
+  ms_mest_ = 0;
+  return tracker_->align_levels(ref_v_.data(), ref_depth, live_v_.data(), K, init, this);
+}
+
+}  // namespace terralign::cli

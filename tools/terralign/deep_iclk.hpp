@@ -1,0 +1,63 @@
+// The learned tracker: the encoder (src/nn) turns the reference and the live image into a
+// pyramid of one-channel features, the M-estimator (src/nn) weights each pixel when a level
+// starts, and the inverse-compositional LM (src/iclk) aligns coarse to fine. The same
+// mathematics as training/deep_iclk.py, which trains the weights (tests/test_deep_iclk.cpp
+// checks the final pose against PyTorch's).
+//
+// It works at the weight file's input scale (`# input-scale 0.5`: half the camera's size),
+// the size the network was trained at. Everything is sized by create(); align() allocates
+// nothing.
+#pragma once
+
+#include <array>
+#include <memory>
+#include <string>
+
+#include <terralign/geo/image.hpp>
+#include <terralign/geo/result.hpp>
+#include <terralign/iclk/tracker.hpp>
+#include <terralign/nn/network.hpp>
+#include <terralign/nn/weights.hpp>
+
+namespace terralign::cli {
+
+class DeepAligner : public iclk::LevelWeights {
+ public:
+  using Warp = iclk::SE3DepthWarp<float>;
+  static constexpr int kLevels = 4;
+
+  // width x height: the working size (the images align() takes). `options`: the tracker's;
+  // levels, block and normalize are set here (4 levels, every pixel, normalised features).
+  static Result<std::unique_ptr<DeepAligner>> create(const nn::WeightFile& weights, int width, int height,
+                                                     const iclk::TrackerOptions& options, int threads);
+  // The input scale a weight file asks for (0.5 when it says nothing).
+  static Result<double> input_scale(const nn::WeightFile& weights);
+
+  // ref_rgb, live_rgb: 3-channel, 0..255; ref_depth: metres, NaN where none; K: pinhole of
+  // the working size; init: T_live_ref to start from.
+  const iclk::TrackResult<Warp>& align(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
+                                       ImageView<const float> live_rgb, const iclk::Pinhole<float>& K,
+                                       const iclk::SE3<float>& init);
+  void set_iterations(int n);
+  // The weights of each level from the last align() (level 0 finest), for figures and tests.
+  const ImageF& weights_of(int level) const { return w_[static_cast<std::size_t>(level)]; }
+  double ms_encoder() const { return ms_encoder_; }
+  double ms_mestimator() const { return ms_mest_; }
+
+  void weights(int level, ImageView<const float> abs_r, ImageView<const float> ref, ImageView<const float> live,
+               ImageView<float> out) override;
+
+ private:
+  DeepAligner() = default;
+  void encode(ImageView<const float> rgb, std::array<ImageF, kLevels>& out);
+  int width_ = 0, height_ = 0;
+  std::unique_ptr<nn::Network> encoder_;
+  std::array<std::unique_ptr<nn::Network>, kLevels> mest_;
+  std::array<ImageF, kLevels> ref_f_, live_f_, w_;
+  std::array<ImageView<const float>, kLevels> ref_v_, live_v_;
+  nn::Tensor up_;
+  std::unique_ptr<iclk::Tracker<float, Warp, 1>> tracker_;
+  double ms_encoder_ = 0, ms_mest_ = 0;
+};
+
+}  // namespace terralign::cli

@@ -1,0 +1,276 @@
+"""terralign's learned tracker in PyTorch: the same mathematics as the C++ pipeline
+(tools/terralign/deep_iclk.cpp on src/nn and src/iclk), so that weights trained here run
+there and give the same pose (training/make_deep_parity.py checks it).
+
+Per image pair (reference: rendered RGB + metric depth; live: camera RGB), at the working
+resolution (half of 752x480):
+  - colour normalisation (Lv et al.'s mean and std), the encoder: four levels of three 3x3
+    convs (dilations 1, 2, 2; ELU), 2x2 average pooling between levels; each level's
+    channels averaged to one feature image;
+  - per level, coarse to fine: the feature images are normalised (reference over its pixels
+    with depth, live over all) to zero mean and unit variance; the reference pixels with a
+    full 3x3 neighbourhood of depth (not on the border) are used; their Jacobians come from
+    Sobel / 8 gradients of the reference features times d(u, v)/d(xi) at the identity;
+  - the M-estimator sees |r| at the pose the level starts from, the two feature images and
+    the previous level's weights (bilinear x2, ones at the coarsest) and gives w in (0, 1);
+  - H = J^T W J once per level; each iteration: r = F_live(W(x; T)) - F_ref(x) (bilinear;
+    pixels landing outside [0, w-1] x [0, h-1] drop out of H and g),
+    delta = (H + lambda diag(H))^-1 J^T W r, T <- T exp(delta)^-1, xi = [omega; v];
+  - the depth pyramid: each level's depth is the mean of the valid children.
+Loss: 3-D EPE (metres, over the reference points with depth at full working resolution)
+after each level, summed over levels, as in the paper.
+"""
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+RGB_MEAN = (0.4914, 0.4822, 0.4465)
+RGB_STD = (0.2023, 0.1994, 0.2010)
+
+# Encoder widths per level (in, a, b, c) and M-estimator widths; the family is of Lv et al.'s
+# structure, narrower, so that a 752x480 pair fits the onboard budget (README: trade-off).
+SIZES = {
+    "s8": {"encoder": ((3, 8, 8, 8), (8, 16, 16, 16), (16, 16, 16, 16), (16, 16, 16, 16)), "mest": (8, 8, 8)},
+    "s16": {"encoder": ((3, 16, 16, 16), (16, 16, 32, 32), (32, 32, 32, 32), (32, 32, 32, 32)), "mest": (16, 16, 16)},
+    "s32": {"encoder": ((3, 16, 32, 32), (32, 32, 64, 64), (64, 64, 64, 64), (64, 64, 64, 64)), "mest": (16, 32, 32)},
+}
+ENCODER_DILATIONS = (1, 2, 2)
+MEST_DILATIONS = (1, 2, 4, 1)
+
+
+def conv_block(cin, cout, dilation):
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, 1, padding=dilation, dilation=dilation, bias=True), nn.ELU())
+
+
+class Encoder(nn.Module):
+    def __init__(self, widths):
+        super().__init__()
+        self.widths = widths
+        self.levels = nn.ModuleList(
+            nn.Sequential(*[conv_block(w[k], w[k + 1], d) for k, d in enumerate(ENCODER_DILATIONS)]) for w in widths)
+
+    def forward(self, rgb):
+        """rgb: N x 3 x H x W in 0..255 -> one-channel features per level, finest first."""
+        mean = torch.tensor(RGB_MEAN, dtype=rgb.dtype).view(1, 3, 1, 1)
+        std = torch.tensor(RGB_STD, dtype=rgb.dtype).view(1, 3, 1, 1)
+        x = (rgb / 255.0 - mean) / std
+        feats = []
+        for level, net in enumerate(self.levels):
+            if level > 0:
+                x = F.avg_pool2d(x, 2)
+            x = net(x)
+            feats.append(x.mean(1, keepdim=True))
+        return feats
+
+
+class MEstimator(nn.Module):
+    def __init__(self, widths):
+        super().__init__()
+        a, b, c = widths
+        chans = (4, a, b, c)
+        blocks = [conv_block(chans[k], chans[k + 1], MEST_DILATIONS[k]) for k in range(3)]
+        self.net = nn.Sequential(*blocks, nn.Conv2d(c, 1, 3, 1, padding=1, bias=True), nn.Sigmoid())
+
+    def forward(self, abs_r, f_ref, f_live, w_prev):
+        return self.net(torch.cat((abs_r, f_ref, f_live, w_prev), dim=1))
+
+
+# ---- SE(3), xi = [omega; v] ---------------------------------------------------------------
+
+def hat(w):
+    z = torch.zeros_like(w[..., 0])
+    return torch.stack((torch.stack((z, -w[..., 2], w[..., 1]), -1),
+                        torch.stack((w[..., 2], z, -w[..., 0]), -1),
+                        torch.stack((-w[..., 1], w[..., 0], z), -1)), -2)
+
+
+def se3_exp(xi):
+    """xi: B x 6 -> (R: B x 3 x 3, t: B x 3). Series below 1e-2 rad (no NaN at zero)."""
+    w, v = xi[:, :3], xi[:, 3:]
+    th2 = (w * w).sum(-1)
+    small = th2 < 1e-4
+    th2s = torch.where(small, torch.ones_like(th2), th2)
+    th = torch.sqrt(th2s)
+    a = torch.where(small, 1 - th2 / 6 + th2 * th2 / 120, torch.sin(th) / th)
+    b = torch.where(small, 0.5 - th2 / 24 + th2 * th2 / 720, (1 - torch.cos(th)) / th2s)
+    c = torch.where(small, 1.0 / 6 - th2 / 120 + th2 * th2 / 5040, (th - torch.sin(th)) / (th2s * th))
+    W = hat(w)
+    W2 = W @ W
+    eye = torch.eye(3, dtype=xi.dtype).expand_as(W)
+    R = eye + a.view(-1, 1, 1) * W + b.view(-1, 1, 1) * W2
+    V = eye + b.view(-1, 1, 1) * W + c.view(-1, 1, 1) * W2
+    return R, (V @ v.unsqueeze(-1)).squeeze(-1)
+
+
+def compose_inverse_exp(R, t, delta):
+    """T <- T exp(delta)^-1."""
+    Rd, td = se3_exp(delta)
+    Rdi = Rd.transpose(1, 2)
+    tdi = -(Rdi @ td.unsqueeze(-1)).squeeze(-1)
+    return R @ Rdi, (R @ tdi.unsqueeze(-1)).squeeze(-1) + t
+
+
+# ---- pyramids and the solver -----------------------------------------------------------------
+
+def depth_pyramid(depth, levels):
+    """depth: B x 1 x H x W, NaN where none -> per level (depth filled with 1, valid mask)."""
+    valid = torch.isfinite(depth).to(depth.dtype)
+    d = torch.where(valid > 0, depth, torch.zeros_like(depth))
+    out = [(torch.where(valid > 0, d, torch.ones_like(d)), valid)]
+    for _ in range(1, levels):
+        s = F.avg_pool2d(d, 2) * 4
+        n = F.avg_pool2d(valid, 2) * 4
+        valid = (n > 0).to(depth.dtype)
+        d = torch.where(n > 0, s / torch.where(n > 0, n, torch.ones_like(n)), torch.zeros_like(s))
+        out.append((torch.where(valid > 0, d, torch.ones_like(d)), valid))
+    return out
+
+
+def half(K):
+    fx, fy, cx, cy = K
+    return (fx / 2, fy / 2, (cx + 0.5) / 2 - 0.5, (cy + 0.5) / 2 - 0.5)
+
+
+def normalise(f, mask):
+    """Zero mean, unit variance over mask (per image); as the C++ tracker (population variance)."""
+    n = mask.sum((1, 2, 3), keepdim=True).clamp(min=2)
+    mean = (f * mask).sum((1, 2, 3), keepdim=True) / n
+    var = ((f * f) * mask).sum((1, 2, 3), keepdim=True) / n - mean * mean
+    return (f - mean) / torch.sqrt(var.clamp(min=1e-20))
+
+
+def usable_mask(valid):
+    """Pixels whose 3x3 neighbourhood has depth, not on the border."""
+    m = -F.max_pool2d(-valid, 3, 1, 1)
+    m[:, :, 0, :] = 0
+    m[:, :, -1, :] = 0
+    m[:, :, :, 0] = 0
+    m[:, :, :, -1] = 0
+    return m
+
+
+def sobel(f):
+    kx = torch.tensor([[-1.0, 0, 1], [-2, 0, 2], [-1, 0, 1]], dtype=f.dtype) / 8
+    k = torch.stack((kx, kx.t())).unsqueeze(1)
+    return F.conv2d(F.pad(f, (1, 1, 1, 1), mode="replicate"), k)
+
+
+def pixel_grid(h, w, dtype):
+    v, u = torch.meshgrid(torch.arange(h, dtype=dtype), torch.arange(w, dtype=dtype), indexing="ij")
+    return u.view(1, 1, h, w), v.view(1, 1, h, w)
+
+
+def points(depth, K):
+    fx, fy, cx, cy = K
+    _, _, h, w = depth.shape
+    u, v = pixel_grid(h, w, depth.dtype)
+    return torch.cat((depth * (u - cx.view(-1, 1, 1, 1)) / fx.view(-1, 1, 1, 1),
+                      depth * (v - cy.view(-1, 1, 1, 1)) / fy.view(-1, 1, 1, 1), depth), 1)
+
+
+def jacobian(grad, X, K):
+    """grad: B x 2 x h x w (Sobel / 8), X: B x 3 x h x w -> B x 6 x h x w (xi = [omega; v])."""
+    fx, fy = K[0].view(-1, 1, 1, 1), K[1].view(-1, 1, 1, 1)
+    x, y, z = X[:, 0:1], X[:, 1:2], X[:, 2:3]
+    iz = 1 / z
+    gx, gy = grad[:, 0:1] * fx * iz, grad[:, 1:2] * fy * iz
+    xz, yz = x * iz, y * iz
+    # d(u, v)/dY at Y = X, times [-[X]x | I].
+    dz = -(gx * xz + gy * yz)  # coefficient of dY_z
+    # -[X]x columns: (0, -z, y), (z, 0, -x), (-y, x, 0)
+    j0 = -gy * z + dz * y
+    j1 = gx * z - dz * x
+    j2 = -gx * y + gy * x
+    return torch.cat((j0, j1, j2, gx, gy, dz), 1)
+
+
+def warp_sample(f_live, X, R, t, K):
+    """Samples f_live at the projection of R X + t; returns (values, inside mask)."""
+    B, _, h, w = X.shape
+    Y = torch.einsum("bij,bjhw->bihw", R, X) + t.view(B, 3, 1, 1)
+    z = Y[:, 2:3]
+    ok = z > 1e-6
+    zs = torch.where(ok, z, torch.ones_like(z))
+    u = K[0].view(-1, 1, 1, 1) * Y[:, 0:1] / zs + K[2].view(-1, 1, 1, 1)
+    v = K[1].view(-1, 1, 1, 1) * Y[:, 1:2] / zs + K[3].view(-1, 1, 1, 1)
+    inside = ok & (u >= 0) & (v >= 0) & (u <= w - 1) & (v <= h - 1)
+    gu = torch.where(inside, u, torch.zeros_like(u)) * (2.0 / (w - 1)) - 1
+    gv = torch.where(inside, v, torch.zeros_like(v)) * (2.0 / (h - 1)) - 1
+    grid = torch.cat((gu, gv), 1).permute(0, 2, 3, 1)
+    val = F.grid_sample(f_live, grid, mode="bilinear", padding_mode="border", align_corners=True)
+    return val, inside.to(X.dtype)
+
+
+def epe(R, t, R_gt, t_gt, X, valid):
+    """3-D end-point error per sample (metres): mean over valid X of |T X - T_gt X|."""
+    d = torch.einsum("bij,bjhw->bihw", R - R_gt, X) + (t - t_gt).view(-1, 3, 1, 1)
+    e = torch.sqrt((d * d).sum(1, keepdim=True) + 1e-12)
+    return (e * valid).sum((1, 2, 3)) / valid.sum((1, 2, 3)).clamp(min=1)
+
+
+class DeepICLK(nn.Module):
+    def __init__(self, size="s16", levels=4, iterations=20, lam=1e-6):
+        super().__init__()
+        self.size = size
+        self.encoder = Encoder(SIZES[size]["encoder"])
+        self.mest = MEstimator(SIZES[size]["mest"])
+        self.levels, self.iterations, self.lam = levels, iterations, lam
+
+    def forward(self, ref_rgb, ref_depth, live_rgb, K, R0=None, t0=None, truth=None, return_weights=False):
+        """ref_rgb, live_rgb: B x 3 x H x W (0..255); ref_depth: B x 1 x H x W (NaN: none);
+        K: (fx, fy, cx, cy), each a B tensor; R0, t0: initial T_live_ref (identity if None);
+        truth: (R_gt, t_gt) for the loss. Returns (R, t, per-level EPE list or None, weights)."""
+        B = ref_rgb.shape[0]
+        dtype = ref_rgb.dtype
+        fr = self.encoder(ref_rgb)
+        fl = self.encoder(live_rgb)
+        dp = depth_pyramid(ref_depth, self.levels)
+        Ks = [K]
+        for _ in range(1, self.levels):
+            Ks.append(half(Ks[-1]))
+        R = torch.eye(3, dtype=dtype).repeat(B, 1, 1) if R0 is None else R0
+        t = torch.zeros(B, 3, dtype=dtype) if t0 is None else t0
+        X0 = points(dp[0][0], Ks[0])
+        losses, weights = [], [None] * self.levels
+        w_prev = None
+        for level in range(self.levels - 1, -1, -1):
+            Kl = Ks[level]
+            depth, valid = dp[level]
+            f_ref = normalise(fr[level], valid)
+            f_live = normalise(fl[level], torch.ones_like(fl[level]))
+            mask = usable_mask(valid)
+            X = points(depth, Kl)
+            J = jacobian(sobel(f_ref), X, Kl) * mask
+            val, inside = warp_sample(f_live, X, R, t, Kl)
+            abs_r = (val - f_ref).abs() * mask * inside
+            if w_prev is None:
+                w_prev = torch.ones_like(f_ref)
+            else:
+                w_prev = F.interpolate(w_prev, size=f_ref.shape[-2:], mode="bilinear", align_corners=False)
+            w = self.mest(abs_r, f_ref, f_live, w_prev)
+            weights[level] = w
+            w_prev = w
+            Wm = w * mask
+            Jf = J.flatten(2)  # B x 6 x n
+            for _ in range(self.iterations):
+                val, inside = warp_sample(f_live, X, R, t, Kl)
+                r = (val - f_ref).flatten(2)
+                wi = (Wm * inside).flatten(2)
+                H = torch.einsum("bin,bjn->bij", Jf * wi, Jf).double()
+                g = torch.einsum("bin,bn->bi", Jf * wi, r[:, 0]).double()
+                A = H + self.lam * torch.diag_embed(torch.diagonal(H, dim1=1, dim2=2))
+                A = A + 1e-12 * torch.eye(6, dtype=A.dtype)  # keeps solve defined when nothing is seen
+                delta = torch.linalg.solve(A, g.unsqueeze(-1)).squeeze(-1).to(dtype)
+                R, t = compose_inverse_exp(R, t, delta)
+            if truth is not None:
+                losses.append(epe(R, t, truth[0], truth[1], X0, dp[0][1]))
+        return R, t, losses, (weights if return_weights else None)
+
+
+def quat_to_R(q):
+    """q: B x 4 (w, x, y, z) -> B x 3 x 3."""
+    q = q / q.norm(dim=-1, keepdim=True)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)), -1).view(-1, 3, 3)

@@ -1,0 +1,71 @@
+#!/usr/bin/python3
+"""Writes a trained learned-tracker checkpoint (training/train_deep.py) as a terralign weight
+file (.tlw) that `terralign align --method nn --weights FILE` reads.
+
+  /usr/bin/python3 training/export_deep.py CHECKPOINT.pt OUT.tlw [--note "data, licence, commit"]
+
+The architecture text holds two networks, `encoder` (input x: 3 channels, normalised RGB;
+outputs f0..f3: one-channel features per level) and `mestimator` (input x: |r|, f_ref, f_live,
+w_prev; output w), and comment lines the C++ reads: `# input-scale 0.5` (the working
+resolution relative to the camera) and `# levels 4`.
+"""
+import argparse
+import os
+import sys
+
+import torch
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import deep_iclk as D  # noqa: E402
+import tlw  # noqa: E402
+
+INPUT_SCALE = 0.5  # training/README.md: the dataset is rendered at half the camera's size
+
+
+def architecture(size, note):
+    enc = D.SIZES[size]["encoder"]
+    a, b, c = D.SIZES[size]["mest"]
+    lines = ["terralign-net 1", f"# terralign learned tracker, size {size}", f"# input-scale {INPUT_SCALE}",
+             "# levels 4"]
+    lines += [f"# {n}" for n in note.splitlines() if n.strip()]
+    lines += ["", "net encoder", "input x 3"]
+    prev, outs = "x", []
+    for level, widths in enumerate(enc):
+        if level > 0:
+            lines.append(f"pool p{level} {prev}")
+            prev = f"p{level}"
+        for k, dil in enumerate(D.ENCODER_DILATIONS):
+            name = f"e{level}_{k}"
+            lines.append(f"conv {name} {prev} {widths[k + 1]} {dil} elu encoder.levels.{level}.{k}.0")
+            prev = name
+        lines.append(f"mean f{level} {prev}")
+        outs.append(f"f{level}")
+    lines.append("output " + " ".join(outs))
+    lines += ["", "net mestimator", "input x 4",
+              f"conv m0 x {a} {D.MEST_DILATIONS[0]} elu mest.net.0.0",
+              f"conv m1 m0 {b} {D.MEST_DILATIONS[1]} elu mest.net.1.0",
+              f"conv m2 m1 {c} {D.MEST_DILATIONS[2]} elu mest.net.2.0",
+              f"conv m3 m2 1 {D.MEST_DILATIONS[3]} none mest.net.3",
+              "sigmoid w m3", "output w"]
+    return "\n".join(lines) + "\n"
+
+
+def export(state, size, dst, note=""):
+    tensors = [(k, v.detach().numpy()) for k, v in state.items()]
+    tlw.write(dst, architecture(size, note), tensors)
+    return len(tensors), sum(t.size for _, t in tensors)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("checkpoint")
+    p.add_argument("out")
+    p.add_argument("--note", default="")
+    a = p.parse_args()
+    ck = torch.load(a.checkpoint, map_location="cpu")
+    n, params = export(ck["model"], ck["size"], a.out, a.note + f"\ncheckpoint step {ck['step']}")
+    print(f"{a.out}: {n} tensors, {params} parameters (size {ck['size']}, step {ck['step']})")
+
+
+if __name__ == "__main__":
+    main()

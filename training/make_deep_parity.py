@@ -1,0 +1,85 @@
+#!/usr/bin/python3
+"""Writes the learned tracker's parity vectors: validation pairs from a `terralign dataset`
+folder, cropped to 184 x 120 around the centre (intrinsics shifted to match), aligned by
+training/deep_iclk.py with the given weights (20 iterations per level, identity start), in
+float32. tests/test_deep_iclk.cpp runs the C++ pipeline on the same inputs and weights and
+compares the final pose (1e-4 rad, 1e-3 of the altitude).
+
+  /usr/bin/python3 training/make_deep_parity.py CHECKPOINT.pt DATASET_DIR OUT.tlw [--pairs 3]
+
+Stored per pair k: ref_k (H x W x 3, 0..255), depth_k (H x W, metres, NaN: none),
+live_k (H x W x 3), K_k (fx, fy, cx, cy), altitude_k, R_k and t_k (PyTorch's final
+T_live_ref), gtR_k and gt_t_k (the truth, for information), and the per-level weights'
+means wmean_k (4, finest first).
+"""
+import argparse
+import os
+import random
+import sys
+
+import numpy as np
+import torch
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import deep_iclk as D  # noqa: E402
+import tlw  # noqa: E402
+from train_deep import PairSet  # noqa: E402
+
+CROP_W, CROP_H = 184, 120
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("checkpoint")
+    p.add_argument("data")
+    p.add_argument("out")
+    p.add_argument("--pairs", type=int, default=3)
+    p.add_argument("--seed", type=int, default=5)
+    p.add_argument("--max-ratio", type=float, default=0.25, help="keep pairs whose final EPE is below this x the initial")
+    a = p.parse_args()
+    torch.set_grad_enabled(False)
+    ck = torch.load(a.checkpoint, map_location="cpu")
+    model = D.DeepICLK(ck["size"], iterations=20)
+    model.load_state_dict(ck["model"])
+    model.eval()
+    val = PairSet(a.data, "val")
+    rng = random.Random(a.seed)
+    tensors, k, tried = [], 0, 0
+    while k < a.pairs and tried < 200:
+        tried += 1
+        i, b = rng.randrange(len(val.ids)), rng.randrange(len(val.layers))
+        c = rng.choice([x for x in range(len(val.layers)) if x != b])
+        ref, depth, live, K, truth = val.batch([(i, b, c)])
+        H, W = ref.shape[-2:]
+        x0, y0 = (W - CROP_W) // 2, (H - CROP_H) // 2
+        ref, live = ref[..., y0:y0 + CROP_H, x0:x0 + CROP_W], live[..., y0:y0 + CROP_H, x0:x0 + CROP_W]
+        depth = depth[..., y0:y0 + CROP_H, x0:x0 + CROP_W]
+        K = (K[0], K[1], K[2] - x0, K[3] - y0)
+        R, t, _, ws = model(ref, depth, live, K, return_weights=True)
+        X = D.points(D.depth_pyramid(depth, 1)[0][0], K)
+        valid = torch.isfinite(depth).float()
+        e = D.epe(R, t, truth[0], truth[1], X, valid).item()
+        e0 = D.epe(torch.eye(3).unsqueeze(0), torch.zeros(1, 3), truth[0], truth[1], X, valid).item()
+        # Only pairs the model aligns well: a diverging run is chaotic, and parity is about the
+        # arithmetic, not about where a divergence ends.
+        if not (e < a.max_ratio * e0 and (e < 5.0 or a.max_ratio > 1)):
+            continue
+        print(f"pair {k}: val pose {val.ids[i]}, {val.layers[b]} -> {val.layers[c]}, EPE {e0:.2f} -> {e:.3f} m")
+        tensors += [(f"ref_{k}", ref[0].permute(1, 2, 0).numpy()), (f"depth_{k}", depth[0, 0].numpy()),
+                    (f"live_{k}", live[0].permute(1, 2, 0).numpy()),
+                    (f"K_{k}", np.array([float(v) for v in K], np.float32)),
+                    (f"altitude_{k}", np.array([val.altitude[i]], np.float32)),
+                    (f"R_{k}", R[0].numpy()), (f"t_{k}", t[0].numpy()),
+                    (f"gtR_{k}", truth[0][0].numpy()), (f"gt_t_{k}", truth[1][0].numpy()),
+                    (f"wmean_{k}", np.array([float(w.mean()) for w in ws], np.float32))]
+        k += 1
+    if k < a.pairs:
+        raise SystemExit(f"only {k} of {a.pairs} pairs aligned well enough to serve as parity vectors")
+    note = (f"parity vectors: the learned tracker ({ck['size']}, step {ck['step']}) on {k} validation pairs of "
+            f"{os.path.basename(os.path.normpath(a.data))}, {CROP_W}x{CROP_H}\n")
+    tlw.write(a.out, note, tensors)
+    print(f"{a.out}: {k} pairs")
+
+
+if __name__ == "__main__":
+    main()

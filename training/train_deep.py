@@ -1,0 +1,231 @@
+#!/usr/bin/python3
+"""Trains terralign's learned tracker (training/deep_iclk.py) on pairs written by
+`terralign dataset`, on the CPU, with checkpoints that let a run resume (also elsewhere).
+
+  /usr/bin/python3 training/train_deep.py --data DIR --out training/runs/NAME [--size s16]
+      [--steps 3000] [--batch 4] [--iterations 5] [--lr 5e-4] [--seed 1] [--resume]
+
+Each step takes `batch` pairs at random: a training pose, a reference year and a query year
+(cross-year with probability 0.8, same year otherwise). The solver is unrolled for
+`iterations` per level while training (20 at test time). Loss: the 3-D EPE after each level,
+summed, as the paper; a sample whose EPE is not finite is left out of the step. Every
+--val-every steps the validation strip's cross-year pairs (a fixed subset) are aligned with
+20 iterations and the init / final EPE mean and median logged to OUT/log.csv; OUT/curves.png
+plots them; OUT/last.pt is the checkpoint, OUT/best.pt the best validation median.
+"""
+import argparse
+import csv
+import os
+import random
+import sys
+import time
+
+import numpy as np
+import torch
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import deep_iclk as D  # noqa: E402
+
+
+def read_pfm(path):
+    with open(path, "rb") as f:
+        kind = f.readline().strip()
+        w, h = map(int, f.readline().split())
+        scale = float(f.readline())
+        data = np.frombuffer(f.read(), dtype="<f4" if scale < 0 else ">f4")
+    if kind != b"Pf":
+        raise ValueError(f"{path}: not a one-channel PFM")
+    return np.flipud(data.reshape(h, w)).astype(np.float32)
+
+
+def read_png(path):
+    from PIL import Image
+    return np.array(Image.open(path).convert("RGB"))
+
+
+class PairSet:
+    """Every pose of one split, loaded into memory: per pose the reference images per year,
+    the reference depth, the query images per year, intrinsics and T_query_ref."""
+
+    def __init__(self, root, split):
+        rows = [r for r in csv.DictReader(open(os.path.join(root, "index.csv"))) if r["split"] == split]
+        if not rows:
+            raise SystemExit(f"{root}/index.csv has no '{split}' rows")
+        self.layers = sorted({r["ref_layer"] for r in rows})
+        poses = {}
+        for r in rows:
+            poses.setdefault(r["pose"], r)
+        self.ids = sorted(poses)
+        n, L = len(self.ids), len(self.layers)
+        first = poses[self.ids[0]]
+        h, w = int(first["height"]), int(first["width"])
+        self.ref = np.zeros((n, L, h, w, 3), np.uint8)
+        self.query = np.zeros((n, L, h, w, 3), np.uint8)
+        self.depth = np.zeros((n, h, w), np.float32)
+        self.K = np.zeros((n, 4), np.float64)
+        self.T = np.zeros((n, 7), np.float64)
+        self.altitude = np.zeros(n)
+        t0 = time.time()
+        for i, pid in enumerate(self.ids):
+            r = poses[pid]
+            d = os.path.join(root, split, pid)
+            for k, lay in enumerate(self.layers):
+                self.ref[i, k] = read_png(os.path.join(d, f"ref_{lay}.png"))
+                self.query[i, k] = read_png(os.path.join(d, f"query_{lay}.png"))
+            self.depth[i] = read_pfm(os.path.join(d, "ref_depth.pfm"))
+            self.K[i] = [float(r[k]) for k in ("fx", "fy", "cx", "cy")]
+            self.T[i] = [float(r[k]) for k in ("t_x", "t_y", "t_z", "q_w", "q_x", "q_y", "q_z")]
+            self.altitude[i] = float(r["altitude"])
+        print(f"{split}: {n} poses x {L} layers ({', '.join(self.layers)}) of {w}x{h} in {time.time() - t0:.0f} s",
+              flush=True)
+
+    def batch(self, items, dtype=torch.float32):
+        """items: list of (pose index, ref layer index, query layer index)."""
+        i = [a for a, _, _ in items]
+        ref = torch.from_numpy(np.stack([self.ref[a, b] for a, b, _ in items])).permute(0, 3, 1, 2).to(dtype)
+        qry = torch.from_numpy(np.stack([self.query[a, c] for a, _, c in items])).permute(0, 3, 1, 2).to(dtype)
+        depth = torch.from_numpy(self.depth[i]).unsqueeze(1).to(dtype)
+        K = tuple(torch.from_numpy(self.K[i][:, k]).to(dtype) for k in range(4))
+        T = torch.from_numpy(self.T[i]).to(dtype)
+        return ref, depth, qry, K, (D.quat_to_R(T[:, 3:]), T[:, :3])
+
+
+def sample_items(rng, n, L, count, cross=0.8):
+    out = []
+    for _ in range(count):
+        a = rng.randrange(n)
+        b = rng.randrange(L)
+        c = b
+        if L > 1 and rng.random() < cross:
+            c = rng.choice([k for k in range(L) if k != b])
+        out.append((a, b, c))
+    return out
+
+
+def validate(model, val, items, batch=8):
+    model.eval()
+    init, final = [], []
+    with torch.no_grad():
+        for s in range(0, len(items), batch):
+            ref, depth, qry, K, truth = val.batch(items[s:s + batch])
+            B = ref.shape[0]
+            eye = torch.eye(3).repeat(B, 1, 1)
+            X0 = D.points(D.depth_pyramid(depth, 1)[0][0], K)
+            valid = torch.isfinite(depth).float()
+            init += D.epe(eye, torch.zeros(B, 3), truth[0], truth[1], X0, valid).tolist()
+            R, t, _, _ = model(ref, depth, qry, K)
+            final += D.epe(R, t, truth[0], truth[1], X0, valid).tolist()
+    model.train()
+    f = np.array(final)
+    f = np.where(np.isfinite(f), f, 1e9)
+    return float(np.mean(init)), float(np.median(init)), float(np.mean(np.minimum(f, 1e3))), float(np.median(f))
+
+
+def plot(out):
+    rows = list(csv.DictReader(open(os.path.join(out, "log.csv"))))
+    if not rows:
+        return
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    tr = [r for r in rows if r["kind"] == "train"]
+    va = [r for r in rows if r["kind"] == "val"]
+    ax[0].plot([int(r["step"]) for r in tr], [float(r["loss"]) for r in tr], lw=0.8)
+    ax[0].set_xlabel("step")
+    ax[0].set_ylabel("training loss: EPE summed over 4 levels (m), mean of 50 steps")
+    ax[0].set_yscale("log")
+    for key, lab in (("init_median", "init median"), ("final_median", "NN (20) median"), ("final_mean", "NN (20) mean")):
+        ax[1].plot([int(r["step"]) for r in va], [float(r[key]) for r in va], marker="o", label=lab)
+    ax[1].set_xlabel("step")
+    ax[1].set_ylabel("validation cross-year 3-D EPE (m)")
+    ax[1].set_yscale("log")
+    ax[1].legend()
+    fig.tight_layout()
+    fig.savefig(os.path.join(out, "curves.png"), dpi=90)
+    plt.close(fig)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", required=True)
+    p.add_argument("--out", required=True)
+    p.add_argument("--size", default="s16", choices=sorted(D.SIZES))
+    p.add_argument("--steps", type=int, default=3000)
+    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--iterations", type=int, default=5)
+    p.add_argument("--lr", type=float, default=5e-4)
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--val-every", type=int, default=250)
+    p.add_argument("--val-count", type=int, default=64)
+    p.add_argument("--resume", action="store_true")
+    a = p.parse_args()
+    torch.set_num_threads(a.threads)
+    torch.manual_seed(a.seed)
+    os.makedirs(a.out, exist_ok=True)
+    train, val = PairSet(a.data, "train"), PairSet(a.data, "val")
+    vrng = random.Random(12345)
+    val_items = sample_items(vrng, len(val.ids), len(val.layers), a.val_count, cross=1.0)
+    model = D.DeepICLK(a.size, iterations=a.iterations)
+    opt = torch.optim.Adam(model.parameters(), lr=a.lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=a.steps, eta_min=a.lr * 0.05)
+    step, best = 0, float("inf")
+    rng = random.Random(a.seed)
+    log_path = os.path.join(a.out, "log.csv")
+    if a.resume and os.path.exists(os.path.join(a.out, "last.pt")):
+        ck = torch.load(os.path.join(a.out, "last.pt"))
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["opt"])
+        sched.load_state_dict(ck["sched"])
+        step, best = ck["step"], ck["best"]
+        rng.setstate(ck["rng"])
+        torch.set_rng_state(ck["torch_rng"])
+        print(f"resumed at step {step}", flush=True)
+    else:
+        with open(log_path, "w") as f:
+            f.write("kind,step,loss,init_mean,init_median,final_mean,final_median,seconds\n")
+        with open(os.path.join(a.out, "config.txt"), "w") as f:
+            f.write(" ".join(sys.argv) + "\n")
+    t0, acc, nacc = time.time(), 0.0, 0
+    while step < a.steps:
+        ref, depth, qry, K, truth = train.batch(sample_items(rng, len(train.ids), len(train.layers), a.batch))
+        _, _, losses, _ = model(ref, depth, qry, K, truth=truth)
+        per = torch.stack(losses).sum(0)
+        ok = torch.isfinite(per)
+        if ok.any():
+            loss = per[ok].mean()
+            opt.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+            opt.step()
+            acc += loss.item()
+            nacc += 1
+        sched.step()
+        step += 1
+        if step % 50 == 0 and nacc:
+            with open(log_path, "a") as f:
+                f.write(f"train,{step},{acc / nacc:.4f},,,,,{time.time() - t0:.0f}\n")
+            print(f"step {step} loss {acc / nacc:.3f} ({time.time() - t0:.0f} s)", flush=True)
+            acc, nacc = 0.0, 0
+        if step % a.val_every == 0 or step == a.steps:
+            model.iterations = 20
+            im, imed, fm, fmed = validate(model, val, val_items)
+            model.iterations = a.iterations
+            with open(log_path, "a") as f:
+                f.write(f"val,{step},,{im:.3f},{imed:.3f},{fm:.3f},{fmed:.3f},{time.time() - t0:.0f}\n")
+            print(f"val {step}: init EPE mean {im:.2f} median {imed:.2f} m -> NN(20) mean {fm:.2f} median {fmed:.2f} m",
+                  flush=True)
+            state = {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "step": step,
+                     "best": min(best, fmed), "rng": rng.getstate(), "torch_rng": torch.get_rng_state(), "size": a.size}
+            if fmed < best:
+                best = fmed
+                torch.save(state, os.path.join(a.out, "best.pt.tmp"))
+                os.replace(os.path.join(a.out, "best.pt.tmp"), os.path.join(a.out, "best.pt"))
+            torch.save(state, os.path.join(a.out, "last.pt.tmp"))
+            os.replace(os.path.join(a.out, "last.pt.tmp"), os.path.join(a.out, "last.pt"))
+            plot(a.out)
+
+
+if __name__ == "__main__":
+    main()
