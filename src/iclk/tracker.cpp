@@ -171,6 +171,11 @@ int Tracker<S, Warp, C>::select_pixels(int level, const Pinhole<S>& K) {
   };
   const int block = level < static_cast<int>(opt_.block.size()) ? std::max(1, opt_.block[static_cast<std::size_t>(level)]) : 1;
   int n = 0;
+  if (level == 0) {
+    motion0_.setZero();
+    floor0_.setZero();
+    radius2_sum_ = 0;
+  }
   for (int by = 1; by + 1 < L.h; by += block)
     for (int bx = 1; bx + 1 < L.w; bx += block) {
       // The pixel of the block with the strongest gradient (every pixel when block == 1).
@@ -202,6 +207,15 @@ int Tracker<S, Warp, C>::select_pixels(int level, const Pinhole<S>& K) {
       const S u = static_cast<S>(x), v = static_cast<S>(y);
       const Vec3<S> X(d * (u - K.cx) / K.fx, d * (v - K.cy) / K.fy, d);
       const typename Warp::Jac dW = Warp::d_warp_d_xi(X, u, v, K);
+      if (level == 0) {
+        const Eigen::Matrix<double, 2, DoF> dWd = dW.template cast<double>();
+        motion0_.template triangularView<Eigen::Lower>() += dWd.transpose() * dWd;
+        const double du = static_cast<double>(u - K.cx), dv = static_cast<double>(v - K.cy);
+        Eigen::Matrix<double, 2, 4> modes;
+        modes << 1, 0, -dv, du, 0, 1, du, dv;
+        floor0_ += dWd.transpose() * modes;
+        radius2_sum_ += du * du + dv * dv;
+      }
       for (int c = 0; c < C; ++c) {
         S gx, gy;
         sobel(x, y, c, gx, gy);
@@ -390,6 +404,27 @@ void Tracker<S, Warp, C>::learned_weights(int n, int level, const Params& p, con
 }
 
 template <class S, class Warp, int C>
+double Tracker<S, Warp, C>::residual_correlation(int n) const {
+  // Pixels are selected row of blocks by row of blocks, left to right: consecutive pixels on
+  // the same row, at most two blocks apart, are horizontal neighbours at the sampling step.
+  const int block = std::max(1, opt_.block[0]);
+  double sab = 0, saa = 0, sbb = 0;
+  for (int i = 0; i + 1 < n; ++i) {
+    const std::size_t a = static_cast<std::size_t>(i), b = a + 1;
+    if (!ok_[a] || !ok_[b] || pv_[a] != pv_[b] || pu_[b] - pu_[a] > S(2 * block)) continue;
+    if (!(w_[a] > 0) || !(w_[b] > 0)) continue;
+    for (int c = 0; c < C; ++c) {
+      const double ra = static_cast<double>(r_[a * C + static_cast<std::size_t>(c)]);
+      const double rb = static_cast<double>(r_[b * C + static_cast<std::size_t>(c)]);
+      sab += ra * rb;
+      saa += ra * ra;
+      sbb += rb * rb;
+    }
+  }
+  return saa > 0 && sbb > 0 ? sab / std::sqrt(saa * sbb) : 0.0;
+}
+
+template <class S, class Warp, int C>
 const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const Params& init,
                                                      const ImageView<const float>* weights, LevelWeights* level_weights) {
   TrackResult<Warp>& R = result_;
@@ -530,7 +565,18 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
           return fail("diverged: the pose moved implausibly far from the initial one");
       }
       const double sigma2 = cost / std::max(wsum - DoF, 1.0);
-      R.covariance = sigma2 * Hv.inverse();
+      R.residual_correlation = residual_correlation(n);
+      const double rho = std::min(std::max(R.residual_correlation, 0.0), 0.9);
+      R.covariance_inflation = ((1 + rho) / (1 - rho)) * ((1 + rho) / (1 - rho));
+      R.covariance = R.covariance_inflation * sigma2 * Hv.inverse();
+      if (opt_.registration_floor_px > 0) {
+        const Eigen::Matrix<double, DoF, DoF> M = motion0_.template selfadjointView<Eigen::Lower>();
+        const Eigen::Matrix<double, DoF, DoF> Mi = M.inverse();
+        Eigen::Matrix<double, DoF, 4> B = floor0_;
+        const double r_rms = std::sqrt(radius2_sum_ / std::max(n, 1));  // rotation and scale: RMS 1 px
+        if (r_rms > 0) B.template rightCols<2>() /= r_rms;
+        R.covariance += opt_.registration_floor_px * opt_.registration_floor_px * Mi * B * B.transpose() * Mi;
+      }
     }
   }
   R.params = p;

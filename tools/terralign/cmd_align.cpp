@@ -99,6 +99,8 @@ int run_align(const std::vector<std::string>& argv) {
   j["converged"] = out->converged;
   j["reason"] = out->reason;
   j["iterations"] = out->iterations;
+  j["residual_correlation"] = out->residual_correlation;
+  j["covariance_inflation"] = out->covariance_inflation;
   j["method"] = method;
   j["ms"] = {{"load", ms_load}, {"render", out->ms_render}, {"encoder", out->ms_encoder}, {"pyramid", out->ms_pyramid},
              {"jacobian", out->ms_jacobian}, {"mestimator", out->ms_mestimator}, {"iterations", out->ms_iterations},

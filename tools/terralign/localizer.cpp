@@ -21,7 +21,9 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
       return Error{weights->name + ": input scale " + std::to_string(s) + " is not 1/n of the camera's " +
                    std::to_string(camera.width) + " x " + std::to_string(camera.height)};
     L->work_ = camera.scaled(s, w, h);
-    TERRALIGN_TRY_ASSIGN(L->deep_, DeepAligner::create(*weights, w, h, options, threads));
+    iclk::TrackerOptions dopt = options;
+    dopt.registration_floor_px *= s;  // camera pixels -> working pixels
+    TERRALIGN_TRY_ASSIGN(L->deep_, DeepAligner::create(*weights, w, h, dopt, threads));
     L->ref_rgb_.resize(w, h, 3);
     L->live_rgb_.resize(w, h, 3);
   }
@@ -109,6 +111,8 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   out.iterations = r.iterations;
   out.cost_init = r.cost_init;
   out.cost_final = r.cost_final;
+  out.residual_correlation = r.residual_correlation;
+  out.covariance_inflation = r.covariance_inflation;
   out.ms_pyramid = r.ms_pyramid;
   out.ms_jacobian = r.ms_jacobian;
   out.ms_iterations = r.ms_iterations;

@@ -59,6 +59,15 @@ struct TrackerOptions {
   double max_rotation = 0.35;        // rad: a final rotation farther from the initial one fails
   double max_translation = 0.5;      // times the median reference depth, likewise
   double min_information = 1e-9;     // smallest eigenvalue of H / largest: below is no texture
+  // The smallest registration error the covariance admits, in finest-level pixels: what no
+  // pixel-noise model sees (a rendered reference resamples the map's texture at another
+  // phase than the camera saw it; maps of different years disagree by a fraction of a
+  // pixel). Added as the covariance of the pose change that whole-image motions cause: a
+  // shift in u, one in v, a rotation and a scale change about the principal point, each of
+  // RMS size sigma_floor px over the used pixels and independent:
+  // sigma_floor^2 M^-1 (sum_m b_m b_m^T) M^-1, M = sum dW^T dW, b_m = sum dW^T d_m.
+  // 0.1 px: about the position RMSE of same-year rendered flights (README, tracking).
+  double registration_floor_px = 0.1;
   int threads = 1;                   // residuals in fixed chunks: same result on any count
   // Pixel selection per level (finest first): in each block x block cell the pixel with the
   // strongest gradient is used; 1 uses every pixel (as Lv et al. do). Sparse fine levels make
@@ -79,8 +88,16 @@ struct TrackResult {
   // the finest level started (after the coarse levels), and at the end.
   double cost_init = 0, cost_start = 0, cost_final = 0;
   // Covariance of the last step's parameters dxi (the solver's tangent at the estimate,
-  // reference side): sigma^2 (J^T W J)^-1 at the finest level, sigma^2 = sum w r^2 / (sum w - DoF).
+  // reference side): f sigma^2 (J^T W J)^-1 at the finest level, sigma^2 = sum w r^2 /
+  // (sum w - DoF). Neighbouring residuals are not independent (interpolation, blur, and the
+  // texture-phase error of a rendered reference are smooth), so the least-squares covariance
+  // is inflated by f = ((1 + rho) / (1 - rho))^2, the variance factor of a 2-D field whose
+  // neighbours correlate by rho (first-order autoregressive in each axis); rho is measured on
+  // horizontally adjacent used pixels at the end, clamped to [0, 0.9]. To that the
+  // registration floor (TrackerOptions::registration_floor_px) is added.
   Eigen::Matrix<double, DoF, DoF> covariance = Eigen::Matrix<double, DoF, DoF>::Zero();
+  double residual_correlation = 0;   // rho
+  double covariance_inflation = 1;   // f
   double ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
 };
 
@@ -138,6 +155,7 @@ class Tracker {
   const TrackResult<Warp>& solve(const Pinhole<S>& K0, const Params& init, const ImageView<const float>* weights,
                                  LevelWeights* level_weights);
   void learned_weights(int n, int level, const Params& p, const Pinhole<S>& K, LevelWeights& lw);
+  double residual_correlation(int n) const;  // of the residuals of the last evaluate() at the finest level
   int select_pixels(int level, const Pinhole<S>& K);
   void robust_weights(int n, const ImageView<const float>* weights, int level);
   // Residuals and J^T W r at `p`; returns the valid count, fills cost (sum w r^2), sum of w
@@ -156,6 +174,11 @@ class Tracker {
   std::vector<S> r_;                        // residual scratch (C per pixel)
   std::vector<unsigned char> ok_;           // landed inside the live image
   std::vector<S> abs_;                      // scratch: absolute residuals
+  Eigen::Matrix<double, DoF, DoF> motion0_;  // sum over used finest-level pixels of dW^T dW
+  // Per finest-level pixel dW^T d for the image motions of the registration floor (shift in
+  // u, in v, rotation and scale about the principal point), summed; and the sum of r^2.
+  Eigen::Matrix<double, DoF, 4> floor0_;
+  double radius2_sum_ = 0;
   const Level* cur_level_ = nullptr;
   // Per chunk of kChunk pixels: partial sums, combined in chunk order.
   static constexpr int kChunk = 2048;
