@@ -10,7 +10,7 @@ CC=clang CXX=clang++ cmake -S . -B build/fuzz -DCMAKE_BUILD_TYPE=RelWithDebInfo 
   -DTERRALIGN_SANITIZE=ON -DTERRALIGN_BUILD_TESTS=OFF -DTERRALIGN_BUILD_TOOLS=OFF -DTERRALIGN_BUILD_BENCH=OFF >/dev/null
 cmake --build build/fuzz -j "$(nproc)"
 mkdir -p fuzz/artifacts
-for t in manifest camera world_file geotiff pfm pose; do
+for t in manifest camera world_file geotiff pfm pose weights; do
   work=$(mktemp -d)
   echo "fuzz_$t: ${seconds} s"
   status=0

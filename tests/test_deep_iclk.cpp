@@ -112,14 +112,14 @@ TEST_CASE("learned tracker: same bytes on 1 and 2 threads, and no heap allocatio
   CHECK(a.iterations == b.iterations);
 }
 
-TEST_CASE("learned tracker: refuses a size that does not halve three times and weights without an M-estimator") {
+TEST_CASE("learned tracker: refuses a size too small for its levels and another network's weights") {
   const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
-  auto odd = cli::DeepAligner::create(weights, 188, 120, options(), 1);
-  REQUIRE_FALSE(odd.ok());
-  CHECK(odd.error().message.find("188 x 120") != std::string::npos);
+  auto small = cli::DeepAligner::create(weights, 188, 100, options(), 1);
+  REQUIRE_FALSE(small.ok());
+  CHECK(small.error().message.find("188 x 100") != std::string::npos);
   // Lv et al.'s converted checkpoint has an encoder of 8 input channels: not this pipeline's.
   const nn::WeightFile lv = load("weights/lv19_tum_abc.tlw");
-  auto other = cli::DeepAligner::create(lv, 184, 120, options(), 1);
+  auto other = cli::DeepAligner::create(lv, 192, 128, options(), 1);
   REQUIRE_FALSE(other.ok());
   MESSAGE(other.error().message);
 }

@@ -5,9 +5,9 @@ file (.tlw) that `terralign align --method nn --weights FILE` reads.
   /usr/bin/python3 training/export_deep.py CHECKPOINT.pt OUT.tlw [--note "data, licence, commit"]
 
 The architecture text holds two networks, `encoder` (input x: 3 channels, normalised RGB;
-outputs f0..f3: one-channel features per level) and `mestimator` (input x: |r|, f_ref, f_live,
+outputs f0..fN-1: one-channel features per level) and `mestimator` (input x: |r|, f_ref, f_live,
 w_prev; output w), and comment lines the C++ reads: `# input-scale 0.5` (the working
-resolution relative to the camera) and `# levels 4`.
+resolution relative to the camera) and `# levels N` (the encoder's and the solver's).
 """
 import argparse
 import os
@@ -26,7 +26,7 @@ def architecture(size, note):
     enc = D.SIZES[size]["encoder"]
     a, b, c = D.SIZES[size]["mest"]
     lines = ["terralign-net 1", f"# terralign learned tracker, size {size}", f"# input-scale {INPUT_SCALE}",
-             "# levels 4"]
+             f"# levels {len(enc)}"]
     lines += [f"# {n}" for n in note.splitlines() if n.strip()]
     lines += ["", "net encoder", "input x 3"]
     prev, outs = "x", []

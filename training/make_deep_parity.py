@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Writes the learned tracker's parity vectors: validation pairs from a `terralign dataset`
-folder, cropped to 184 x 120 around the centre (intrinsics shifted to match), aligned by
+folder, cropped to 192 x 128 around the centre (intrinsics shifted to match), aligned by
 training/deep_iclk.py with the given weights (20 iterations per level, identity start), in
 float32. tests/test_deep_iclk.cpp runs the C++ pipeline on the same inputs and weights and
 compares the final pose (1e-4 rad, 1e-3 of the altitude).
@@ -25,7 +25,7 @@ import deep_iclk as D  # noqa: E402
 import tlw  # noqa: E402
 from train_deep import PairSet  # noqa: E402
 
-CROP_W, CROP_H = 184, 120
+CROP_W, CROP_H = 192, 128
 
 
 def main():

@@ -133,7 +133,7 @@ def plot(out):
     va = [r for r in rows if r["kind"] == "val"]
     ax[0].plot([int(r["step"]) for r in tr], [float(r["loss"]) for r in tr], lw=0.8)
     ax[0].set_xlabel("step")
-    ax[0].set_ylabel("training loss: EPE summed over 4 levels (m), mean of 50 steps")
+    ax[0].set_ylabel("training loss: EPE summed over levels (m), mean of 50 steps")
     ax[0].set_yscale("log")
     for key, lab in (("init_median", "init median"), ("final_median", "NN (20) median"), ("final_mean", "NN (20) mean")):
         ax[1].plot([int(r["step"]) for r in va], [float(r[key]) for r in va], marker="o", label=lab)
@@ -160,6 +160,7 @@ def main():
     p.add_argument("--val-every", type=int, default=250)
     p.add_argument("--val-count", type=int, default=64)
     p.add_argument("--resume", action="store_true")
+    p.add_argument("--init", help="start from this checkpoint's weights where the shapes match (warm start)")
     a = p.parse_args()
     torch.set_num_threads(a.threads)
     torch.manual_seed(a.seed)
@@ -183,6 +184,12 @@ def main():
         torch.set_rng_state(ck["torch_rng"])
         print(f"resumed at step {step}", flush=True)
     else:
+        if a.init:
+            src = torch.load(a.init, map_location="cpu")["model"]
+            own = model.state_dict()
+            take = {k: v for k, v in src.items() if k in own and own[k].shape == v.shape}
+            model.load_state_dict(take, strict=False)
+            print(f"warm start from {a.init}: {len(take)} of {len(own)} tensors", flush=True)
         with open(log_path, "w") as f:
             f.write("kind,step,loss,init_mean,init_median,final_mean,final_median,seconds\n")
         with open(os.path.join(a.out, "config.txt"), "w") as f:

@@ -1,10 +1,11 @@
 #include "deep_iclk.hpp"
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdlib>
 #include <sstream>
 
-#include <terralign/nn/kernels.hpp>
 
 namespace terralign::cli {
 namespace {
@@ -17,37 +18,77 @@ double elapsed_ms(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
 }
 
+// The value of a "# key value" comment line of the architecture text, if any.
+bool comment_value(const nn::WeightFile& weights, const std::string& key, std::string& line, double& value) {
+  std::istringstream in(weights.architecture);
+  const std::string prefix = "# " + key + " ";
+  while (std::getline(in, line)) {
+    if (line.compare(0, prefix.size(), prefix) != 0) continue;
+    char* end = nullptr;
+    value = std::strtod(line.c_str() + prefix.size(), &end);
+    if (end == line.c_str() + prefix.size() || (*end && *end != ' ')) value = NAN;
+    return true;
+  }
+  return false;
+}
+
+// Bilinear resize of one channel, PyTorch's interpolate(size, align_corners = False): the
+// source coordinate of output pixel i is (i + 0.5) in / out - 0.5, clamped at 0.
+void resize_bilinear(const nn::Tensor& in, ImageF& out, int w, int h) {
+  auto src = [](int i, int n_in, int n_out, int& i0, int& i1, float& f) {
+    float s = (static_cast<float>(i) + 0.5f) * (static_cast<float>(n_in) / static_cast<float>(n_out)) - 0.5f;
+    s = std::max(s, 0.0f);
+    i0 = std::min(static_cast<int>(s), n_in - 1);
+    i1 = std::min(i0 + 1, n_in - 1);
+    f = s - static_cast<float>(i0);
+  };
+  for (int y = 0; y < h; ++y) {
+    int ya, yb;
+    float fy;
+    src(y, in.h, h, ya, yb, fy);
+    for (int x = 0; x < w; ++x) {
+      int xa, xb;
+      float fx;
+      src(x, in.w, w, xa, xb, fx);
+      const float a = in.at(ya, xa)[0], b = in.at(ya, xb)[0], c = in.at(yb, xa)[0], d = in.at(yb, xb)[0];
+      out.at(x, y) = (1.0f - fy) * ((1.0f - fx) * a + fx * b) + fy * ((1.0f - fx) * c + fx * d);
+    }
+  }
+}
+
 }  // namespace
 
 Result<double> DeepAligner::input_scale(const nn::WeightFile& weights) {
-  std::istringstream in(weights.architecture);
   std::string line;
-  while (std::getline(in, line)) {
-    const std::string key = "# input-scale ";
-    if (line.compare(0, key.size(), key) != 0) continue;
-    char* end = nullptr;
-    const double s = std::strtod(line.c_str() + key.size(), &end);
-    if (!(s > 0 && s <= 1) || (*end && *end != ' '))
-      return Error{weights.name + ": '" + line + "': the input scale must be in (0, 1]"};
-    return s;
-  }
-  return 0.5;
+  double s = 0.5;
+  if (comment_value(weights, "input-scale", line, s) && !(s > 0 && s <= 1))
+    return Error{weights.name + ": '" + line + "': the input scale must be in (0, 1]"};
+  return s;
+}
+
+Result<int> DeepAligner::levels(const nn::WeightFile& weights) {
+  std::string line;
+  double n = 4;
+  if (comment_value(weights, "levels", line, n) && !(n >= 1 && n <= kMaxLevels && n == std::floor(n)))
+    return Error{weights.name + ": '" + line + "': levels must be an integer in [1, " + std::to_string(kMaxLevels) + "]"};
+  return static_cast<int>(n);
 }
 
 Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& weights, int width, int height,
                                                          const iclk::TrackerOptions& options, int threads) {
-  if (width < 16 || height < 16 || width % (1 << (kLevels - 1)) || height % (1 << (kLevels - 1)))
+  TERRALIGN_TRY_ASSIGN(const int levels, DeepAligner::levels(weights));
+  if ((width >> (levels - 1)) < 8 || (height >> (levels - 1)) < 8)
     return Error{"the learned tracker's working size " + std::to_string(width) + " x " + std::to_string(height) +
-                 " must be at least 16 x 16 and divisible by " + std::to_string(1 << (kLevels - 1)) +
-                 " (each level halves it exactly)"};
+                 " is too small for " + std::to_string(levels) + " levels (the coarsest must be at least 8 x 8)"};
   std::unique_ptr<DeepAligner> D(new DeepAligner);
   D->width_ = width;
   D->height_ = height;
+  D->levels_ = levels;
   TERRALIGN_TRY_ASSIGN(D->encoder_, nn::Network::plan(weights, "encoder", width, height, threads));
   if (const nn::Tensor* x = D->encoder_->input("x"); !x || x->c != 3)
     return Error{weights.name + ": the encoder must take x, 3 channels of normalised RGB" +
                  (x ? " (this one takes " + std::to_string(x->c) + ")" : std::string(" (it has no input x)"))};
-  for (int l = 0; l < kLevels; ++l) {
+  for (int l = 0; l < levels; ++l) {
     const std::string name = "f" + std::to_string(l);
     const nn::Tensor* f = D->encoder_->output(name);
     if (!f || f->c != 1 || f->w != width >> l || f->h != height >> l)
@@ -65,9 +106,9 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
     D->ref_v_[static_cast<std::size_t>(l)] = D->ref_f_[static_cast<std::size_t>(l)].view();
     D->live_v_[static_cast<std::size_t>(l)] = D->live_f_[static_cast<std::size_t>(l)].view();
   }
-  D->up_.allocate(height, width, 1);  // used at each level's size (h and w set per level; the row stride stays)
+  D->up_.resize(width, height, 1);  // used at each level's size, as the top-left part
   iclk::TrackerOptions o = options;
-  o.levels = kLevels;
+  o.levels = levels;
   o.normalize = true;
   o.block.fill(1);
   o.robust = iclk::Robust::None;
@@ -84,7 +125,7 @@ void DeepAligner::set_iterations(int n) {
   tracker_->set_options(o);
 }
 
-void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kLevels>& out) {
+void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out) {
   nn::Tensor* x = encoder_->input("x");
   for (int y = 0; y < height_; ++y) {
     const float* s = rgb.row(y);
@@ -94,7 +135,7 @@ void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kLevels>
     }
   }
   encoder_->forward();
-  for (int l = 0; l < kLevels; ++l) {
+  for (int l = 0; l < levels_; ++l) {
     const nn::Tensor* f = encoder_->output("f" + std::to_string(l));
     ImageF& o = out[static_cast<std::size_t>(l)];
     for (int y = 0; y < f->h; ++y)
@@ -108,22 +149,17 @@ void DeepAligner::weights(int level, ImageView<const float> abs_r, ImageView<con
   nn::Network& m = *mest_[static_cast<std::size_t>(level)];
   nn::Tensor* x = m.input("x");
   const int w = abs_r.width, h = abs_r.height;
-  // The previous (coarser) level's weights, bilinear x2 (align_corners = False); ones at the
-  // coarsest level.
-  const bool coarsest = level == kLevels - 1;
-  if (!coarsest) {
-    const nn::Tensor* prev = mest_[static_cast<std::size_t>(level + 1)]->output("w");
-    up_.h = h;
-    up_.w = w;
-    nn::upsample2_rows(*prev, up_, 0, h);
-  }
+  // The previous (coarser) level's weights resized to this level (bilinear, align_corners =
+  // False); ones at the coarsest level.
+  const bool coarsest = level == levels_ - 1;
+  if (!coarsest) resize_bilinear(*mest_[static_cast<std::size_t>(level + 1)]->output("w"), up_, w, h);
   for (int y = 0; y < h; ++y)
     for (int i = 0; i < w; ++i) {
       float* p = x->at(y, i);
       p[0] = abs_r.at(i, y);
       p[1] = ref.at(i, y);
       p[2] = live.at(i, y);
-      p[3] = coarsest ? 1.0f : up_.at(y, i)[0];
+      p[3] = coarsest ? 1.0f : up_.at(i, y);
     }
   m.forward();
   const nn::Tensor* wt = m.output("w");

@@ -5,8 +5,9 @@
 // checks the final pose against PyTorch's).
 //
 // It works at the weight file's input scale (`# input-scale 0.5`: half the camera's size),
-// the size the network was trained at. Everything is sized by create(); align() allocates
-// nothing.
+// the size the network was trained at, with the weight file's number of levels (`# levels
+// 5`; the encoder outputs f0 .. f<levels-1>, level l of size (w >> l) x (h >> l)).
+// Everything is sized by create(); align() allocates nothing.
 #pragma once
 
 #include <array>
@@ -24,14 +25,16 @@ namespace terralign::cli {
 class DeepAligner : public iclk::LevelWeights {
  public:
   using Warp = iclk::SE3DepthWarp<float>;
-  static constexpr int kLevels = 4;
+  static constexpr int kMaxLevels = 6;
 
   // width x height: the working size (the images align() takes). `options`: the tracker's;
-  // levels, block and normalize are set here (4 levels, every pixel, normalised features).
+  // levels, block and normalize are set here (the weights' levels, every pixel, normalised
+  // features).
   static Result<std::unique_ptr<DeepAligner>> create(const nn::WeightFile& weights, int width, int height,
                                                      const iclk::TrackerOptions& options, int threads);
-  // The input scale a weight file asks for (0.5 when it says nothing).
+  // The input scale a weight file asks for (0.5 when it says nothing) and its levels (4).
   static Result<double> input_scale(const nn::WeightFile& weights);
+  static Result<int> levels(const nn::WeightFile& weights);
 
   // ref_rgb, live_rgb: 3-channel, 0..255; ref_depth: metres, NaN where none; K: pinhole of
   // the working size; init: T_live_ref to start from.
@@ -39,6 +42,7 @@ class DeepAligner : public iclk::LevelWeights {
                                        ImageView<const float> live_rgb, const iclk::Pinhole<float>& K,
                                        const iclk::SE3<float>& init);
   void set_iterations(int n);
+  int level_count() const { return levels_; }
   // The weights of each level from the last align() (level 0 finest), for figures and tests.
   const ImageF& weights_of(int level) const { return w_[static_cast<std::size_t>(level)]; }
   double ms_encoder() const { return ms_encoder_; }
@@ -49,13 +53,13 @@ class DeepAligner : public iclk::LevelWeights {
 
  private:
   DeepAligner() = default;
-  void encode(ImageView<const float> rgb, std::array<ImageF, kLevels>& out);
-  int width_ = 0, height_ = 0;
+  void encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out);
+  int width_ = 0, height_ = 0, levels_ = 0;
   std::unique_ptr<nn::Network> encoder_;
-  std::array<std::unique_ptr<nn::Network>, kLevels> mest_;
-  std::array<ImageF, kLevels> ref_f_, live_f_, w_;
-  std::array<ImageView<const float>, kLevels> ref_v_, live_v_;
-  nn::Tensor up_;
+  std::array<std::unique_ptr<nn::Network>, kMaxLevels> mest_;
+  std::array<ImageF, kMaxLevels> ref_f_, live_f_, w_;
+  std::array<ImageView<const float>, kMaxLevels> ref_v_, live_v_;
+  ImageF up_;
   std::unique_ptr<iclk::Tracker<float, Warp, 1>> tracker_;
   double ms_encoder_ = 0, ms_mest_ = 0;
 };
