@@ -3,6 +3,8 @@
 // (20 iterations per level) for each weight file given, on the same pairs (NAIP 2016 map,
 // 2017 camera images, the eval protocol's priors: 700-900 m, tilt 10 deg, seed 3), 2 threads.
 // Prints medians per stage, frames per second, and the ratio to the classical tracker.
+// Then the peak resident memory of `terralign align` on the sample map, classic and nn, each
+// a child process (getrusage of the children).
 //   build/release/bench/bench_localize [N] [weights.tlw ...]   (default: 20 pairs, the shipped weights)
 #include <algorithm>
 #include <chrono>
@@ -11,6 +13,9 @@
 #include <string>
 #include <vector>
 
+#include <sys/resource.h>
+
+#include <terralign/geo/image_io.hpp>
 #include <terralign/geo/map.hpp>
 #include <terralign/nn/weights.hpp>
 #include <terralign/raster/renderer.hpp>
@@ -97,5 +102,25 @@ int main(int argc, char** argv) {
   for (const auto& r : rows)
     std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.0f | %.2f | %d/%d |\n", r.name.c_str(), r.render, r.encoder,
                 r.mest, r.align, r.total, 1000.0 / r.total, r.total / rows[0].total, r.converged, n);
+#if defined(TERRALIGN_CLI)
+  // Peak RSS of the command-line program on one localisation (the first pair), each method in
+  // its own child; ru_maxrss of the children is the largest so far, so classic runs first.
+  char pose[256];
+  const auto& pr = samples.value()[0].prior;
+  std::snprintf(pose, sizeof pose, "%.6f %.6f %.6f %.9f %.9f %.9f %.9f", pr.t_W_C.x(), pr.t_W_C.y(), pr.t_W_C.z(), pr.q_W_C.w(),
+                pr.q_W_C.x(), pr.q_W_C.y(), pr.q_W_C.z());
+  const std::string img = "/tmp/bench_localize_live.png";
+  if (!geo::save_png(img, live[0].view()).ok()) return 1;
+  std::printf("\npeak resident memory of terralign align (752x480, sample map):\n");
+  for (const char* method : {"classic", "nn"}) {
+    const std::string cmd = std::string(TERRALIGN_CLI) + " align --map " TERRALIGN_SOURCE_DIR "/data/naip_west/map.json --camera " +
+                            TERRALIGN_SOURCE_DIR "/data/cameras/uav_752x480.json --layer 2016 --image " + img + " --prior \"" + pose +
+                            "\" --method " + method + " > /dev/null 2>&1";
+    const int rc = std::system(cmd.c_str());
+    rusage ru{};
+    getrusage(RUSAGE_CHILDREN, &ru);
+    std::printf("  %-8s %.1f MiB (exit %d)\n", method, static_cast<double>(ru.ru_maxrss) / 1024.0, rc);
+  }
+#endif
   return 0;
 }

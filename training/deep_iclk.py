@@ -239,6 +239,9 @@ class DeepICLK(nn.Module):
         t = torch.zeros(B, 3, dtype=dtype) if t0 is None else t0
         X0 = points(dp[0][0], Ks[0])
         losses, weights = [], [None] * self.levels
+        # The largest step (rad, or translation / median depth) per sample; the C++ solver
+        # calls a step over 0.35 a divergence (TrackerOptions::max_step_rotation/translation).
+        self.max_step = torch.zeros(B, dtype=dtype)
         w_prev = None
         for level in range(self.levels - 1, -1, -1):
             Kl = Ks[level]
@@ -259,6 +262,9 @@ class DeepICLK(nn.Module):
             w_prev = w
             Wm = w * mask
             Jf = J.flatten(2)  # B x 6 x n
+            with torch.no_grad():  # the C++ solver's step bound is in units of the median depth
+                med = torch.stack([d[m > 0].median() if (m > 0).any() else d.new_tensor(1.0)
+                                   for d, m in zip(depth[:, 0], mask[:, 0])])
             for _ in range(self.iterations):
                 val, inside = warp_sample(f_live, X, R, t, Kl)
                 r = (val - f_ref).flatten(2)
@@ -269,6 +275,9 @@ class DeepICLK(nn.Module):
                 A = A + 1e-12 * torch.eye(6, dtype=A.dtype)  # keeps solve defined when nothing is seen
                 delta = torch.linalg.solve(A, g.unsqueeze(-1)).squeeze(-1).to(dtype)
                 R, t = compose_inverse_exp(R, t, delta)
+                with torch.no_grad():
+                    self.max_step = torch.maximum(self.max_step, torch.maximum(
+                        delta[:, :3].norm(dim=1), delta[:, 3:].norm(dim=1) / med))
             if truth is not None:
                 losses.append(epe(R, t, truth[0], truth[1], X0, dp[0][1]))
         return R, t, losses, (weights if return_weights else None)
