@@ -90,8 +90,10 @@ std::string plan_error(const WeightFile& wf) {
 TEST_CASE("parity with PyTorch: Lv et al.'s encoder and M-estimator reproduce every level with NMSE <= 1e-7") {
   const WeightFile weights = load("weights/lv19_tum_abc.tlw");
   const WeightFile ref = load("tests/data/nn/lv19_tum_parity.tlw");
-  for (Simd simd : {Simd::Scalar, Simd::Avx2, Simd::Avx512}) {
-    if ((simd == Simd::Avx2 && !nn_cpu_has_avx2()) || (simd == Simd::Avx512 && !nn_cpu_has_avx512())) continue;
+  for (Simd simd : {Simd::Scalar, Simd::Avx2, Simd::Avx512, Simd::Neon}) {
+    if ((simd == Simd::Avx2 && !nn_cpu_has_avx2()) || (simd == Simd::Avx512 && !nn_cpu_has_avx512()) ||
+        (simd == Simd::Neon && !nn_cpu_has_neon()))
+      continue;
     auto enc = Network::plan(weights, "encoder", 160, 120, 2, simd);
     REQUIRE(enc.ok());
     MESSAGE("conv kernels: " << std::string(enc.value()->simd_name()));
@@ -148,6 +150,46 @@ TEST_CASE("parity with PyTorch: Lv et al.'s encoder and M-estimator reproduce ev
       w_prev = *mest.value()->output("w");
     }
   }
+}
+
+TEST_CASE("the scalar and NEON convolutions agree on seeded random inputs") {
+  if (!nn_cpu_has_neon()) {
+    MESSAGE("skipped: no NEON kernel in this build (aarch64 only)");
+    return;
+  }
+#if defined(TERRALIGN_NN_NEON)
+  std::mt19937 rng(98);
+  std::normal_distribution<float> n01(0, 1);
+  for (int dil : {1, 2, 4})
+    for (auto [cin, cout] : {std::pair<int, int>{3, 5}, {16, 32}, {37, 24}, {64, 1}}) {
+      CAPTURE(dil);
+      CAPTURE(cin);
+      CAPTURE(cout);
+      Tensor in, a, b;
+      in.allocate(13, 29, cin);
+      a.allocate(13, 29, cout);
+      b.allocate(13, 29, cout);
+      for (int y = 0; y < 13; ++y)
+        for (int x = 0; x < 29; ++x)
+          for (int c = 0; c < cin; ++c) in.at(y, x)[c] = n01(rng);
+      std::vector<float> wt(static_cast<std::size_t>(cout) * cin * 9), bias(static_cast<std::size_t>(cout));
+      for (auto& v : wt) v = n01(rng) * 0.2f;
+      for (auto& v : bias) v = n01(rng);
+      const ConvWeights w = pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu);
+      conv3x3_rows_scalar(in, w, a, 0, 13);
+      conv3x3_rows_neon(in, w, b, 0, 13);
+      // As for AVX2: FMA rounds once where the scalar build may round twice, and ELU's exp is
+      // a polynomial to 2e-7: |a - b| within 1e-5 of the output's scale.
+      double worst = 0, scale = 0;
+      for (int y = 0; y < 13; ++y)
+        for (int x = 0; x < 29; ++x)
+          for (int k = 0; k < cout; ++k) {
+            worst = std::max(worst, double(std::abs(a.at(y, x)[k] - b.at(y, x)[k])));
+            scale = std::max(scale, double(std::abs(a.at(y, x)[k])));
+          }
+      CHECK(worst <= 1e-5 * std::max(scale, 1.0));
+    }
+#endif
 }
 
 TEST_CASE("the scalar, AVX2 and AVX-512 convolutions agree on seeded random inputs") {
@@ -306,6 +348,10 @@ TEST_CASE("every conv kernel's ELU matches expm1 to 5e-7 (the vector wrappers' e
     kernels.push_back({"avx512", conv3x3_rows_avx512});
     blocks.push_back(16);
   }
+#endif
+#if defined(TERRALIGN_NN_NEON)
+  kernels.push_back({"neon", conv3x3_rows_neon});
+  blocks.push_back(8);
 #endif
   for (std::size_t k = 0; k < kernels.size(); ++k) {
     CAPTURE(kernels[k].first);

@@ -15,6 +15,14 @@ bool nn_cpu_has_avx2() {
 #endif
 }
 
+bool nn_cpu_has_neon() {
+#if defined(TERRALIGN_NN_NEON)
+  return true;
+#else
+  return false;
+#endif
+}
+
 bool nn_cpu_has_avx512() {
 #if defined(TERRALIGN_NN_AVX2)
   return cpu_features().avx512f;

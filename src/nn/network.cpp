@@ -113,8 +113,8 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
   std::unique_ptr<Network> N(new Network);
   N->desc_ = *desc;
   // The kernel, picked once: its block width decides how the weights are packed.
-  const bool avx2 = nn_cpu_has_avx2(), avx512 = nn_cpu_has_avx512();
-  if ((simd == Simd::Avx2 && !avx2) || (simd == Simd::Avx512 && !avx512))
+  const bool avx2 = nn_cpu_has_avx2(), avx512 = nn_cpu_has_avx512(), neon = nn_cpu_has_neon();
+  if ((simd == Simd::Avx2 && !avx2) || (simd == Simd::Avx512 && !avx512) || (simd == Simd::Neon && !neon))
     return Error{"network " + net + ": the requested SIMD kernels are not available on this CPU or build"};
   int block = 8;
 #if defined(TERRALIGN_NN_AVX2)
@@ -125,6 +125,12 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
   } else if (avx2 && (simd == Simd::Auto || simd == Simd::Avx2)) {
     N->conv_ = conv3x3_rows_avx2;
     N->simd_name_ = "avx2";
+  }
+#endif
+#if defined(TERRALIGN_NN_NEON)
+  if (neon && (simd == Simd::Auto || simd == Simd::Neon)) {
+    N->conv_ = conv3x3_rows_neon;
+    N->simd_name_ = "neon";
   }
 #endif
   N->tensors_.reserve(N->desc_.nodes.size());

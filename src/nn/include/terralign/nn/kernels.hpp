@@ -31,8 +31,12 @@ void conv3x3_rows_scalar(const Tensor& in, const ConvWeights& w, Tensor& out, in
 void conv3x3_rows_avx2(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
 void conv3x3_rows_avx512(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
 #endif
+#if defined(TERRALIGN_NN_NEON)
+void conv3x3_rows_neon(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
+#endif
 bool nn_cpu_has_avx2();
 bool nn_cpu_has_avx512();
+bool nn_cpu_has_neon();  // an aarch64 build
 
 // 2x2 average pooling (floor sizes), mean over channels to one channel, sigmoid in place,
 // bilinear 2x upsampling (PyTorch's align_corners = False, edges clamped), concatenation

@@ -48,7 +48,7 @@ struct NetDesc {
 
 Result<std::vector<NetDesc>> parse_architecture(const std::string& text, const std::string& where);
 
-enum class Simd { Auto, Scalar, Avx2, Avx512 };
+enum class Simd { Auto, Scalar, Avx2, Avx512, Neon };
 
 class Network {
  public:

@@ -1,0 +1,11 @@
+// aarch64 only (NEON and FMA are part of the base architecture).
+#include "conv_rows.hpp"
+#include "simd_neon.hpp"
+
+namespace terralign::nn {
+
+void conv3x3_rows_neon(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1) {
+  conv3x3_rows<VecNeon>(in, w, out, y0, y1);
+}
+
+}  // namespace terralign::nn

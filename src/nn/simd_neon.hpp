@@ -1,0 +1,50 @@
+// The NEON vector wrapper (4 floats), for aarch64 (where NEON and FMA are always present).
+#pragma once
+
+#include <arm_neon.h>
+
+namespace terralign::nn {
+
+// t (1 + t/2 + ... + t^5/720) by Horner: exp(t) - 1 to degree 6, as the AVX2 build.
+inline float32x4_t taylor6_neon(float32x4_t t) {
+  float32x4_t q = vdupq_n_f32(1.0f / 720.0f);
+  q = vfmaq_f32(vdupq_n_f32(1.0f / 120.0f), q, t);
+  q = vfmaq_f32(vdupq_n_f32(1.0f / 24.0f), q, t);
+  q = vfmaq_f32(vdupq_n_f32(1.0f / 6.0f), q, t);
+  q = vfmaq_f32(vdupq_n_f32(0.5f), q, t);
+  q = vfmaq_f32(vdupq_n_f32(1.0f), q, t);
+  return vmulq_f32(q, t);
+}
+
+// exp(x) - 1 for x <= 0, the same range reduction and polynomial as expm1_neg_avx2.
+inline float32x4_t expm1_neg_neon(float32x4_t x) {
+  x = vmaxq_f32(x, vdupq_n_f32(-87.0f));
+  const float32x4_t n = vrndnq_f32(vmulq_f32(x, vdupq_n_f32(1.44269504088896341f)));
+  const float32x4_t r = vfmsq_f32(x, n, vdupq_n_f32(0.693359375f));
+  const float32x4_t rr = vfmsq_f32(r, n, vdupq_n_f32(-2.12194440e-4f));
+  const float32x4_t er = vaddq_f32(taylor6_neon(rr), vdupq_n_f32(1.0f));
+  const int32x4_t e = vshlq_n_s32(vaddq_s32(vcvtnq_s32_f32(n), vdupq_n_s32(127)), 23);
+  const float32x4_t big = vsubq_f32(vmulq_f32(er, vreinterpretq_f32_s32(e)), vdupq_n_f32(1.0f));
+  const float32x4_t small = taylor6_neon(x);
+  return vbslq_f32(vcgtq_f32(x, vdupq_n_f32(-0.35f)), small, big);
+}
+
+struct VecNeon {
+  static constexpr int kWidth = 4;
+  static constexpr int kBlock = 8;       // output channels a weight block holds (two vectors)
+  static constexpr int kTilePixels = 6;  // output pixels a register tile holds
+  static constexpr int kTileBlocks = 2;  // 6 x 2 x 2 = 24 accumulators of 32 registers
+  float32x4_t v;
+  static VecNeon load(const float* p) { return {vld1q_f32(p)}; }
+  static VecNeon set1(float x) { return {vdupq_n_f32(x)}; }
+  void store(float* p) const { vst1q_f32(p, v); }
+  friend VecNeon fmadd(VecNeon a, VecNeon b, VecNeon c) { return {vfmaq_f32(c.v, a.v, b.v)}; }
+  friend VecNeon elu(VecNeon a) {
+    const float32x4_t zero = vdupq_n_f32(0.0f);
+    const float32x4_t neg = expm1_neg_neon(vminq_f32(a.v, zero));
+    return {vbslq_f32(vcgtq_f32(a.v, zero), a.v, neg)};
+  }
+  friend VecNeon relu(VecNeon a) { return {vmaxq_f32(a.v, vdupq_n_f32(0.0f))}; }
+};
+
+}  // namespace terralign::nn
