@@ -1,6 +1,7 @@
 #include <cmath>
 #include <cstring>
 #include <random>
+#include <tuple>
 
 #include <doctest/doctest.h>
 
@@ -152,13 +153,14 @@ TEST_CASE("parity with PyTorch: Lv et al.'s encoder and M-estimator reproduce ev
   }
 }
 
-TEST_CASE("the scalar and NEON convolutions agree on seeded random inputs") {
-  if (!nn_cpu_has_neon()) {
-    MESSAGE("skipped: no NEON kernel in this build (aarch64 only)");
-    return;
-  }
-#if defined(TERRALIGN_NN_NEON)
-  std::mt19937 rng(98);
+#if defined(TERRALIGN_NN_AVX2) || defined(TERRALIGN_NN_NEON)
+namespace {
+// Each vector kernel against the scalar build on seeded random inputs: FMA rounds once where
+// the scalar build may round twice, and ELU's exp is a polynomial to 2e-7 in the vector
+// builds (libm in the scalar one), so |scalar - vector| is bounded by 1e-5 of the output's
+// scale. `kernels`: name, function, weight block.
+void check_against_scalar(const std::vector<std::tuple<const char*, ConvRowsFn, int>>& kernels, unsigned seed) {
+  std::mt19937 rng(seed);
   std::normal_distribution<float> n01(0, 1);
   for (int dil : {1, 2, 4})
     for (auto [cin, cout] : {std::pair<int, int>{3, 5}, {16, 32}, {37, 24}, {64, 1}}) {
@@ -175,20 +177,31 @@ TEST_CASE("the scalar and NEON convolutions agree on seeded random inputs") {
       std::vector<float> wt(static_cast<std::size_t>(cout) * cin * 9), bias(static_cast<std::size_t>(cout));
       for (auto& v : wt) v = n01(rng) * 0.2f;
       for (auto& v : bias) v = n01(rng);
-      const ConvWeights w = pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu);
-      conv3x3_rows_scalar(in, w, a, 0, 13);
-      conv3x3_rows_neon(in, w, b, 0, 13);
-      // As for AVX2: FMA rounds once where the scalar build may round twice, and ELU's exp is
-      // a polynomial to 2e-7: |a - b| within 1e-5 of the output's scale.
-      double worst = 0, scale = 0;
-      for (int y = 0; y < 13; ++y)
-        for (int x = 0; x < 29; ++x)
-          for (int k = 0; k < cout; ++k) {
-            worst = std::max(worst, double(std::abs(a.at(y, x)[k] - b.at(y, x)[k])));
-            scale = std::max(scale, double(std::abs(a.at(y, x)[k])));
-          }
-      CHECK(worst <= 1e-5 * std::max(scale, 1.0));
+      conv3x3_rows_scalar(in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu), a, 0, 13);
+      for (const auto& [name, fn, block] : kernels) {
+        CAPTURE(name);
+        fn(in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu, block), b, 0, 13);
+        double worst = 0, scale = 0;
+        for (int y = 0; y < 13; ++y)
+          for (int x = 0; x < 29; ++x)
+            for (int k = 0; k < cout; ++k) {
+              worst = std::max(worst, double(std::abs(a.at(y, x)[k] - b.at(y, x)[k])));
+              scale = std::max(scale, double(std::abs(a.at(y, x)[k])));
+            }
+        CHECK(worst <= 1e-5 * std::max(scale, 1.0));
+      }
     }
+}
+}  // namespace
+#endif
+
+TEST_CASE("the scalar and NEON convolutions agree on seeded random inputs") {
+  if (!nn_cpu_has_neon()) {
+    MESSAGE("skipped: no NEON kernel in this build (aarch64 only)");
+    return;
+  }
+#if defined(TERRALIGN_NN_NEON)
+  check_against_scalar({{"neon", conv3x3_rows_neon, 8}}, 98);
 #endif
 }
 
@@ -198,51 +211,9 @@ TEST_CASE("the scalar, AVX2 and AVX-512 convolutions agree on seeded random inpu
     return;
   }
 #if defined(TERRALIGN_NN_AVX2)
-  std::mt19937 rng(99);
-  std::normal_distribution<float> n01(0, 1);
-  for (int dil : {1, 2, 4})
-    for (auto [cin, cout] : {std::pair<int, int>{3, 5}, {16, 32}, {37, 24}, {64, 1}}) {
-      CAPTURE(dil);
-      CAPTURE(cin);
-      CAPTURE(cout);
-      Tensor in, a, b;
-      in.allocate(13, 29, cin);
-      a.allocate(13, 29, cout);
-      b.allocate(13, 29, cout);
-      for (int y = 0; y < 13; ++y)
-        for (int x = 0; x < 29; ++x)
-          for (int c = 0; c < cin; ++c) in.at(y, x)[c] = n01(rng);
-      std::vector<float> wt(static_cast<std::size_t>(cout) * cin * 9), bias(static_cast<std::size_t>(cout));
-      for (auto& v : wt) v = n01(rng) * 0.2f;
-      for (auto& v : bias) v = n01(rng);
-      const ConvWeights w = pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu);
-      conv3x3_rows_scalar(in, w, a, 0, 13);
-      conv3x3_rows_avx2(in, w, b, 0, 13);
-      if (nn_cpu_has_avx512()) {
-        Tensor c;
-        c.allocate(13, 29, cout);
-        conv3x3_rows_avx512(in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu, 16), c, 0, 13);
-        double worst512 = 0;
-        for (int y = 0; y < 13; ++y)
-          for (int x = 0; x < 29; ++x)
-            for (int k = 0; k < cout; ++k) worst512 = std::max(worst512, double(std::abs(a.at(y, x)[k] - c.at(y, x)[k])));
-        double scale512 = 0;
-        for (int y = 0; y < 13; ++y)
-          for (int x = 0; x < 29; ++x)
-            for (int k = 0; k < cout; ++k) scale512 = std::max(scale512, double(std::abs(a.at(y, x)[k])));
-        CHECK(worst512 <= 1e-5 * std::max(scale512, 1.0));
-      }
-      // FMA rounds once where the scalar build rounds twice, and ELU's exp differs (libm
-      // versus a polynomial to 2e-7): bound |a - b| by 1e-5 of the output's scale.
-      double worst = 0, scale = 0;
-      for (int y = 0; y < 13; ++y)
-        for (int x = 0; x < 29; ++x)
-          for (int c = 0; c < cout; ++c) {
-            worst = std::max(worst, double(std::abs(a.at(y, x)[c] - b.at(y, x)[c])));
-            scale = std::max(scale, double(std::abs(a.at(y, x)[c])));
-          }
-      CHECK(worst <= 1e-5 * std::max(scale, 1.0));
-    }
+  std::vector<std::tuple<const char*, ConvRowsFn, int>> kernels{{"avx2", conv3x3_rows_avx2, 8}};
+  if (nn_cpu_has_avx512()) kernels.emplace_back("avx512", conv3x3_rows_avx512, 16);
+  check_against_scalar(kernels, 99);
 #endif
 }
 
