@@ -85,19 +85,20 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   D->height_ = height;
   D->levels_ = levels;
   TERRALIGN_TRY_ASSIGN(D->encoder_, nn::Network::plan(weights, "encoder", width, height, threads));
-  if (const nn::Tensor* x = D->encoder_->input("x"); !x || x->c != 3)
+  D->enc_in_ = D->encoder_->input("x");
+  if (const nn::Tensor* x = D->enc_in_; !x || x->c != 3)
     return Error{weights.name + ": the encoder must take x, 3 channels of normalised RGB" +
                  (x ? " (this one takes " + std::to_string(x->c) + ")" : std::string(" (it has no input x)"))};
   for (int l = 0; l < levels; ++l) {
     const std::string name = "f" + std::to_string(l);
-    const nn::Tensor* f = D->encoder_->output(name);
+    const nn::Tensor* f = D->enc_out_[static_cast<std::size_t>(l)] = D->encoder_->output(name);
     if (!f || f->c != 1 || f->w != width >> l || f->h != height >> l)
       return Error{weights.name + ": the encoder must output " + name + ", one channel of " + std::to_string(width >> l) +
                    " x " + std::to_string(height >> l)};
     auto& m = D->mest_[static_cast<std::size_t>(l)];
     TERRALIGN_TRY_ASSIGN(m, nn::Network::plan(weights, "mestimator", width >> l, height >> l, threads));
-    const nn::Tensor* x = m->input("x");
-    const nn::Tensor* w = m->output("w");
+    const nn::Tensor* x = D->mest_in_[static_cast<std::size_t>(l)] = m->input("x");
+    const nn::Tensor* w = D->mest_out_[static_cast<std::size_t>(l)] = m->output("w");
     if (!x || x->c != 4 || !w || w->c != 1)
       return Error{weights.name + ": the mestimator must take x (4 channels) and output w (1 channel)"};
     D->ref_f_[static_cast<std::size_t>(l)].resize(width >> l, height >> l, 1);
@@ -126,7 +127,7 @@ void DeepAligner::set_iterations(int n) {
 }
 
 void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out) {
-  nn::Tensor* x = encoder_->input("x");
+  nn::Tensor* x = enc_in_;
   for (int y = 0; y < height_; ++y) {
     const float* s = rgb.row(y);
     for (int i = 0; i < width_; ++i, s += 3) {
@@ -136,7 +137,7 @@ void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kMaxLeve
   }
   encoder_->forward();
   for (int l = 0; l < levels_; ++l) {
-    const nn::Tensor* f = encoder_->output("f" + std::to_string(l));
+    const nn::Tensor* f = enc_out_[static_cast<std::size_t>(l)];
     ImageF& o = out[static_cast<std::size_t>(l)];
     for (int y = 0; y < f->h; ++y)
       for (int i = 0; i < f->w; ++i) o.at(i, y) = f->at(y, i)[0];
@@ -147,12 +148,12 @@ void DeepAligner::weights(int level, ImageView<const float> abs_r, ImageView<con
                           ImageView<const float> live, ImageView<float> out) {
   const auto t0 = std::chrono::steady_clock::now();
   nn::Network& m = *mest_[static_cast<std::size_t>(level)];
-  nn::Tensor* x = m.input("x");
+  nn::Tensor* x = mest_in_[static_cast<std::size_t>(level)];
   const int w = abs_r.width, h = abs_r.height;
   // The previous (coarser) level's weights resized to this level (bilinear, align_corners =
   // False); ones at the coarsest level.
   const bool coarsest = level == levels_ - 1;
-  if (!coarsest) resize_bilinear(*mest_[static_cast<std::size_t>(level + 1)]->output("w"), up_, w, h);
+  if (!coarsest) resize_bilinear(*mest_out_[static_cast<std::size_t>(level + 1)], up_, w, h);
   for (int y = 0; y < h; ++y)
     for (int i = 0; i < w; ++i) {
       float* p = x->at(y, i);
@@ -162,7 +163,7 @@ void DeepAligner::weights(int level, ImageView<const float> abs_r, ImageView<con
       p[3] = coarsest ? 1.0f : up_.at(i, y);
     }
   m.forward();
-  const nn::Tensor* wt = m.output("w");
+  const nn::Tensor* wt = mest_out_[static_cast<std::size_t>(level)];
   ImageF& keep = w_[static_cast<std::size_t>(level)];
   for (int y = 0; y < h; ++y)
     for (int i = 0; i < w; ++i) out.at(i, y) = keep.at(i, y) = wt->at(y, i)[0];

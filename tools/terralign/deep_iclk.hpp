@@ -57,6 +57,12 @@ class DeepAligner : public iclk::LevelWeights {
   int width_ = 0, height_ = 0, levels_ = 0;
   std::unique_ptr<nn::Network> encoder_;
   std::array<std::unique_ptr<nn::Network>, kMaxLevels> mest_;
+  // The networks' tensors, looked up once: the encoder's input and level outputs, each
+  // level's M-estimator input and output.
+  nn::Tensor* enc_in_ = nullptr;
+  std::array<const nn::Tensor*, kMaxLevels> enc_out_{};
+  std::array<nn::Tensor*, kMaxLevels> mest_in_{};
+  std::array<const nn::Tensor*, kMaxLevels> mest_out_{};
   std::array<ImageF, kMaxLevels> ref_f_, live_f_, w_;
   std::array<ImageView<const float>, kMaxLevels> ref_v_, live_v_;
   ImageF up_;
