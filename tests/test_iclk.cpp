@@ -1,10 +1,16 @@
 #include <cmath>
+#include <cstring>
 #include <random>
+#include <utility>
+#include <vector>
 
 #include <doctest/doctest.h>
 
+#include <terralign/geo/cpu.hpp>
 #include <terralign/iclk/tracker.hpp>
 #include <terralign/raster/renderer.hpp>
+
+#include "../src/iclk/evaluate_kernels.hpp"
 
 #include "alloc_counter.hpp"
 #include "support.hpp"
@@ -212,24 +218,100 @@ TEST_CASE("a pair with no texture reports failure instead of a pose") {
   CHECK(res.params.R == Mat3<double>::Identity());  // the initial pose, never NaN
 }
 
-TEST_CASE("1 and 2 threads give the same pose, bit for bit") {
+TEST_CASE("1 and 2 threads, and the scalar and AVX2 residual kernels, give the same pose, bit for bit") {
   auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
   REQUIRE(map.ok());
   const geo::CameraModel cam = test::paper_camera();
   const Pair p = render_pair(map.value(), cam, geo::pose_from_ypr({487450, 5207437, 1370}, 10, 1, 0),
                              geo::pose_from_ypr({487458, 5207431, 1374}, 11, 0, 1), "2012", "2012");
   const Pinhole<float> K{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
-  TrackerOptions o1, o2;
+  TrackerOptions o1, o2, o3;
   o1.threads = 1;
   o2.threads = 2;
-  Tracker<float, SE3DepthWarp<float>, 1> t1(cam.width, cam.height, o1), t2(cam.width, cam.height, o2);
+  o3.simd = false;
+  Tracker<float, SE3DepthWarp<float>, 1> t1(cam.width, cam.height, o1), t2(cam.width, cam.height, o2),
+      t3(cam.width, cam.height, o3);
   const auto& r1 = t1.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());
-  const auto& r2 = t2.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());
-  CHECK(r1.converged);
-  CHECK(r1.iterations == r2.iterations);
-  CHECK(r1.params.R == r2.params.R);
-  CHECK(r1.params.t == r2.params.t);
-  CHECK(r1.covariance == r2.covariance);
+  for (auto* t : {&t2, &t3}) {
+    const auto& r2 = t->align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());
+    CHECK(r1.converged);
+    CHECK(r1.iterations == r2.iterations);
+    CHECK(r1.params.R == r2.params.R);
+    CHECK(r1.params.t == r2.params.t);
+    CHECK(r1.covariance == r2.covariance);
+  }
+}
+
+TEST_CASE("the residual kernel: AVX2 and scalar agree bit for bit, at the edges, behind the camera and on NaN") {
+#if defined(TERRALIGN_ICLK_AVX2)
+  if (!cpu_features().avx2_fma) {
+    MESSAGE("this CPU has no AVX2: only the scalar kernel runs here");
+    return;
+  }
+  using namespace detail;
+  const int W = 61, H = 37, n = 1000;
+  std::vector<float> px(n), py(n), pz(n), val(n), w(n), live(static_cast<std::size_t>(W) * H), jac[6];
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> U(-1, 1);
+  for (auto& v : live) v = U(rng);
+  for (int i = 0; i < n; ++i) {
+    // Depth 100; points spread over 1.4x the image so that some land outside; some behind the
+    // camera, some NaN; weights include 0.
+    pz[i] = i % 97 == 0 ? -5.0f : 100.0f;
+    px[i] = 70.0f * U(rng);
+    py[i] = 45.0f * U(rng);
+    if (i % 89 == 0) px[i] = NAN;
+    val[i] = U(rng);
+    w[i] = i % 7 == 0 ? 0.0f : 0.5f + 0.5f * U(rng);
+  }
+  for (auto& j : jac) {
+    j.resize(n);
+    for (auto& v : j) v = 10 * U(rng);
+  }
+  Se3EvalInput in{};
+  in.px = px.data();
+  in.py = py.data();
+  in.pz = pz.data();
+  in.val = val.data();
+  in.w = w.data();
+  for (int k = 0; k < 6; ++k) in.jac[k] = jac[k].data();
+  in.live = live.data();
+  in.stride = W;
+  in.width = W;
+  in.height = H;
+  const SE3<float> T = SE3<float>::exp((Vec6<float>() << 0.01f, -0.02f, 0.03f, 1.5f, -0.7f, 2.0f).finished());
+  for (int a = 0; a < 3; ++a) {
+    for (int b = 0; b < 3; ++b) in.R[3 * a + b] = T.R(a, b);
+    in.t[a] = T.t[a];
+  }
+  in.fx = in.fy = 40.0f;
+  in.cx = 30.0f;
+  in.cy = 18.0f;
+  // Ranges with a partial last group of eight, and one shorter than a group.
+  for (const auto& [i0, i1] : std::vector<std::pair<int, int>>{{0, n}, {3, 998}, {500, 505}}) {
+    std::vector<float> r1(n, 7.0f), r2(n, 7.0f);
+    std::vector<unsigned char> ok1(n, 9), ok2(n, 9);
+    Se3EvalSums s1{}, s2{};
+    evaluate_se3_scalar(in, i0, i1, r1.data(), ok1.data(), s1);
+    evaluate_se3_avx2(in, i0, i1, r2.data(), ok2.data(), s2);
+    CHECK(std::memcmp(r1.data(), r2.data(), n * sizeof(float)) == 0);
+    CHECK(ok1 == ok2);
+    CHECK(std::memcmp(&s1, &s2, sizeof s1) == 0);
+    int landed = 0;
+    for (int i = i0; i < i1; ++i) landed += ok1[static_cast<std::size_t>(i)];
+    CHECK(s1.valid == landed);
+    if (i1 - i0 > 100) {  // the case is not degenerate: some land, some do not
+      CHECK(landed > (i1 - i0) / 4);
+      CHECK(landed < i1 - i0);
+    }
+    for (const float g : s1.g[0]) CHECK(std::isfinite(g));
+    // Nothing written outside the range.
+    if (i0 > 0) CHECK((r2[static_cast<std::size_t>(i0 - 1)] == 7.0f && ok2[static_cast<std::size_t>(i0 - 1)] == 9));
+    if (i1 < n) CHECK((r2[static_cast<std::size_t>(i1)] == 7.0f && ok2[static_cast<std::size_t>(i1)] == 9));
+  }
+#else
+  MESSAGE("built without the AVX2 kernel");
+#endif
 }
 
 TEST_CASE("an alignment allocates nothing after set-up") {

@@ -7,6 +7,10 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 
+#include <terralign/geo/cpu.hpp>
+
+#include "evaluate_kernels.hpp"
+
 namespace terralign::iclk {
 namespace {
 
@@ -76,10 +80,23 @@ Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& option
   val_.resize(n * C);
   r_.resize(n * C);
   jac_.resize(n * C * DoF);
+  jac_stride_ = n;
   abs_.resize(n);
   partials_.resize(n / kChunk + 1);
   pool_ = std::make_unique<ThreadPool>(std::max(1, opt_.threads));
   ok_.resize(n);
+  pick_kernel();
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::pick_kernel() {
+  se3_kernel_ = nullptr;
+  if constexpr (kSe3Kernel) {
+    se3_kernel_ = detail::evaluate_se3_scalar;
+#if defined(TERRALIGN_ICLK_AVX2)
+    if (opt_.simd && cpu_features().avx2_fma) se3_kernel_ = detail::evaluate_se3_avx2;
+#endif
+  }
 }
 
 template <class S, class Warp, int C>
@@ -87,6 +104,7 @@ void Tracker<S, Warp, C>::set_options(const TrackerOptions& o) {
   const int levels = opt_.levels;
   opt_ = o;
   opt_.levels = std::max(1, std::min(levels, o.levels));
+  pick_kernel();
 }
 
 template <class S, class Warp, int C>
@@ -208,19 +226,21 @@ int Tracker<S, Warp, C>::select_pixels(int level, const Pinhole<S>& K) {
       const Vec3<S> X(d * (u - K.cx) / K.fx, d * (v - K.cy) / K.fy, d);
       const typename Warp::Jac dW = Warp::d_warp_d_xi(X, u, v, K);
       if (level == 0) {
-        const Eigen::Matrix<double, 2, DoF> dWd = dW.template cast<double>();
-        motion0_.template triangularView<Eigen::Lower>() += dWd.transpose() * dWd;
+        // motion0_ += dW^T dW (lower half) and floor0_ += dW^T modes, written out: Eigen's
+        // general products cost more per pixel than the arithmetic.
         const double du = static_cast<double>(u - K.cx), dv = static_cast<double>(v - K.cy);
-        Eigen::Matrix<double, 2, 4> modes;
-        modes << 1, 0, -dv, du, 0, 1, du, dv;
-        floor0_ += dWd.transpose() * modes;
+        const double modes[2][4] = {{1, 0, -dv, du}, {0, 1, du, dv}};
+        for (int a = 0; a < DoF; ++a) {
+          const double wu = static_cast<double>(dW(0, a)), wv = static_cast<double>(dW(1, a));
+          for (int b = 0; b <= a; ++b) motion0_(a, b) += wu * static_cast<double>(dW(0, b)) + wv * static_cast<double>(dW(1, b));
+          for (int m = 0; m < 4; ++m) floor0_(a, m) += wu * modes[0][m] + wv * modes[1][m];
+        }
         radius2_sum_ += du * du + dv * dv;
       }
       for (int c = 0; c < C; ++c) {
         S gx, gy;
         sobel(x, y, c, gx, gy);
-        S* J = &jac_[(static_cast<std::size_t>(n) * C + static_cast<std::size_t>(c)) * DoF];
-        for (int k = 0; k < DoF; ++k) J[k] = gx * dW(0, k) + gy * dW(1, k);
+        for (int k = 0; k < DoF; ++k) jac(n, c, k) = gx * dW(0, k) + gy * dW(1, k);
         val_[static_cast<std::size_t>(n) * C + static_cast<std::size_t>(c)] = static_cast<S>(L.ref.at(x, y, c));
       }
       pu_[static_cast<std::size_t>(n)] = u;
@@ -242,26 +262,63 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
   P.wsum = 0;
   P.valid = 0;
   const Level& Lv = *cur_level_;
-  const int i1 = std::min(n, (chunk + 1) * kChunk);
+  const int i0 = chunk * kChunk, i1 = std::min(n, (chunk + 1) * kChunk);
+  if constexpr (kSe3Kernel) {
+    detail::Se3EvalInput in;
+    in.px = px_.data();
+    in.py = py_.data();
+    in.pz = pz_.data();
+    in.val = val_.data();
+    in.w = w_.data();
+    for (int a = 0; a < DoF; ++a) in.jac[a] = &jac(0, 0, a);
+    in.live = Lv.live.data();
+    in.stride = Lv.w;
+    in.width = Lv.w;
+    in.height = Lv.h;
+    for (int a = 0; a < 3; ++a) {
+      for (int b = 0; b < 3; ++b) in.R[3 * a + b] = p.R(a, b);
+      in.t[a] = p.t[a];
+    }
+    in.fx = K.fx;
+    in.fy = K.fy;
+    in.cx = K.cx;
+    in.cy = K.cy;
+    detail::Se3EvalSums sums;
+    se3_kernel_(in, i0, i1, r_.data(), ok_.data(), sums);
+    // Lanes combined in lane order, in double.
+    for (int l = 0; l < detail::kLanes; ++l) {
+      for (int a = 0; a < DoF; ++a) P.g[a] += static_cast<double>(sums.g[a][l]);
+      P.cost += static_cast<double>(sums.cost[l]);
+      P.wsum += static_cast<double>(sums.wsum[l]);
+    }
+    P.valid = sums.valid;
+    for (int i = i0; i < i1; ++i) {
+      const std::size_t k = static_cast<std::size_t>(i);
+      const double w = static_cast<double>(w_[k]);
+      if (ok_[k] || !(w > 0)) continue;
+      for (int a = 0; a < DoF; ++a)
+        for (int b = 0; b <= a; ++b) P.H_out(a, b) += w * static_cast<double>(jac(i, 0, a)) * static_cast<double>(jac(i, 0, b));
+    }
+    return;
+  }
   // Within a chunk the sums run in S (float: vectorisable, and 2048 terms lose less than the
   // residuals' own precision); chunks are combined in double.
   S g_s[DoF] = {};
   S cost_s = 0, wsum_s = 0;
   int valid = 0;
-  for (int i = chunk * kChunk; i < i1; ++i) {
+  for (int i = i0; i < i1; ++i) {
     const std::size_t k = static_cast<std::size_t>(i);
     S u, v;
     const Vec3<S> X(px_[k], py_[k], pz_[k]);
     bool inside = Warp::apply(p, X, pu_[k], pv_[k], K, u, v);
     inside = inside && u >= S(0) && v >= S(0) && u <= S(Lv.w - 1) && v <= S(Lv.h - 1);
-    const S* J = &jac_[k * C * DoF];
     const double w = static_cast<double>(w_[k]);
     ok_[k] = inside;
     if (!inside) {
       if (w > 0)
         for (int c = 0; c < C; ++c)
           for (int a = 0; a < DoF; ++a)
-            for (int b = 0; b <= a; ++b) P.H_out(a, b) += w * static_cast<double>(J[c * DoF + a]) * static_cast<double>(J[c * DoF + b]);
+            for (int b = 0; b <= a; ++b) P.H_out(a, b) += w * static_cast<double>(jac(i, c, a)) * static_cast<double>(jac(i, c, b));
       continue;
     }
     const int x0 = std::min(static_cast<int>(u), Lv.w - 2), y0 = std::min(static_cast<int>(v), Lv.h - 2);
@@ -273,7 +330,7 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
       const S r = live - val_[k * C + static_cast<std::size_t>(c)];
       r_[k * C + static_cast<std::size_t>(c)] = r;
       const S wr = w_[k] * r;
-      for (int a2 = 0; a2 < DoF; ++a2) g_s[a2] += wr * J[c * DoF + a2];
+      for (int a2 = 0; a2 < DoF; ++a2) g_s[a2] += wr * jac(i, c, a2);
       cost_s += wr * r;
     }
     wsum_s += w_[k];
@@ -483,13 +540,12 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
     }
     H.setZero();
     for (int i = 0; i < n; ++i) {
-      const S* J = &jac_[static_cast<std::size_t>(i) * C * DoF];
       const double w = static_cast<double>(w_[static_cast<std::size_t>(i)]);
       if (w == 0) continue;
       for (int c = 0; c < C; ++c)
         for (int a = 0; a < DoF; ++a) {
-          const double wa = w * static_cast<double>(J[c * DoF + a]);
-          for (int b = 0; b <= a; ++b) H(a, b) += wa * static_cast<double>(J[c * DoF + b]);
+          const double wa = w * static_cast<double>(jac(i, c, a));
+          for (int b = 0; b <= a; ++b) H(a, b) += wa * static_cast<double>(jac(i, c, b));
         }
     }
     H = H.template selfadjointView<Eigen::Lower>();

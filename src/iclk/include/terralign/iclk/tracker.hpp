@@ -27,6 +27,7 @@
 
 #include <array>
 #include <memory>
+#include <type_traits>
 #include <vector>
 
 #include <Eigen/Core>
@@ -38,6 +39,10 @@
 #include <terralign/iclk/warps.hpp>
 
 namespace terralign::iclk {
+namespace detail {
+struct Se3EvalInput;
+struct Se3EvalSums;
+}  // namespace detail
 
 enum class Robust { None, Huber, Tukey };
 
@@ -69,6 +74,9 @@ struct TrackerOptions {
   // 0.1 px: about the position RMSE of same-year rendered flights (README, tracking).
   double registration_floor_px = 0.1;
   int threads = 1;                   // residuals in fixed chunks: same result on any count
+  // The vector (AVX2) residual kernel where the CPU has it; false: its scalar twin. Both give
+  // the same bits (evaluate_kernels.hpp); tests compare them.
+  bool simd = true;
   // Pixel selection per level (finest first): in each block x block cell the pixel with the
   // strongest gradient is used; 1 uses every pixel (as Lv et al. do). Sparse fine levels make
   // the classical solver about 10x faster for a small loss in precision (see bench_align).
@@ -169,7 +177,11 @@ class Tracker {
   // Per selected reference pixel (structure of arrays, sized for the finest level).
   std::vector<S> pu_, pv_, px_, py_, pz_;   // pixel and 3-D point in the reference camera
   std::vector<S> val_;                      // C reference feature values
-  std::vector<S> jac_;                      // C x DoF Jacobian rows
+  std::vector<S> jac_;                      // Jacobians, one array per channel and parameter
+  std::size_t jac_stride_ = 0;
+  S& jac(int i, int c, int a) {
+    return jac_[(static_cast<std::size_t>(c) * DoF + static_cast<std::size_t>(a)) * jac_stride_ + static_cast<std::size_t>(i)];
+  }
   std::vector<S> w_;                        // weight
   std::vector<S> r_;                        // residual scratch (C per pixel)
   std::vector<unsigned char> ok_;           // landed inside the live image
@@ -191,6 +203,11 @@ class Tracker {
   std::vector<Partial, Eigen::aligned_allocator<Partial>> partials_;
   std::unique_ptr<ThreadPool> pool_;
   void evaluate_chunk(int chunk, int n, const Params& p, const Pinhole<S>& K);
+  // The 6-DoF warp on one float channel has a vector kernel (evaluate_kernels.hpp).
+  static constexpr bool kSe3Kernel = std::is_same_v<S, float> && std::is_same_v<Warp, SE3DepthWarp<float>> && C == 1;
+  using Se3Kernel = void (*)(const detail::Se3EvalInput&, int, int, float*, unsigned char*, detail::Se3EvalSums&);
+  Se3Kernel se3_kernel_ = nullptr;
+  void pick_kernel();
   TrackResult<Warp> result_;
 };
 

@@ -1,0 +1,99 @@
+// AVX2 build of the residual kernel: eight pixels at once, the same operations in the same
+// order as evaluate_scalar.cpp (compiled with -mavx2 and without -mfma, so nothing fuses).
+#include "evaluate_kernels.hpp"
+
+#include <immintrin.h>
+
+#include <algorithm>
+#include <cstring>
+
+namespace terralign::iclk::detail {
+namespace {
+
+// p[idx[k]] and p[idx[k] + 1] for the eight lanes k, gathered as 64-bit pairs.
+inline void pairs(const float* p, __m256i idx, __m256& first, __m256& second) {
+  const auto* q = reinterpret_cast<const long long*>(p);
+  const __m256 lo = _mm256_castsi256_ps(_mm256_i32gather_epi64(q, _mm256_castsi256_si128(idx), 4));
+  const __m256 hi = _mm256_castsi256_ps(_mm256_i32gather_epi64(q, _mm256_extracti128_si256(idx, 1), 4));
+  // lo = f0 s0 f1 s1 | f2 s2 f3 s3, hi likewise for lanes 4..7.
+  const __m256 f = _mm256_shuffle_ps(lo, hi, _MM_SHUFFLE(2, 0, 2, 0));  // f0 f1 f4 f5 | f2 f3 f6 f7
+  const __m256 s = _mm256_shuffle_ps(lo, hi, _MM_SHUFFLE(3, 1, 3, 1));
+  first = _mm256_castpd_ps(_mm256_permute4x64_pd(_mm256_castps_pd(f), _MM_SHUFFLE(3, 1, 2, 0)));
+  second = _mm256_castpd_ps(_mm256_permute4x64_pd(_mm256_castps_pd(s), _MM_SHUFFLE(3, 1, 2, 0)));
+}
+
+}  // namespace
+
+void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& s) {
+  const __m256 one = _mm256_set1_ps(1.0f), zero = _mm256_setzero_ps(), zmin = _mm256_set1_ps(1e-6f);
+  const __m256 umax = _mm256_set1_ps(static_cast<float>(in.width - 1));
+  const __m256 vmax = _mm256_set1_ps(static_cast<float>(in.height - 1));
+  const __m256i xmax = _mm256_set1_epi32(in.width - 2), ymax = _mm256_set1_epi32(in.height - 2);
+  const __m256i stride = _mm256_set1_epi32(static_cast<int>(in.stride));
+  const __m256i lane_index = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  __m256 R[9], t[3];
+  for (int k = 0; k < 9; ++k) R[k] = _mm256_set1_ps(in.R[k]);
+  for (int k = 0; k < 3; ++k) t[k] = _mm256_set1_ps(in.t[k]);
+  const __m256 fxv = _mm256_set1_ps(in.fx), fyv = _mm256_set1_ps(in.fy);
+  const __m256 cxv = _mm256_set1_ps(in.cx), cyv = _mm256_set1_ps(in.cy);
+  __m256 g[6], cost = zero, wsum = zero;
+  for (auto& v : g) v = zero;
+  int valid = 0;
+  for (int i = i0; i < i1; i += kLanes) {
+    const int n = std::min(kLanes, i1 - i);
+    const __m256i load = _mm256_cmpgt_epi32(_mm256_set1_epi32(n), lane_index);
+    // Whole groups load plainly; the last, partial one with a mask (zeros past the end).
+    auto get = [&](const float* p) { return n == kLanes ? _mm256_loadu_ps(p + i) : _mm256_maskload_ps(p + i, load); };
+    const __m256 x = get(in.px), y = get(in.py), z = get(in.pz);
+    auto row = [&](int k) {
+      return _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(R[3 * k], x), _mm256_mul_ps(R[3 * k + 1], y)),
+                                         _mm256_mul_ps(R[3 * k + 2], z)),
+                           t[k]);
+    };
+    const __m256 X = row(0), Y = row(1), Z = row(2);
+    __m256 u = _mm256_add_ps(_mm256_div_ps(_mm256_mul_ps(fxv, X), Z), cxv);
+    __m256 v = _mm256_add_ps(_mm256_div_ps(_mm256_mul_ps(fyv, Y), Z), cyv);
+    __m256 inside = _mm256_and_ps(_mm256_castsi256_ps(load), _mm256_cmp_ps(Z, zmin, _CMP_GT_OQ));
+    inside = _mm256_and_ps(inside, _mm256_and_ps(_mm256_cmp_ps(u, zero, _CMP_GE_OQ), _mm256_cmp_ps(v, zero, _CMP_GE_OQ)));
+    inside = _mm256_and_ps(inside, _mm256_and_ps(_mm256_cmp_ps(u, umax, _CMP_LE_OQ), _mm256_cmp_ps(v, vmax, _CMP_LE_OQ)));
+    // Lanes that did not land sample pixel (0, 0); their results are masked below.
+    u = _mm256_and_ps(u, inside);
+    v = _mm256_and_ps(v, inside);
+    const __m256i x0 = _mm256_min_epi32(_mm256_cvttps_epi32(u), xmax);
+    const __m256i y0 = _mm256_min_epi32(_mm256_cvttps_epi32(v), ymax);
+    const __m256 fx = _mm256_sub_ps(u, _mm256_cvtepi32_ps(x0)), fy = _mm256_sub_ps(v, _mm256_cvtepi32_ps(y0));
+    const __m256i idx = _mm256_add_epi32(_mm256_mullo_epi32(y0, stride), x0);
+    // Each pixel's two horizontal neighbours as one 64-bit load: half the gathered elements.
+    __m256 a, b, c, d;
+    pairs(in.live, idx, a, b);
+    pairs(in.live + in.stride, idx, c, d);
+    const __m256 gx = _mm256_sub_ps(one, fx);
+    const __m256 top = _mm256_add_ps(_mm256_mul_ps(gx, a), _mm256_mul_ps(fx, b));
+    const __m256 bot = _mm256_add_ps(_mm256_mul_ps(gx, c), _mm256_mul_ps(fx, d));
+    const __m256 live = _mm256_add_ps(_mm256_mul_ps(_mm256_sub_ps(one, fy), top), _mm256_mul_ps(fy, bot));
+    const __m256 res = _mm256_and_ps(_mm256_sub_ps(live, get(in.val)), inside);
+    const __m256 w = _mm256_and_ps(get(in.w), inside);
+    const __m256 wr = _mm256_mul_ps(w, res);
+    for (int k = 0; k < 6; ++k) g[k] = _mm256_add_ps(g[k], _mm256_mul_ps(wr, get(in.jac[k])));
+    cost = _mm256_add_ps(cost, _mm256_mul_ps(wr, res));
+    wsum = _mm256_add_ps(wsum, w);
+    const int bits = _mm256_movemask_ps(inside);
+    valid += __builtin_popcount(static_cast<unsigned>(bits));
+    if (n == kLanes) {
+      _mm256_storeu_ps(r + i, res);
+      // The eight mask bits spread to eight bytes of 0 or 1.
+      const unsigned long long one_bit = (static_cast<unsigned long long>(bits) * 0x0101010101010101ULL) & 0x8040201008040201ULL;
+      const unsigned long long spread = ((one_bit + 0x7F7F7F7F7F7F7F7FULL) & 0x8080808080808080ULL) >> 7;
+      std::memcpy(ok + i, &spread, 8);
+    } else {
+      _mm256_maskstore_ps(r + i, load, res);
+      for (int k = 0; k < n; ++k) ok[i + k] = static_cast<unsigned char>((bits >> k) & 1);
+    }
+  }
+  for (int k = 0; k < 6; ++k) _mm256_storeu_ps(s.g[k], g[k]);
+  _mm256_storeu_ps(s.cost, cost);
+  _mm256_storeu_ps(s.wsum, wsum);
+  s.valid = valid;
+}
+
+}  // namespace terralign::iclk::detail

@@ -1,0 +1,46 @@
+// The scalar twin of evaluate_avx2.cpp: the same operations in the same order per lane.
+// Built with -ffp-contract=off (CMakeLists.txt) so no compiler fuses a multiply and an add.
+#include "evaluate_kernels.hpp"
+
+#include <algorithm>
+
+namespace terralign::iclk::detail {
+
+void evaluate_se3_scalar(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& s) {
+  for (int a = 0; a < 6; ++a) std::fill(s.g[a], s.g[a] + kLanes, 0.0f);
+  std::fill(s.cost, s.cost + kLanes, 0.0f);
+  std::fill(s.wsum, s.wsum + kLanes, 0.0f);
+  s.valid = 0;
+  const float* R = in.R;
+  const float umax = static_cast<float>(in.width - 1), vmax = static_cast<float>(in.height - 1);
+  for (int i = i0; i < i1; ++i) {
+    const int lane = (i - i0) % kLanes;
+    const float x = in.px[i], y = in.py[i], z = in.pz[i];
+    const float X = R[0] * x + R[1] * y + R[2] * z + in.t[0];
+    const float Y = R[3] * x + R[4] * y + R[5] * z + in.t[1];
+    const float Z = R[6] * x + R[7] * y + R[8] * z + in.t[2];
+    const float u = in.fx * X / Z + in.cx;
+    const float v = in.fy * Y / Z + in.cy;
+    // NaN compares false: a NaN coordinate is outside.
+    const bool inside = Z > 1e-6f && u >= 0.0f && v >= 0.0f && u <= umax && v <= vmax;
+    ok[i] = inside;
+    float wr = 0.0f, res = 0.0f, w = 0.0f;
+    if (inside) {
+      const int x0 = std::min(static_cast<int>(u), in.width - 2), y0 = std::min(static_cast<int>(v), in.height - 2);
+      const float fx = u - static_cast<float>(x0), fy = v - static_cast<float>(y0);
+      const float* p = in.live + static_cast<std::ptrdiff_t>(y0) * in.stride + x0;
+      const float a = p[0], b = p[1], c = p[in.stride], d = p[in.stride + 1];
+      const float live = (1.0f - fy) * ((1.0f - fx) * a + fx * b) + fy * ((1.0f - fx) * c + fx * d);
+      res = live - in.val[i];
+      w = in.w[i];
+      wr = w * res;
+      ++s.valid;
+    }
+    r[i] = res;
+    for (int k = 0; k < 6; ++k) s.g[k][lane] += wr * in.jac[k][i];
+    s.cost[lane] += wr * res;
+    s.wsum[lane] += w;
+  }
+}
+
+}  // namespace terralign::iclk::detail
