@@ -1,7 +1,7 @@
 # cmake --install, then find_package(terralign) in another project.
 include(CMakePackageConfigHelpers)
 
-install(TARGETS terralign_geo terralign_raster terralign_nn terralign_iclk
+install(TARGETS terralign_geo_core terralign_geo terralign_raster terralign_nn terralign_iclk
         EXPORT terralignTargets
         ARCHIVE DESTINATION ${CMAKE_INSTALL_LIBDIR}
         LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}

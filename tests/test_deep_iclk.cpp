@@ -1,4 +1,4 @@
-// The learned tracker in C++ (tools/terralign/deep_iclk.cpp) against the PyTorch model that
+// The learned tracker in C++ (src/iclk/deep_aligner.cpp) against the PyTorch model that
 // trained its weights (training/deep_iclk.py), on committed validation pairs.
 #include <cmath>
 #include <cstring>
@@ -8,7 +8,7 @@
 #include <terralign/nn/weights.hpp>
 
 #include "alloc_counter.hpp"
-#include "deep_iclk.hpp"
+#include <terralign/iclk/deep_aligner.hpp>
 #include "support.hpp"
 
 using namespace terralign;
@@ -70,7 +70,7 @@ TEST_CASE("learned tracker: the C++ pipeline ends where PyTorch ends on the comm
   REQUIRE(pairs >= 2);
   for (int k = 0; k < pairs; ++k) {
     const Pair p = pair_of(vectors, k);
-    auto D = cli::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 2);
+    auto D = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 2);
     REQUIRE_MESSAGE(D.ok(), (D.ok() ? "" : D.error().message));
     const auto& r = D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
     CAPTURE(k);
@@ -94,13 +94,13 @@ TEST_CASE("learned tracker: same bytes on 1 and 2 threads, and no heap allocatio
   const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
   const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
   const Pair p = pair_of(vectors, 0);
-  auto one = cli::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 1);
-  auto two = cli::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 2);
+  auto one = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 1);
+  auto two = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 2);
   REQUIRE(one.ok());
   REQUIRE(two.ok());
   const auto a = one.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
   long allocations = 0;
-  iclk::TrackResult<cli::DeepAligner::Warp> b;
+  iclk::TrackResult<iclk::DeepAligner::Warp> b;
   {
     test::AllocationCounter count;
     b = two.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
@@ -114,12 +114,12 @@ TEST_CASE("learned tracker: same bytes on 1 and 2 threads, and no heap allocatio
 
 TEST_CASE("learned tracker: refuses a size too small for its levels and another network's weights") {
   const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
-  auto small = cli::DeepAligner::create(weights, 188, 100, options(), 1);
+  auto small = iclk::DeepAligner::create(weights, 188, 100, options(), 1);
   REQUIRE_FALSE(small.ok());
   CHECK(small.error().message.find("188 x 100") != std::string::npos);
   // Lv et al.'s converted checkpoint has an encoder of 8 input channels: not this pipeline's.
   const nn::WeightFile lv = load("weights/lv19_tum_abc.tlw");
-  auto other = cli::DeepAligner::create(lv, 192, 128, options(), 1);
+  auto other = iclk::DeepAligner::create(lv, 192, 128, options(), 1);
   REQUIRE_FALSE(other.ok());
   MESSAGE(other.error().message);
 }

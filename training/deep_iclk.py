@@ -1,5 +1,5 @@
 """terralign's learned tracker in PyTorch: the same mathematics as the C++ pipeline
-(tools/terralign/deep_iclk.cpp on src/nn and src/iclk), so that weights trained here run
+(src/iclk/deep_aligner.cpp on src/nn and src/iclk), so that weights trained here run
 there and give the same pose (training/make_deep_parity.py checks it).
 
 Per image pair (reference: rendered RGB + metric depth; live: camera RGB), at the working

@@ -4,6 +4,15 @@
 
 namespace terralign {
 
+#if defined(TERRALIGN_NO_THREADS)
+// A build without threads (a microcontroller): every task on the caller's thread, in index
+// order. Results are the same bytes as with threads (the callers' tasks are fixed tiles).
+ThreadPool::ThreadPool(int) : threads_(1) {}
+ThreadPool::~ThreadPool() = default;
+void ThreadPool::run(int tasks, Task fn, void* ctx) {
+  for (int i = 0; i < tasks; ++i) fn(ctx, i);
+}
+#else
 ThreadPool::ThreadPool(int threads) : threads_(std::max(1, threads)) {
   workers_.reserve(static_cast<std::size_t>(threads_ - 1));
   for (int id = 1; id < threads_; ++id) workers_.emplace_back([this, id] { worker(id); });
@@ -57,5 +66,7 @@ void ThreadPool::worker(int id) {
     }
   }
 }
+
+#endif
 
 }  // namespace terralign

@@ -1,4 +1,4 @@
-#include "deep_iclk.hpp"
+#include <terralign/iclk/deep_aligner.hpp>
 
 #include <algorithm>
 #include <chrono>
@@ -7,7 +7,7 @@
 #include <sstream>
 
 
-namespace terralign::cli {
+namespace terralign::iclk {
 namespace {
 
 // Lv et al.'s colour normalisation, as training/deep_iclk.py.
@@ -75,8 +75,13 @@ Result<int> DeepAligner::levels(const nn::WeightFile& weights) {
 }
 
 Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& weights, int width, int height,
-                                                         const iclk::TrackerOptions& options, int threads) {
-  TERRALIGN_TRY_ASSIGN(const int levels, DeepAligner::levels(weights));
+                                                         const iclk::TrackerOptions& options, int threads,
+                                                         int use_levels) {
+  TERRALIGN_TRY_ASSIGN(int levels, DeepAligner::levels(weights));
+  if (use_levels < 0 || use_levels > levels)
+    return Error{weights.name + ": " + std::to_string(use_levels) + " levels asked of weights with " +
+                 std::to_string(levels)};
+  if (use_levels > 0) levels = use_levels;
   if ((width >> (levels - 1)) < 8 || (height >> (levels - 1)) < 8)
     return Error{"the learned tracker's working size " + std::to_string(width) + " x " + std::to_string(height) +
                  " is too small for " + std::to_string(levels) + " levels (the coarsest must be at least 8 x 8)"};
@@ -186,4 +191,4 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align(ImageView<const f
   return tracker_->align_levels(ref_v_.data(), ref_depth, live_v_.data(), K, init, this);
 }
 
-}  // namespace terralign::cli
+}  // namespace terralign::iclk

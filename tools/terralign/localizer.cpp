@@ -15,7 +15,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   L->work_ = camera;
   if (weights) {
     // The learned tracker renders and aligns at the size its network was trained at.
-    TERRALIGN_TRY_ASSIGN(const double s, DeepAligner::input_scale(*weights));
+    TERRALIGN_TRY_ASSIGN(const double s, iclk::DeepAligner::input_scale(*weights));
     const int w = static_cast<int>(std::lround(camera.width * s)), h = static_cast<int>(std::lround(camera.height * s));
     if (w < 1 || h < 1 || camera.width % w || camera.height % h || camera.width / w != camera.height / h)
       return Error{weights->name + ": input scale " + std::to_string(s) + " is not 1/n of the camera's " +
@@ -23,7 +23,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
     L->work_ = camera.scaled(s, w, h);
     iclk::TrackerOptions dopt = options;
     dopt.registration_floor_px *= s;  // camera pixels -> working pixels
-    TERRALIGN_TRY_ASSIGN(L->deep_, DeepAligner::create(*weights, w, h, dopt, threads));
+    TERRALIGN_TRY_ASSIGN(L->deep_, iclk::DeepAligner::create(*weights, w, h, dopt, threads));
     L->ref_rgb_.resize(w, h, 3);
     L->live_rgb_.resize(w, h, 3);
   }

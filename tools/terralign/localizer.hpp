@@ -17,7 +17,7 @@
 #include <terralign/nn/weights.hpp>
 #include <terralign/raster/renderer.hpp>
 
-#include "deep_iclk.hpp"
+#include <terralign/iclk/deep_aligner.hpp>
 
 namespace terralign::cli {
 
@@ -56,7 +56,7 @@ class Localizer {
  private:
   Localizer() = default;
   geo::CameraModel camera_, work_;
-  std::unique_ptr<DeepAligner> deep_;
+  std::unique_ptr<iclk::DeepAligner> deep_;
   ImageF ref_rgb_, live_rgb_;  // learned: float RGB at the working size
   std::unique_ptr<raster::Renderer> renderer_;
   raster::RenderOutput ref_;

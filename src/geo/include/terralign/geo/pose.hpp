@@ -30,6 +30,9 @@ struct Pose {
   }
 };
 
+// From a camera-to-world rotation (orthonormalised through the quaternion) and position.
+Pose pose_from_rotation(const Eigen::Vector3d& t_W_C, const Eigen::Matrix3d& R_W_C);
+
 // Parses "x y z qw qx qy qz". The quaternion must be finite with a norm within 1e-3 of 1
 // (it is then normalised): a zero or far-from-unit norm usually means swapped fields.
 Result<Pose> parse_pose(const std::string& text);

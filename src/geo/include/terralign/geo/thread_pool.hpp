@@ -6,10 +6,12 @@
 // scheduling. Threads are created in the constructor; run() allocates nothing.
 #pragma once
 
+#if !defined(TERRALIGN_NO_THREADS)
 #include <condition_variable>
 #include <mutex>
 #include <thread>
 #include <vector>
+#endif
 
 namespace terralign {
 
@@ -26,10 +28,10 @@ class ThreadPool {
   void run(int tasks, Task fn, void* ctx);
 
  private:
+  int threads_;
+#if !defined(TERRALIGN_NO_THREADS)
   void worker(int id);
   void do_tasks(int id);
-
-  int threads_;
   std::vector<std::thread> workers_;
   std::mutex mutex_;
   std::condition_variable start_cv_, done_cv_;
@@ -39,6 +41,7 @@ class ThreadPool {
   Task fn_ = nullptr;
   void* ctx_ = nullptr;
   int tasks_ = 0;
+#endif
 };
 
 }  // namespace terralign

@@ -4,6 +4,9 @@
 // mathematics as training/deep_iclk.py, which trains the weights (tests/test_deep_iclk.cpp
 // checks the final pose against PyTorch's).
 //
+// Part of iclk (it links nn): the learned tracker is onboard code, built for every target
+// the solver is (a microcontroller included: firmware/).
+//
 // It works at the weight file's input scale (`# input-scale 0.5`: half the camera's size),
 // the size the network was trained at, with the weight file's number of levels (`# levels
 // 5`; the encoder outputs f0 .. f<levels-1>, level l of size (w >> l) x (h >> l)).
@@ -20,7 +23,7 @@
 #include <terralign/nn/network.hpp>
 #include <terralign/nn/weights.hpp>
 
-namespace terralign::cli {
+namespace terralign::iclk {
 
 class DeepAligner : public iclk::LevelWeights {
  public:
@@ -30,8 +33,11 @@ class DeepAligner : public iclk::LevelWeights {
   // width x height: the working size (the images align() takes). `options`: the tracker's;
   // levels, block and normalize are set here (the weights' levels, every pixel, normalised
   // features).
+  // `levels` > 0 uses that many of the weights' levels (fewer: a small image whose coarsest
+  // level would be under 8 pixels); 0 all of them.
   static Result<std::unique_ptr<DeepAligner>> create(const nn::WeightFile& weights, int width, int height,
-                                                     const iclk::TrackerOptions& options, int threads);
+                                                     const iclk::TrackerOptions& options, int threads,
+                                                     int levels = 0);
   // The input scale a weight file asks for (0.5 when it says nothing) and its levels (4).
   static Result<double> input_scale(const nn::WeightFile& weights);
   static Result<int> levels(const nn::WeightFile& weights);
@@ -70,4 +76,4 @@ class DeepAligner : public iclk::LevelWeights {
   double ms_encoder_ = 0, ms_mest_ = 0;
 };
 
-}  // namespace terralign::cli
+}  // namespace terralign::iclk
