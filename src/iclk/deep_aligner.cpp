@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdlib>
 #include <sstream>
 
@@ -34,7 +35,7 @@ bool comment_value(const nn::WeightFile& weights, const std::string& key, std::s
 
 // Bilinear resize of one channel, PyTorch's interpolate(size, align_corners = False): the
 // source coordinate of output pixel i is (i + 0.5) in / out - 0.5, clamped at 0.
-void resize_bilinear(const nn::Tensor& in, ImageF& out, int w, int h) {
+void resize_bilinear(const ImageF& in, ImageF& out, int w, int h) {
   auto src = [](int i, int n_in, int n_out, int& i0, int& i1, float& f) {
     float s = (static_cast<float>(i) + 0.5f) * (static_cast<float>(n_in) / static_cast<float>(n_out)) - 0.5f;
     s = std::max(s, 0.0f);
@@ -45,12 +46,12 @@ void resize_bilinear(const nn::Tensor& in, ImageF& out, int w, int h) {
   for (int y = 0; y < h; ++y) {
     int ya, yb;
     float fy;
-    src(y, in.h, h, ya, yb, fy);
+    src(y, in.height(), h, ya, yb, fy);
     for (int x = 0; x < w; ++x) {
       int xa, xb;
       float fx;
-      src(x, in.w, w, xa, xb, fx);
-      const float a = in.at(ya, xa)[0], b = in.at(ya, xb)[0], c = in.at(yb, xa)[0], d = in.at(yb, xb)[0];
+      src(x, in.width(), w, xa, xb, fx);
+      const float a = in.at(xa, ya), b = in.at(xb, ya), c = in.at(xa, yb), d = in.at(xb, yb);
       out.at(x, y) = (1.0f - fy) * ((1.0f - fx) * a + fx * b) + fy * ((1.0f - fx) * c + fx * d);
     }
   }
@@ -89,7 +90,10 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   D->width_ = width;
   D->height_ = height;
   D->levels_ = levels;
-  TERRALIGN_TRY_ASSIGN(D->encoder_, nn::Network::plan(weights, "encoder", width, height, threads));
+  // The encoder and the M-estimators run one after the other and their outputs are copied
+  // out at once: one buffer holds the tensors of all of them (the largest network's need).
+  TERRALIGN_TRY_ASSIGN(D->encoder_, nn::Network::plan(weights, "encoder", width, height, threads, nn::Simd::Auto,
+                                                      nn::Memory::External));
   D->enc_in_ = D->encoder_->input("x");
   if (const nn::Tensor* x = D->enc_in_; !x || x->c != 3)
     return Error{weights.name + ": the encoder must take x, 3 channels of normalised RGB" +
@@ -101,7 +105,8 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
       return Error{weights.name + ": the encoder must output " + name + ", one channel of " + std::to_string(width >> l) +
                    " x " + std::to_string(height >> l)};
     auto& m = D->mest_[static_cast<std::size_t>(l)];
-    TERRALIGN_TRY_ASSIGN(m, nn::Network::plan(weights, "mestimator", width >> l, height >> l, threads));
+    TERRALIGN_TRY_ASSIGN(m, nn::Network::plan(weights, "mestimator", width >> l, height >> l, threads, nn::Simd::Auto,
+                                              nn::Memory::External));
     const nn::Tensor* x = D->mest_in_[static_cast<std::size_t>(l)] = m->input("x");
     const nn::Tensor* w = D->mest_out_[static_cast<std::size_t>(l)] = m->output("w");
     if (!x || x->c != 4 || !w || w->c != 1)
@@ -112,6 +117,13 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
     D->ref_v_[static_cast<std::size_t>(l)] = D->ref_f_[static_cast<std::size_t>(l)].view();
     D->live_v_[static_cast<std::size_t>(l)] = D->live_f_[static_cast<std::size_t>(l)].view();
   }
+  std::size_t floats = D->encoder_->external_floats();
+  for (int l = 0; l < levels; ++l) floats = std::max(floats, D->mest_[static_cast<std::size_t>(l)]->external_floats());
+  D->scratch_.assign(floats + 16, 0.0f);
+  float* base = D->scratch_.data();
+  while (reinterpret_cast<std::uintptr_t>(base) % 64 != 0) ++base;
+  D->encoder_->bind(base);
+  for (int l = 0; l < levels; ++l) D->mest_[static_cast<std::size_t>(l)]->bind(base);
   D->up_.resize(width, height, 1);  // used at each level's size, as the top-left part
   iclk::TrackerOptions o = options;
   o.levels = levels;
@@ -155,10 +167,10 @@ void DeepAligner::weights(int level, ImageView<const float> abs_r, ImageView<con
   nn::Network& m = *mest_[static_cast<std::size_t>(level)];
   nn::Tensor* x = mest_in_[static_cast<std::size_t>(level)];
   const int w = abs_r.width, h = abs_r.height;
-  // The previous (coarser) level's weights resized to this level (bilinear, align_corners =
-  // False); ones at the coarsest level.
+  // The previous (coarser) level's weights (as kept: the networks share their memory)
+  // resized to this level (bilinear, align_corners = False); ones at the coarsest level.
   const bool coarsest = level == levels_ - 1;
-  if (!coarsest) resize_bilinear(*mest_out_[static_cast<std::size_t>(level + 1)], up_, w, h);
+  if (!coarsest) resize_bilinear(w_[static_cast<std::size_t>(level + 1)], up_, w, h);
   for (int y = 0; y < h; ++y)
     for (int i = 0; i < w; ++i) {
       float* p = x->at(y, i);

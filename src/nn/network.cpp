@@ -1,7 +1,9 @@
+#include <terralign/geo/assert.hpp>
 #include <terralign/nn/network.hpp>
 
 #include <algorithm>
 #include <chrono>
+#include <cstdint>
 #include <set>
 #include <sstream>
 
@@ -91,7 +93,7 @@ int Network::index_of(const std::string& name) const {
 }
 
 Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const std::string& net, int width, int height,
-                                               int threads, Simd simd) {
+                                               int threads, Simd simd, Memory memory) {
   TERRALIGN_TRY_ASSIGN(const auto nets, parse_architecture(weights.architecture, weights.name));
   // Every tensor must belong to a conv of some network.
   std::set<std::string> used;
@@ -186,7 +188,9 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
       N->convs_.push_back(pack_conv(wt->data.data(), bt->data.data(), cin, c, node.dilation, node.act, block));
     }
     Tensor t;
-    t.allocate(h, w, c);
+    const bool padded = node.op == "conv";
+    if (memory == Memory::Separate) t.allocate(h, w, c, padded);
+    else t.place(h, w, c, padded, nullptr);  // placed in the shared buffer below
     step.out = static_cast<int>(N->tensors_.size());
     N->tensors_.push_back(std::move(t));
     N->names_.push_back(node.name);
@@ -195,9 +199,83 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
   for (auto& s : N->steps_) s.node = &N->desc_.nodes[static_cast<std::size_t>(&s - N->steps_.data())];
   for (const auto& o : N->desc_.outputs)
     if (N->index_of(o) < 0) return Error{weights.name + ": " + net + ": output '" + o + "' is not a node"};
+  if (memory != Memory::Separate) N->share_memory(memory);
   N->pool_ = std::make_unique<ThreadPool>(threads);
   N->step_ms_.assign(N->steps_.size(), 0.0);
   return N;
+}
+
+void Network::share_memory(Memory memory) {
+  // Tensor i is needed from its step until its last reader; inputs and outputs always.
+  const std::size_t n = tensors_.size();
+  std::vector<std::size_t> last(n, 0);
+  for (std::size_t k = 0; k < n; ++k) {
+    last[k] = k;
+    for (int i : steps_[k].in) last[static_cast<std::size_t>(i)] = k;
+    if (steps_[k].node->op == "input") last[k] = n;
+  }
+  for (const auto& o : desc_.outputs) last[static_cast<std::size_t>(index_of(o))] = n;
+  // First fit over the free blocks, lowest offset first; blocks 64-byte aligned. Tensor k
+  // is placed after every tensor whose last reader came before step k is released (never
+  // its own inputs: their last reader is k or later).
+  struct Block {
+    std::size_t at, size;
+  };
+  constexpr std::size_t kAlign = 16;  // floats
+  std::vector<Block> free_blocks;
+  std::vector<std::size_t> offset(n, 0);
+  std::size_t end = 0;
+  auto release = [&](std::size_t at, std::size_t size) {
+    free_blocks.push_back({at, size});
+    std::sort(free_blocks.begin(), free_blocks.end(), [](const Block& a, const Block& b) { return a.at < b.at; });
+    std::vector<Block> merged;
+    for (const Block& b : free_blocks)
+      if (!merged.empty() && merged.back().at + merged.back().size == b.at) merged.back().size += b.size;
+      else merged.push_back(b);
+    free_blocks = merged;
+  };
+  for (std::size_t k = 0; k < n; ++k) {
+    for (std::size_t i = 0; i < k; ++i)
+      if (last[i] + 1 == k) release(offset[i], (tensors_[i].floats() + kAlign - 1) / kAlign * kAlign);
+    const std::size_t size = (tensors_[k].floats() + kAlign - 1) / kAlign * kAlign;
+    auto fit = std::find_if(free_blocks.begin(), free_blocks.end(), [&](const Block& b) { return b.size >= size; });
+    if (fit != free_blocks.end()) {
+      offset[k] = fit->at;
+      fit->at += size;
+      fit->size -= size;
+      if (fit->size == 0) free_blocks.erase(fit);
+    } else {
+      offset[k] = end;
+      end += size;
+    }
+  }
+  offsets_ = offset;
+  if (memory == Memory::External) {
+    external_floats_ = end;
+    bound_ = false;
+    return;
+  }
+  // 64 extra bytes so that the first tensor can start on a 64-byte boundary.
+  shared_.assign(end + kAlign, 0.0f);
+  float* base = shared_.data();
+  while (reinterpret_cast<std::uintptr_t>(base) % (kAlign * sizeof(float)) != 0) ++base;
+  bind(base);
+}
+
+void Network::bind(float* memory) {
+  TERRALIGN_ASSERT(memory && reinterpret_cast<std::uintptr_t>(memory) % 64 == 0 && offsets_.size() == tensors_.size(),
+                   "Network::bind: a 64-byte aligned buffer, for a network planned with shared memory");
+  for (std::size_t k = 0; k < tensors_.size(); ++k) {
+    Tensor& t = tensors_[k];
+    t.place(t.h, t.w, t.c, steps_[k].node->op == "conv", memory + offsets_[k]);
+  }
+  bound_ = true;
+}
+
+std::size_t Network::memory_bytes() const {
+  std::size_t b = shared_.size() * sizeof(float);
+  for (const auto& t : tensors_) b += t.storage.size() * sizeof(float);
+  return b;
 }
 
 Tensor* Network::input(const std::string& name) {
@@ -246,10 +324,14 @@ std::vector<Network::StepTime> Network::step_times() const {
 }
 
 void Network::forward() {
+  TERRALIGN_ASSERT(bound_, "Network::forward: a Memory::External network before bind()");
   for (const auto& s : steps_) {
     if (s.node->op == "input") continue;
     const auto t0 = profile_ ? std::chrono::steady_clock::now() : std::chrono::steady_clock::time_point{};
     Tensor& out = tensors_[static_cast<std::size_t>(s.out)];
+    // Shared memory: a convolution's input gets its zero padding back (another tensor may
+    // have written there since).
+    if (s.conv >= 0 && !offsets_.empty()) tensors_[static_cast<std::size_t>(s.in[0])].zero_halo();
     StepCtx ctx{&s, &tensors_, s.conv >= 0 ? &convs_[static_cast<std::size_t>(s.conv)] : nullptr, conv_, 2};
     const int tasks = (out.h + ctx.rows_per_task - 1) / ctx.rows_per_task;
     pool_->run(tasks, [](void* p, int i) {

@@ -16,6 +16,7 @@
 #include <array>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <terralign/geo/image.hpp>
 #include <terralign/geo/result.hpp>
@@ -69,6 +70,7 @@ class DeepAligner : public iclk::LevelWeights {
   std::array<const nn::Tensor*, kMaxLevels> enc_out_{};
   std::array<nn::Tensor*, kMaxLevels> mest_in_{};
   std::array<const nn::Tensor*, kMaxLevels> mest_out_{};
+  std::vector<float> scratch_;  // every network's tensors (nn::Memory::External)
   std::array<ImageF, kMaxLevels> ref_f_, live_f_, w_;
   std::array<ImageView<const float>, kMaxLevels> ref_v_, live_v_;
   ImageF up_;

@@ -49,6 +49,13 @@ struct NetDesc {
 Result<std::vector<NetDesc>> parse_architecture(const std::string& text, const std::string& where);
 
 enum class Simd { Auto, Scalar, Avx2, Avx512, Neon };
+// Tensor memory: Shared places every tensor in one buffer, reusing the memory of tensors no
+// later step reads (inputs and outputs keep theirs), so a network needs about its two
+// largest live tensors instead of all of them; the halo a convolution reads is zeroed
+// before it runs. External is Shared in memory the caller binds (bind()): networks that
+// never run at the same time, and whose tensors the caller reads only right after their own
+// forward(), can share one buffer. Separate gives each tensor its own.
+enum class Memory { Shared, External, Separate };
 
 class Network {
  public:
@@ -56,13 +63,21 @@ class Network {
   // right shapes; a tensor no network uses is an error), sizes every tensor for an input of
   // width x height, and packs the weights.
   static Result<std::unique_ptr<Network>> plan(const WeightFile& weights, const std::string& net, int width, int height,
-                                               int threads = 2, Simd simd = Simd::Auto);
+                                               int threads = 2, Simd simd = Simd::Auto,
+                                               Memory memory = Memory::Shared);
 
   // The input tensor to fill (h x w x c, see tensor.hpp), or null for an unknown name.
   Tensor* input(const std::string& name);
   const Tensor* output(const std::string& name) const;
   void forward();
   const char* simd_name() const { return simd_name_; }
+  // Bytes of tensor memory the network owns (activations; the packed weights are not
+  // counted; 0 for Memory::External).
+  std::size_t memory_bytes() const;
+  // Memory::External: the floats the shared buffer needs (64-byte aligned), and binding it.
+  // forward() before bind() is a programming error.
+  std::size_t external_floats() const { return external_floats_; }
+  void bind(float* memory);
   // Multiply-accumulates of one forward pass (3x3 convs), for benchmarks.
   double macs() const;
   // Per-node timing of forward() (no allocation; off by default), for benchmarks.
@@ -84,6 +99,11 @@ class Network {
   Network() = default;
   NetDesc desc_;
   std::vector<Tensor> tensors_;
+  std::vector<float> shared_;       // Memory::Shared: every tensor's pixels
+  std::vector<std::size_t> offsets_;  // Shared, External: each tensor's place, in floats
+  std::size_t external_floats_ = 0;
+  bool bound_ = true;
+  void share_memory(Memory memory);
   std::vector<std::string> names_;  // tensor names, by index
   std::vector<ConvWeights> convs_;
   std::vector<Step> steps_;
