@@ -64,6 +64,7 @@ struct Renderer::Impl {
   std::vector<int> tile_count, tile_start, tile_fill;
   std::vector<long> tile_fragments;
   std::vector<std::vector<float>> tile_coef;  // per thread: 9 floats per bin entry of a tile
+  int max_tile_entries = 0;                    // bin entries one tile may hold
   std::vector<int> bin_entries;
   std::vector<float> zbuf;                // 1/z of the nearest triangle so far, 0: none
   std::vector<int> idbuf;                 // its index, -1: none
@@ -221,7 +222,11 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.tile_start.resize(tiles + 1);
   m.tile_fill.resize(tiles);
   m.tile_fragments.resize(tiles);
-  m.tile_coef.assign(static_cast<std::size_t>(options.threads), std::vector<float>(9 * static_cast<std::size_t>(kMaxTileEntries)));
+  // A tile holds each triangle at most once: no more entries than triangles (a small target's
+  // renderer, with a small max_triangles, stays small).
+  m.max_tile_entries = std::min(kMaxTileEntries, options.max_triangles);
+  m.tile_coef.resize(static_cast<std::size_t>(options.threads));
+  for (auto& coef : m.tile_coef) coef.resize(9 * static_cast<std::size_t>(m.max_tile_entries));
   m.bin_entries.resize(static_cast<std::size_t>(options.max_triangles) * 4 + tiles * 256);
   const std::size_t vpx = static_cast<std::size_t>(m.vw) * static_cast<std::size_t>(m.vh);
   m.zbuf.resize(vpx);
@@ -740,9 +745,9 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   // 3-4. Visibility per tile (resolved in the tile for a pinhole camera), then, for a
   // distorted camera, resolve per output row block.
   for (int c : m.tile_count)
-    if (c > kMaxTileEntries) {
+    if (c > m.max_tile_entries) {
       invalidate();
-      return Error{"render: a screen tile holds " + std::to_string(c) + " triangles, over " + std::to_string(kMaxTileEntries)};
+      return Error{"render: a screen tile holds " + std::to_string(c) + " triangles, over " + std::to_string(m.max_tile_entries)};
     }
   TaskCtx ctx{&m, &out, 8};
   m.pool->run(m.tiles_x * m.tiles_y, [](void* c, int i) {

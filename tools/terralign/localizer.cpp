@@ -7,7 +7,8 @@ namespace terralign::cli {
 
 Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const geo::CameraModel& camera,
                                                      const std::string& layer, const iclk::TrackerOptions& options,
-                                                     int threads, const nn::WeightFile* weights) {
+                                                     int threads, const nn::WeightFile* weights,
+                                                     const LocalizerSizes& sizes) {
   if (camera.model != geo::DistortionModel::None)
     return Error{"Localizer: the camera must be a pinhole (undistort the live image first)"};
   std::unique_ptr<Localizer> L(new Localizer);
@@ -15,7 +16,9 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   L->work_ = camera;
   if (weights) {
     // The learned tracker renders and aligns at the size its network was trained at.
-    TERRALIGN_TRY_ASSIGN(const double s, iclk::DeepAligner::input_scale(*weights));
+    TERRALIGN_TRY_ASSIGN(double s, iclk::DeepAligner::input_scale(*weights));
+    if (sizes.input_scale != 0) s = sizes.input_scale;
+    if (!(s > 0 && s <= 1)) return Error{"Localizer: the learned tracker's input scale must be in (0, 1]"};
     const int w = static_cast<int>(std::lround(camera.width * s)), h = static_cast<int>(std::lround(camera.height * s));
     if (w < 1 || h < 1 || camera.width % w || camera.height % h || camera.width / w != camera.height / h)
       return Error{weights->name + ": input scale " + std::to_string(s) + " is not 1/n of the camera's " +
@@ -23,12 +26,13 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
     L->work_ = camera.scaled(s, w, h);
     iclk::TrackerOptions dopt = options;
     dopt.registration_floor_px *= s;  // camera pixels -> working pixels
-    TERRALIGN_TRY_ASSIGN(L->deep_, iclk::DeepAligner::create(*weights, w, h, dopt, threads));
+    TERRALIGN_TRY_ASSIGN(L->deep_, iclk::DeepAligner::create(*weights, w, h, dopt, threads, sizes.levels));
     L->ref_rgb_.resize(w, h, 3);
     L->live_rgb_.resize(w, h, 3);
   }
   raster::RenderOptions ro;
   ro.threads = threads;
+  if (sizes.max_triangles > 0) ro.max_triangles = sizes.max_triangles;
   TERRALIGN_TRY_ASSIGN(L->renderer_, raster::Renderer::create(map, L->work_, ro));
   TERRALIGN_TRY_ASSIGN(L->ref_, L->renderer_->make_output({layer}));
   L->depth_.resize(L->work_.width, L->work_.height, 1);

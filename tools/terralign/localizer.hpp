@@ -28,12 +28,20 @@ struct LocalizeOutput {
   // R_W_C (rad) and a shift of the camera centre (m, world axes), in that order.
   Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
   bool converged = false;
-  std::string reason;
+  const char* reason = "not run";  // the tracker's (a static string: no allocation per frame)
   int iterations = 0;
   double cost_init = 0, cost_final = 0;  // mean squared residual of the normalised images
   double residual_correlation = 0, covariance_inflation = 1;  // see iclk::TrackResult
   double ms_render = 0, ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
   double ms_encoder = 0, ms_mestimator = 0;  // learned: both encoders; the M-estimator (inside ms_jacobian)
+};
+
+// Sizes for a small target (the firmware: a 188 x 120 camera runs the network at full size
+// on four levels, and the renderer needs room for few triangles); 0 keeps the default.
+struct LocalizerSizes {
+  double input_scale = 0;  // the learned tracker's; 0: the weights' `# input-scale`
+  int levels = 0;          // the learned tracker's; 0: the weights' `# levels`
+  int max_triangles = 0;   // the renderer's per-frame bound (RenderOptions::max_triangles)
 };
 
 class Localizer {
@@ -43,7 +51,8 @@ class Localizer {
   // the weights' input scale), else the classical one.
   static Result<std::unique_ptr<Localizer>> create(const geo::Map& map, const geo::CameraModel& camera,
                                                    const std::string& layer, const iclk::TrackerOptions& options,
-                                                   int threads, const nn::WeightFile* weights = nullptr);
+                                                   int threads, const nn::WeightFile* weights = nullptr,
+                                                   const LocalizerSizes& sizes = {});
   // live: the camera image, 3-channel RGB of the camera's size.
   Result<LocalizeOutput> localize(ImageView<const std::uint8_t> live, const geo::Pose& prior);
   void set_iterations(int n);
