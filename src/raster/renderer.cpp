@@ -249,6 +249,22 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.simd = "avx2";
   }
 #endif
+  if (options.simd == RenderOptions::Simd::Neon) {
+#if defined(TERRALIGN_HAVE_NEON)
+    m.shade = shade_row_neon;
+    m.resolve = resolve_run_neon;
+    m.simd = "neon";
+#else
+    return Error{"render options: NEON kernels requested but this build (not aarch64) has none"};
+#endif
+  }
+#if defined(TERRALIGN_HAVE_NEON)
+  if (options.simd == RenderOptions::Simd::Auto) {  // every aarch64 core has NEON
+    m.shade = shade_row_neon;
+    m.resolve = resolve_run_neon;
+    m.simd = "neon";
+  }
+#endif
   m.pool = std::make_unique<ThreadPool>(options.threads);
   return std::unique_ptr<Renderer>(new Renderer(std::move(impl)));
 }

@@ -1,6 +1,7 @@
 // Texture shading kernels: world (x, y) of each pixel -> bilinear / trilinear mip-mapped
-// RGBA sample of one layer. One kernel, a scalar build and an AVX2 build, with the same
-// float operations in the same order (no FMA contraction), so the two agree bit for bit.
+// RGBA sample of one layer. One kernel, a scalar build, an AVX2 build (x86-64) and a NEON
+// build (aarch64), with the same float operations in the same order (no FMA contraction),
+// so they agree bit for bit.
 #pragma once
 
 #include <cstdint>
@@ -33,6 +34,10 @@ void shade_row_scalar(int n, const float* wx, const float* wy, const float* log2
 void shade_row_avx2(int n, const float* wx, const float* wy, const float* log2fp,
                     std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p);
 #endif
+#if defined(TERRALIGN_HAVE_NEON)
+void shade_row_neon(int n, const float* wx, const float* wy, const float* log2fp,
+                    std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p);
+#endif
 
 // One run of pixels of a row that see the same triangle: for pixel i of the run at
 // dx = dx0 + i (pixels from the tile's corner), 1/z = iz0 + iz_dx dx, x/z and y/z likewise;
@@ -48,6 +53,9 @@ struct ResolveRun {
 void resolve_run_scalar(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp);
 #if defined(TERRALIGN_HAVE_AVX2)
 void resolve_run_avx2(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp);
+#endif
+#if defined(TERRALIGN_HAVE_NEON)
+void resolve_run_neon(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp);
 #endif
 using ResolveRunFn = void (*)(int, const ResolveRun&, float*, float*, float*, float*);
 
