@@ -292,6 +292,7 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
       P.wsum += static_cast<double>(sums.wsum[l]);
     }
     P.valid = sums.valid;
+    if (sums.valid == i1 - i0) return;  // every pixel landed: nothing leaves H
     for (int i = i0; i < i1; ++i) {
       const std::size_t k = static_cast<std::size_t>(i);
       const double w = static_cast<double>(w_[k]);
