@@ -1,6 +1,8 @@
 // Renderer throughput: frames per second at several image sizes, nadir and 45 degrees
 // oblique, over the sample NAIP map and a large synthetic map (4096^2 texture, 1025^2 DEM
-// over 1 km^2), with 1 and 2 threads. Each figure is the median of timed batches.
+// over 1 km^2), with 1 and 2 threads. Each figure is the median of timed batches. Where
+// Mesa's llvmpipe is installed (libosmesa6-dev), the same scenes at 752 x 480 are drawn by it
+// too (LP_NUM_THREADS=2, colour and depth read back) in the same run: speed ratio and PSNR.
 //   build/release/bench/bench_render [--quick]
 #include <algorithm>
 #include <chrono>
@@ -12,6 +14,10 @@
 #include <terralign/geo/map.hpp>
 #include <terralign/geo/pose.hpp>
 #include <terralign/raster/renderer.hpp>
+
+#if defined(TERRALIGN_BENCH_OSMESA)
+#include "gl_peer.hpp"
+#endif
 
 using namespace terralign;
 
@@ -112,5 +118,52 @@ int main(int argc, char** argv) {
           std::fflush(stdout);
         }
       }
+#if defined(TERRALIGN_BENCH_OSMESA)
+  // The peer: Mesa llvmpipe (OpenGL on the CPU), same map, camera and pose, 2 threads each.
+  std::printf("\n752x480, 2 threads each: terralign against Mesa llvmpipe (OSMesa, LP_NUM_THREADS=2, colour and depth read back)\n\n");
+  std::printf("| scene | view | terralign fps | llvmpipe fps | terralign / llvmpipe | PSNR dB (pixels both cover) | llvmpipe triangles |\n|---|---|---|---|---|---|---|\n");
+  for (const auto& s : scenes)
+    for (int view = 0; view < 2; ++view) {
+      geo::CameraModel cam;
+      cam.width = 752;
+      cam.height = 480;
+      cam.fx = cam.fy = 651.2;
+      cam.cx = 375.5;
+      cam.cy = 239.5;
+      raster::RenderOptions opt;
+      opt.threads = 2;
+      auto r = raster::Renderer::create(*s.map, cam, opt);
+      if (!r.ok()) return 1;
+      auto out = r.value()->make_output({s.layer});
+      if (!out.ok()) return 1;
+      const geo::Pose& T = view ? s.oblique : s.nadir;
+      const double f = fps(*r.value(), out.value(), T, 40);
+      const bench::GlFrame g = bench::gl_render(*s.map, s.layer, cam, T, 2, s.map == &big ? 3 : 10);
+      if (!g.error.empty()) {
+        std::printf("| %s | %s | %.0f | llvmpipe: %s | | | |\n", s.name, view ? "oblique 45" : "nadir", f, g.error.c_str());
+        continue;
+      }
+      double se = 0;
+      long n = 0;
+      const auto& rgb = out.value().rgb[0];
+      const auto& valid = out.value().valid[0];
+      for (int y = 0; y < cam.height; ++y)
+        for (int x = 0; x < cam.width; ++x) {
+          const std::size_t o = static_cast<std::size_t>(y) * static_cast<std::size_t>(cam.width) + static_cast<std::size_t>(x);
+          if (!valid.at(x, y) || !g.hit[o]) continue;
+          for (int c = 0; c < 3; ++c) {
+            const double d = static_cast<double>(rgb.at(x, y, c)) - g.rgb[3 * o + static_cast<std::size_t>(c)];
+            se += d * d;
+          }
+          ++n;
+        }
+      const double psnr = n ? 10 * std::log10(255.0 * 255.0 / (se / (3.0 * static_cast<double>(n)))) : 0.0;
+      std::printf("| %s | %s | %.0f | %.1f | %.1fx | %.1f (%.0f %% of pixels) | %ld |\n", s.name, view ? "oblique 45" : "nadir", f,
+                  g.fps, f / g.fps, psnr, 100.0 * static_cast<double>(n) / (cam.width * cam.height), g.triangles);
+      std::fflush(stdout);
+    }
+#else
+  std::printf("\n(no Mesa llvmpipe peer: install libosmesa6-dev and reconfigure)\n");
+#endif
   return 0;
 }
