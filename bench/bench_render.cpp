@@ -55,6 +55,17 @@ geo::Map large_map() {
   return m;
 }
 
+// The paper's 752 x 480 camera (f = 651.2 px) scaled to w x h.
+geo::CameraModel paper_camera(int w, int h) {
+  geo::CameraModel cam;
+  cam.width = w;
+  cam.height = h;
+  cam.fx = cam.fy = 651.2 * w / 752.0;
+  cam.cx = (w - 1) / 2.0;
+  cam.cy = (h - 1) / 2.0;
+  return cam;
+}
+
 double fps(raster::Renderer& r, raster::RenderOutput& out, const geo::Pose& T, int frames) {
   std::vector<double> per;
   raster::RenderStats st;
@@ -97,12 +108,7 @@ int main(int argc, char** argv) {
       for (const auto& sz : sizes) {
         if (quick && sz[0] != 752) continue;
         for (int threads : {1, 2}) {
-          geo::CameraModel cam;
-          cam.width = sz[0];
-          cam.height = sz[1];
-          cam.fx = cam.fy = 651.2 * sz[0] / 752.0;
-          cam.cx = (sz[0] - 1) / 2.0;
-          cam.cy = (sz[1] - 1) / 2.0;
+          const geo::CameraModel cam = paper_camera(sz[0], sz[1]);
           raster::RenderOptions opt;
           opt.threads = threads;
           auto r = raster::Renderer::create(*s.map, cam, opt);
@@ -124,12 +130,7 @@ int main(int argc, char** argv) {
   std::printf("| scene | view | terralign fps | llvmpipe fps | terralign / llvmpipe | PSNR dB (pixels both cover) | llvmpipe triangles |\n|---|---|---|---|---|---|---|\n");
   for (const auto& s : scenes)
     for (int view = 0; view < 2; ++view) {
-      geo::CameraModel cam;
-      cam.width = 752;
-      cam.height = 480;
-      cam.fx = cam.fy = 651.2;
-      cam.cx = 375.5;
-      cam.cy = 239.5;
+      const geo::CameraModel cam = paper_camera(752, 480);
       raster::RenderOptions opt;
       opt.threads = 2;
       auto r = raster::Renderer::create(*s.map, cam, opt);
