@@ -293,13 +293,8 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
     }
     P.valid = sums.valid;
     if (sums.valid == i1 - i0) return;  // every pixel landed: nothing leaves H
-    for (int i = i0; i < i1; ++i) {
-      const std::size_t k = static_cast<std::size_t>(i);
-      const double w = static_cast<double>(w_[k]);
-      if (ok_[k] || !(w > 0)) continue;
-      for (int a = 0; a < DoF; ++a)
-        for (int b = 0; b <= a; ++b) P.H_out(a, b) += w * static_cast<double>(jac(i, 0, a)) * static_cast<double>(jac(i, 0, b));
-    }
+    for (int i = i0; i < i1; ++i)
+      if (!ok_[static_cast<std::size_t>(i)]) add_left(P, i);
     return;
   }
   // Within a chunk the sums run in S (float: vectorisable, and 2048 terms lose less than the
@@ -313,13 +308,9 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
     const Vec3<S> X(px_[k], py_[k], pz_[k]);
     bool inside = Warp::apply(p, X, pu_[k], pv_[k], K, u, v);
     inside = inside && u >= S(0) && v >= S(0) && u <= S(Lv.w - 1) && v <= S(Lv.h - 1);
-    const double w = static_cast<double>(w_[k]);
     ok_[k] = inside;
     if (!inside) {
-      if (w > 0)
-        for (int c = 0; c < C; ++c)
-          for (int a = 0; a < DoF; ++a)
-            for (int b = 0; b <= a; ++b) P.H_out(a, b) += w * static_cast<double>(jac(i, c, a)) * static_cast<double>(jac(i, c, b));
+      add_left(P, i);
       continue;
     }
     const int x0 = std::min(static_cast<int>(u), Lv.w - 2), y0 = std::min(static_cast<int>(v), Lv.h - 2);
@@ -341,6 +332,15 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
   P.cost = static_cast<double>(cost_s);
   P.wsum = static_cast<double>(wsum_s);
   P.valid = valid;
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::add_left(Partial& P, int i) {
+  const double w = static_cast<double>(w_[static_cast<std::size_t>(i)]);
+  if (!(w > 0)) return;
+  for (int c = 0; c < C; ++c)
+    for (int a = 0; a < DoF; ++a)
+      for (int b = 0; b <= a; ++b) P.H_out(a, b) += w * static_cast<double>(jac(i, c, a)) * static_cast<double>(jac(i, c, b));
 }
 
 template <class S, class Warp, int C>

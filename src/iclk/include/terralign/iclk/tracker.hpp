@@ -203,6 +203,7 @@ class Tracker {
   std::vector<Partial, Eigen::aligned_allocator<Partial>> partials_;
   std::unique_ptr<ThreadPool> pool_;
   void evaluate_chunk(int chunk, int n, const Params& p, const Pinhole<S>& K);
+  void add_left(Partial& P, int i);  // pixel i left the image: its share of H into H_out
   // The 6-DoF warp on one float channel has a vector kernel (evaluate_kernels.hpp).
   static constexpr bool kSe3Kernel = std::is_same_v<S, float> && std::is_same_v<Warp, SE3DepthWarp<float>> && C == 1;
   using Se3Kernel = void (*)(const detail::Se3EvalInput&, int, int, float*, unsigned char*, detail::Se3EvalSums&);
