@@ -139,7 +139,7 @@ TEST_CASE("1 and 2 threads, and scalar and AVX2 shading, give the same bytes") {
   }
 }
 
-TEST_CASE("the shading and resolve kernels agree bit for bit on seeded random inputs (AVX2, NEON vs scalar)") {
+TEST_CASE("the shading and resolve kernels agree bit for bit on seeded random inputs (AVX2, AVX-512, NEON vs scalar)") {
   struct Kernels {
     const char* name;
     ShadeRowFn shade;
@@ -148,6 +148,7 @@ TEST_CASE("the shading and resolve kernels agree bit for bit on seeded random in
   std::vector<Kernels> vector_kernels;
 #if defined(TERRALIGN_HAVE_AVX2)
   if (cpu_has_avx2()) vector_kernels.push_back({"avx2", shade_row_avx2, resolve_run_avx2});
+  if (cpu_has_avx512()) vector_kernels.push_back({"avx512", shade_row_avx512, resolve_run_avx2});
 #endif
 #if defined(TERRALIGN_HAVE_NEON)
   vector_kernels.push_back({"neon", shade_row_neon, resolve_run_neon});

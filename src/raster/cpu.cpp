@@ -12,4 +12,12 @@ bool cpu_has_avx2() {
 #endif
 }
 
+bool cpu_has_avx512() {
+#if defined(TERRALIGN_HAVE_AVX2)
+  return cpu_features().avx512f && cpu_features().avx2_fma;
+#else
+  return false;
+#endif
+}
+
 }  // namespace terralign::raster

@@ -249,6 +249,14 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.simd = "avx2";
   }
 #endif
+  if (options.simd == RenderOptions::Simd::Avx512 && !cpu_has_avx512())
+    return Error{"render options: AVX-512 kernels requested but this CPU (or build) has none"};
+#if defined(TERRALIGN_HAVE_AVX2)
+  if (cpu_has_avx512() && (options.simd == RenderOptions::Simd::Auto || options.simd == RenderOptions::Simd::Avx512)) {
+    m.shade = shade_row_avx512;  // the resolve kernel stays AVX2
+    m.simd = "avx512";
+  }
+#endif
   if (options.simd == RenderOptions::Simd::Neon) {
 #if defined(TERRALIGN_HAVE_NEON)
     m.shade = shade_row_neon;

@@ -40,7 +40,7 @@ struct RenderOptions {
   double lod_error_px = 0.5;     // screen-space geometric error bound of the terrain mesh
   double near_m = 0.5;           // near clipping distance, metres
   int max_triangles = 1 << 19;   // per frame, after clipping; more is a failed frame
-  enum class Simd { Auto, Scalar, Avx2, Neon } simd = Simd::Auto;
+  enum class Simd { Auto, Scalar, Avx2, Avx512, Neon } simd = Simd::Auto;
 };
 
 // What render() fills. Make one with Renderer::make_output() (it sizes everything once).

@@ -1,6 +1,6 @@
 // Texture shading kernels: world (x, y) of each pixel -> bilinear / trilinear mip-mapped
-// RGBA sample of one layer. One kernel, a scalar build, an AVX2 build (x86-64) and a NEON
-// build (aarch64), with the same float operations in the same order (no FMA contraction),
+// RGBA sample of one layer. One kernel, a scalar build, AVX2 and AVX-512 builds (x86-64;
+// the resolve kernel has no AVX-512 build) and a NEON build (aarch64), with the same float operations in the same order (no FMA contraction),
 // so they agree bit for bit.
 #pragma once
 
@@ -33,6 +33,10 @@ void shade_row_scalar(int n, const float* wx, const float* wy, const float* log2
 #if defined(TERRALIGN_HAVE_AVX2)
 void shade_row_avx2(int n, const float* wx, const float* wy, const float* log2fp,
                     std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p);
+#endif
+#if defined(TERRALIGN_HAVE_AVX2)
+void shade_row_avx512(int n, const float* wx, const float* wy, const float* log2fp,
+                      std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p);
 #endif
 #if defined(TERRALIGN_HAVE_NEON)
 void shade_row_neon(int n, const float* wx, const float* wy, const float* log2fp,
@@ -74,7 +78,8 @@ inline float fast_log2(float x) {
 using ShadeRowFn = void (*)(int, const float*, const float*, const float*, std::uint8_t*,
                             std::uint8_t*, const ShadeParams&);
 
-// True if this CPU runs the AVX2 + FMA kernels (and they were built).
+// True if this CPU runs the AVX2 + FMA kernels (and they were built); the AVX-512F ones.
 bool cpu_has_avx2();
+bool cpu_has_avx512();
 
 }  // namespace terralign::raster

@@ -1,0 +1,137 @@
+// AVX-512 build of the shading kernel: 16 pixels a step, texels fetched with gathers. Same
+// float operations in the same order as shade_scalar.cpp (compiled without FMA contraction),
+// so the output matches it bit for bit. The tail (n % 16) runs the scalar kernel. The resolve
+// kernel stays AVX2 on these machines (its lane order follows groups of eight).
+#include <terralign/raster/shade_kernels.hpp>
+
+#include <cstring>
+
+#include <immintrin.h>
+
+namespace terralign::raster {
+namespace {
+
+struct Acc16 {
+  __m512 r, g, b, a;
+};
+
+inline Acc16 sample16(const ShadeParams& p, __m512i level, __m512 u, __m512 v) {
+  const int* lv = reinterpret_cast<const int*>(p.levels);
+  __m512i off, wid, hei;
+  __m512 scale;
+  const int l0 = _mm_cvtsi128_si32(_mm512_castsi512_si128(level));
+  if (_mm512_cmpeq_epi32_mask(level, _mm512_set1_epi32(l0)) == 0xFFFF) {
+    const MipLevel& L = p.levels[l0];  // one level for all lanes (the usual case)
+    off = _mm512_set1_epi32(L.offset);
+    wid = _mm512_set1_epi32(L.width);
+    hei = _mm512_set1_epi32(L.height);
+    scale = _mm512_set1_ps(L.scale);
+  } else {
+    const __m512i idx = _mm512_slli_epi32(level, 2);  // MipLevel is 4 x 32 bits
+    off = _mm512_i32gather_epi32(idx, lv + 0, 4);
+    wid = _mm512_i32gather_epi32(idx, lv + 1, 4);
+    hei = _mm512_i32gather_epi32(idx, lv + 2, 4);
+    scale = _mm512_castsi512_ps(_mm512_i32gather_epi32(idx, lv + 3, 4));
+  }
+  const __m512 half = _mm512_set1_ps(0.5f), one = _mm512_set1_ps(1.0f);
+  const __m512 ul = _mm512_sub_ps(_mm512_mul_ps(_mm512_add_ps(u, half), scale), half);
+  const __m512 vl = _mm512_sub_ps(_mm512_mul_ps(_mm512_add_ps(v, half), scale), half);
+  const __m512 fx0 = _mm512_roundscale_ps(ul, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+  const __m512 fy0 = _mm512_roundscale_ps(vl, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+  const __m512 fx = _mm512_sub_ps(ul, fx0), fy = _mm512_sub_ps(vl, fy0);
+  const __m512i x0 = _mm512_cvttps_epi32(fx0), y0 = _mm512_cvttps_epi32(fy0);
+  const __m512 gx = _mm512_sub_ps(one, fx), gy = _mm512_sub_ps(one, fy);
+  const __m512 w[4] = {_mm512_mul_ps(gx, gy), _mm512_mul_ps(fx, gy), _mm512_mul_ps(gx, fy), _mm512_mul_ps(fx, fy)};
+  const __m512i zero = _mm512_setzero_si512(), ione = _mm512_set1_epi32(1);
+  const __m512i wm1 = _mm512_sub_epi32(wid, ione), hm1 = _mm512_sub_epi32(hei, ione);
+  const __m512i mask8 = _mm512_set1_epi32(255);
+  Acc16 acc{_mm512_setzero_ps(), _mm512_setzero_ps(), _mm512_setzero_ps(), _mm512_setzero_ps()};
+  for (int k = 0; k < 4; ++k) {
+    const __m512i x = _mm512_add_epi32(x0, _mm512_set1_epi32(k & 1));
+    const __m512i y = _mm512_add_epi32(y0, _mm512_set1_epi32(k >> 1));
+    const __mmask16 inside = _mm512_cmpge_epi32_mask(x, zero) & _mm512_cmplt_epi32_mask(x, wid) &
+                             _mm512_cmpge_epi32_mask(y, zero) & _mm512_cmplt_epi32_mask(y, hei);
+    const __m512i xc = _mm512_min_epi32(_mm512_max_epi32(x, zero), wm1);
+    const __m512i yc = _mm512_min_epi32(_mm512_max_epi32(y, zero), hm1);
+    const __m512i at = _mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(yc, wid), xc));
+    const __m512i t = _mm512_i32gather_epi32(at, reinterpret_cast<const int*>(p.texels), 4);
+    const __m512 wk = _mm512_maskz_mov_ps(inside, w[k]);
+    const __m512 wa = _mm512_mul_ps(wk, _mm512_cvtepi32_ps(_mm512_srli_epi32(t, 24)));
+    acc.r = _mm512_add_ps(acc.r, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(t, mask8))));
+    acc.g = _mm512_add_ps(acc.g, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(t, 8), mask8))));
+    acc.b = _mm512_add_ps(acc.b, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(t, 16), mask8))));
+    acc.a = _mm512_add_ps(acc.a, wa);
+  }
+  return acc;
+}
+
+// 8 pixels of RGBX (32 bits each) -> 24 bytes of RGB.
+inline void store_rgb8(std::uint8_t* dst, __m256i px) {
+  const __m256i packed = _mm256_shuffle_epi8(px, _mm256_setr_epi8(0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, -1, -1, -1, -1,
+                                                                  0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, -1, -1, -1, -1));
+  const __m128i lo = _mm256_castsi256_si128(packed), hi = _mm256_extracti128_si256(packed, 1);
+  _mm_storel_epi64(reinterpret_cast<__m128i*>(dst), lo);
+  const int lo_tail = _mm_extract_epi32(lo, 2);
+  std::memcpy(dst + 8, &lo_tail, 4);
+  _mm_storel_epi64(reinterpret_cast<__m128i*>(dst + 12), hi);
+  const int hi_tail = _mm_extract_epi32(hi, 2);
+  std::memcpy(dst + 20, &hi_tail, 4);
+}
+
+}  // namespace
+
+void shade_row_avx512(int n, const float* wx, const float* wy, const float* log2fp, std::uint8_t* rgb,
+                      std::uint8_t* valid, const ShadeParams& p) {
+  const int top = p.n_levels - 1;
+  const __m512 ftop = _mm512_set1_ps(static_cast<float>(top));
+  const __m512i itop = _mm512_set1_epi32(top);
+  const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.0f), half = _mm512_set1_ps(0.5f);
+  int i = 0;
+  for (; i + 16 <= n; i += 16) {
+    const __m512 x = _mm512_loadu_ps(wx + i), y = _mm512_loadu_ps(wy + i);
+    const __mmask16 terrain = _mm512_cmp_ps_mask(x, x, _CMP_ORD_Q);
+    const __m512 xs = _mm512_maskz_mov_ps(terrain, x), ys = _mm512_maskz_mov_ps(terrain, y);
+    const __m512 u = _mm512_add_ps(_mm512_add_ps(_mm512_set1_ps(p.a0), _mm512_mul_ps(_mm512_set1_ps(p.a1), xs)),
+                                   _mm512_mul_ps(_mm512_set1_ps(p.a2), ys));
+    const __m512 v = _mm512_add_ps(_mm512_add_ps(_mm512_set1_ps(p.b0), _mm512_mul_ps(_mm512_set1_ps(p.b1), xs)),
+                                   _mm512_mul_ps(_mm512_set1_ps(p.b2), ys));
+    __m512 lod = _mm512_add_ps(_mm512_maskz_loadu_ps(terrain, log2fp + i), _mm512_set1_ps(p.lod_bias));
+    // "lod > 0 ? lod : 0" and "lod < top ? lod : top" (NaN -> 0, top), as the scalar twin.
+    lod = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(lod, zero, _CMP_GT_OQ), zero, lod);
+    lod = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(lod, ftop, _CMP_LT_OQ), ftop, lod);
+    const __m512 fl = _mm512_roundscale_ps(lod, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+    const __m512i l0 = _mm512_cvttps_epi32(fl);
+    const __m512i l1 = _mm512_min_epi32(_mm512_add_epi32(l0, _mm512_set1_epi32(1)), itop);
+    const __m512 t = _mm512_sub_ps(lod, fl);
+    const Acc16 s0 = sample16(p, l0, u, v);
+    const __mmask16 live = _mm512_cmp_ps_mask(t, zero, _CMP_GT_OQ);
+    Acc16 acc;
+    if (live == 0) {
+      acc = s0;  // t == 0 in every lane: s0 * 1 + s1 * 0 == s0, the scalar kernel's shortcut
+    } else {
+      Acc16 s1 = sample16(p, l1, u, v);
+      s1.r = _mm512_maskz_mov_ps(live, s1.r);
+      s1.g = _mm512_maskz_mov_ps(live, s1.g);
+      s1.b = _mm512_maskz_mov_ps(live, s1.b);
+      s1.a = _mm512_maskz_mov_ps(live, s1.a);
+      const __m512 w0 = _mm512_sub_ps(one, t);
+      acc.r = _mm512_add_ps(_mm512_mul_ps(s0.r, w0), _mm512_mul_ps(s1.r, t));
+      acc.g = _mm512_add_ps(_mm512_mul_ps(s0.g, w0), _mm512_mul_ps(s1.g, t));
+      acc.b = _mm512_add_ps(_mm512_mul_ps(s0.b, w0), _mm512_mul_ps(s1.b, t));
+      acc.a = _mm512_add_ps(_mm512_mul_ps(s0.a, w0), _mm512_mul_ps(s1.a, t));
+    }
+    acc.a = _mm512_maskz_mov_ps(terrain, acc.a);
+    const __mmask16 ok = _mm512_cmp_ps_mask(acc.a, _mm512_set1_ps(127.5f), _CMP_GE_OQ);
+    const __m512 inv = _mm512_maskz_div_ps(ok, one, acc.a);
+    const __m512i r = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(_mm512_maskz_mov_ps(terrain, acc.r), inv), half));
+    const __m512i g = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(_mm512_maskz_mov_ps(terrain, acc.g), inv), half));
+    const __m512i b = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(_mm512_maskz_mov_ps(terrain, acc.b), inv), half));
+    const __m512i px = _mm512_or_si512(r, _mm512_or_si512(_mm512_slli_epi32(g, 8), _mm512_slli_epi32(b, 16)));
+    store_rgb8(rgb + 3 * i, _mm512_castsi512_si256(px));
+    store_rgb8(rgb + 3 * i + 24, _mm512_extracti64x4_epi64(px, 1));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(valid + i), _mm512_cvtepi32_epi8(_mm512_maskz_set1_epi32(ok, 255)));
+  }
+  if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
+}
+
+}  // namespace terralign::raster
