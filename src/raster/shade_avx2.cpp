@@ -7,6 +7,8 @@
 
 #include <immintrin.h>
 
+#include "pack_avx2.hpp"
+
 namespace terralign::raster {
 namespace {
 
@@ -120,16 +122,7 @@ void shade_row_avx2(int n, const float* wx, const float* wy, const float* log2fp
     const __m256i b = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(_mm256_and_ps(acc.b, terrain), inv), half));
     // RGBX per pixel, then 12 bytes of RGB from each 128-bit half.
     const __m256i px = _mm256_or_si256(r, _mm256_or_si256(_mm256_slli_epi32(g, 8), _mm256_slli_epi32(b, 16)));
-    const __m256i packed = _mm256_shuffle_epi8(px, _mm256_setr_epi8(0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, -1, -1, -1, -1,
-                                                                    0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, -1, -1, -1, -1));
-    const __m128i lo = _mm256_castsi256_si128(packed), hi = _mm256_extracti128_si256(packed, 1);
-    std::uint8_t* dst = rgb + 3 * i;
-    _mm_storel_epi64(reinterpret_cast<__m128i*>(dst), lo);
-    const int lo_tail = _mm_extract_epi32(lo, 2);
-    std::memcpy(dst + 8, &lo_tail, 4);
-    _mm_storel_epi64(reinterpret_cast<__m128i*>(dst + 12), hi);
-    const int hi_tail = _mm_extract_epi32(hi, 2);
-    std::memcpy(dst + 20, &hi_tail, 4);
+    store_rgb8_avx2(rgb + 3 * i, px);
     // Validity bytes: 0 / -1 per lane, narrowed to 8 bytes of 0 / 255.
     const __m256i v16 = _mm256_packs_epi32(_mm256_castps_si256(ok), _mm256_castps_si256(ok));
     const __m256i v8 = _mm256_packs_epi16(v16, v16);

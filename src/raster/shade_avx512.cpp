@@ -4,9 +4,9 @@
 // kernel stays AVX2 on these machines (its lane order follows groups of eight).
 #include <terralign/raster/shade_kernels.hpp>
 
-#include <cstring>
-
 #include <immintrin.h>
+
+#include "pack_avx2.hpp"
 
 namespace terralign::raster {
 namespace {
@@ -65,19 +65,6 @@ inline Acc16 sample16(const ShadeParams& p, __m512i level, __m512 u, __m512 v) {
   return acc;
 }
 
-// 8 pixels of RGBX (32 bits each) -> 24 bytes of RGB.
-inline void store_rgb8(std::uint8_t* dst, __m256i px) {
-  const __m256i packed = _mm256_shuffle_epi8(px, _mm256_setr_epi8(0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, -1, -1, -1, -1,
-                                                                  0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, -1, -1, -1, -1));
-  const __m128i lo = _mm256_castsi256_si128(packed), hi = _mm256_extracti128_si256(packed, 1);
-  _mm_storel_epi64(reinterpret_cast<__m128i*>(dst), lo);
-  const int lo_tail = _mm_extract_epi32(lo, 2);
-  std::memcpy(dst + 8, &lo_tail, 4);
-  _mm_storel_epi64(reinterpret_cast<__m128i*>(dst + 12), hi);
-  const int hi_tail = _mm_extract_epi32(hi, 2);
-  std::memcpy(dst + 20, &hi_tail, 4);
-}
-
 }  // namespace
 
 void shade_row_avx512(int n, const float* wx, const float* wy, const float* log2fp, std::uint8_t* rgb,
@@ -127,8 +114,8 @@ void shade_row_avx512(int n, const float* wx, const float* wy, const float* log2
     const __m512i g = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(_mm512_maskz_mov_ps(terrain, acc.g), inv), half));
     const __m512i b = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(_mm512_maskz_mov_ps(terrain, acc.b), inv), half));
     const __m512i px = _mm512_or_si512(r, _mm512_or_si512(_mm512_slli_epi32(g, 8), _mm512_slli_epi32(b, 16)));
-    store_rgb8(rgb + 3 * i, _mm512_castsi512_si256(px));
-    store_rgb8(rgb + 3 * i + 24, _mm512_extracti64x4_epi64(px, 1));
+    store_rgb8_avx2(rgb + 3 * i, _mm512_castsi512_si256(px));
+    store_rgb8_avx2(rgb + 3 * i + 24, _mm512_extracti64x4_epi64(px, 1));
     _mm_storeu_si128(reinterpret_cast<__m128i*>(valid + i), _mm512_cvtepi32_epi8(_mm512_maskz_set1_epi32(ok, 255)));
   }
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
