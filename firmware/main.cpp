@@ -40,10 +40,10 @@ namespace {
 constexpr std::size_t kArenaBytes = TERRALIGN_FW_ARENA_BYTES;
 alignas(16) __attribute__((section(".arena"))) unsigned char g_arena[kArenaBytes];
 
-constexpr int kCrop = 320;
+constexpr int kCrop = 320;  // ortho pixels, 5 m each (firmware/data/README.md)
 // The renderer's per-frame triangle bound (its buffers are sized for it): a flat or gently
 // rolling DEM at 188 x 120 needs a few hundred; 4096 leaves room for relief.
-constexpr int kMaxTriangles = 4096;  // ortho pixels, 5 m each (firmware/data/README.md)
+constexpr int kMaxTriangles = 4096;
 
 geo::Layer make_layer(const char* name, const std::uint8_t* rgb, double x0, double y0) {
   geo::Layer L;
