@@ -89,8 +89,9 @@ extern "C" int firmware_main() {
   map.layers.push_back(make_layer("2017", fw_naip_2017, 486652.0, 5208248.0));
   const std::size_t map_bytes = fw::arena_stats().used - startup_bytes;
 
-  // 188 x 120 pixels of the ground sampling the network was trained at (the paper's 752 x 480
-  // camera at half size: 2.5 m a pixel from 800 m), i.e. that camera's central quarter.
+  // The paper's 752 x 480 camera at a quarter of its size: the same field of view, 4.9 m a
+  // pixel from 800 m (the network was trained at half size, 2.5 m; at this size it runs at
+  // full resolution on its four finest levels).
   geo::CameraModel cam;
   cam.width = 188;
   cam.height = 120;
