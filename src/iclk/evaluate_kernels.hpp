@@ -10,6 +10,8 @@
 
 #include <cstddef>
 
+#include <terralign/iclk/tracker.hpp>
+
 namespace terralign::iclk::detail {
 
 constexpr int kLanes = 8;
@@ -33,8 +35,8 @@ struct Se3EvalSums {
   int valid;
 };
 
-// Pixels [i0, i1): writes r[i] (0 where the pixel did not land) and ok[i], fills `sums`.
-using Se3EvalFn = void (*)(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
+// Pixels [i0, i1): writes r[i] (0 where the pixel did not land) and ok[i], fills `sums`
+// (the signature is detail::Se3EvalFn, declared with the tracker).
 
 void evaluate_se3_scalar(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
 #if defined(TERRALIGN_ICLK_AVX2)

@@ -42,6 +42,9 @@ namespace terralign::iclk {
 namespace detail {
 struct Se3EvalInput;
 struct Se3EvalSums;
+// The residual kernel of the 6-DoF warp on one float channel (src/iclk/evaluate_kernels.hpp):
+// pixels [i0, i1), writes r and ok, fills the lane sums.
+using Se3EvalFn = void (*)(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
 }  // namespace detail
 
 enum class Robust { None, Huber, Tukey };
@@ -206,8 +209,7 @@ class Tracker {
   void add_left(Partial& P, int i);  // pixel i left the image: its share of H into H_out
   // The 6-DoF warp on one float channel has a vector kernel (evaluate_kernels.hpp).
   static constexpr bool kSe3Kernel = std::is_same_v<S, float> && std::is_same_v<Warp, SE3DepthWarp<float>> && C == 1;
-  using Se3Kernel = void (*)(const detail::Se3EvalInput&, int, int, float*, unsigned char*, detail::Se3EvalSums&);
-  Se3Kernel se3_kernel_ = nullptr;
+  detail::Se3EvalFn se3_kernel_ = nullptr;
   void pick_kernel();
   TrackResult<Warp> result_;
 };
