@@ -66,17 +66,33 @@ geo::CameraModel paper_camera(int w, int h) {
   return cam;
 }
 
-double fps(raster::Renderer& r, raster::RenderOutput& out, const geo::Pose& T, int frames) {
-  std::vector<double> per;
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+// Frames per second (median of five timed batches) and the median per-stage times of the
+// frames (geometry + binning, rasterization + resolve, shading) in `stage_ms`.
+double fps(raster::Renderer& r, raster::RenderOutput& out, const geo::Pose& T, int frames, double stage_ms[3] = nullptr) {
+  std::vector<double> per, geo_ms, raster_ms, shade_ms;
   raster::RenderStats st;
   if (!r.render(T, out, &st).ok()) return -1;
   for (int b = 0; b < 5; ++b) {
     const auto t0 = std::chrono::steady_clock::now();
-    for (int i = 0; i < frames; ++i) (void)r.render(T, out);
+    for (int i = 0; i < frames; ++i) {
+      (void)r.render(T, out, &st);
+      geo_ms.push_back(st.ms_geometry);
+      raster_ms.push_back(st.ms_raster);
+      shade_ms.push_back(st.ms_shade);
+    }
     per.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() / frames);
   }
-  std::sort(per.begin(), per.end());
-  return 1.0 / per[2];
+  if (stage_ms) {
+    stage_ms[0] = median(geo_ms);
+    stage_ms[1] = median(raster_ms);
+    stage_ms[2] = median(shade_ms);
+  }
+  return 1.0 / median(per);
 }
 
 }  // namespace
@@ -102,7 +118,8 @@ int main(int argc, char** argv) {
        geo::pose_from_ypr({500, 150, 500}, 0, 0, 0, geo::tilted_mount(45)), "tex"},
   };
   const int sizes[][2] = {{188, 120}, {376, 240}, {752, 480}, {1504, 960}};
-  std::printf("| scene | view | size | threads | fps | ms/frame | triangles |\n|---|---|---|---|---|---|---|\n");
+  std::printf("| scene | view | size | threads | fps | ms/frame | geometry ms | raster ms | shade ms | triangles |\n"
+              "|---|---|---|---|---|---|---|---|---|---|\n");
   for (const auto& s : scenes)
     for (int view = 0; view < 2; ++view)
       for (const auto& sz : sizes) {
@@ -118,9 +135,10 @@ int main(int argc, char** argv) {
           const geo::Pose& T = view ? s.oblique : s.nadir;
           raster::RenderStats st;
           (void)r.value()->render(T, out.value(), &st);
-          const double f = fps(*r.value(), out.value(), T, sz[0] >= 1504 ? 10 : 40);
-          std::printf("| %s | %s | %dx%d | %d | %.0f | %.3f | %d |\n", s.name, view ? "oblique 45" : "nadir", sz[0], sz[1],
-                      threads, f, 1000.0 / f, st.triangles);
+          double stage[3];
+          const double f = fps(*r.value(), out.value(), T, sz[0] >= 1504 ? 10 : 40, stage);
+          std::printf("| %s | %s | %dx%d | %d | %.0f | %.3f | %.3f | %.3f | %.3f | %d |\n", s.name, view ? "oblique 45" : "nadir",
+                      sz[0], sz[1], threads, f, 1000.0 / f, stage[0], stage[1], stage[2], st.triangles);
           std::fflush(stdout);
         }
       }
