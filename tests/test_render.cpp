@@ -143,15 +143,15 @@ TEST_CASE("the shading and resolve kernels agree bit for bit on seeded random in
   struct Kernels {
     const char* name;
     ShadeRowFn shade;
-    ResolveRunFn resolve;
+    ResolveRowFn resolve;
   };
   std::vector<Kernels> vector_kernels;
 #if defined(TERRALIGN_HAVE_AVX2)
-  if (cpu_has_avx2()) vector_kernels.push_back({"avx2", shade_row_avx2, resolve_run_avx2});
-  if (cpu_has_avx512()) vector_kernels.push_back({"avx512", shade_row_avx512, resolve_run_avx2});
+  if (cpu_has_avx2()) vector_kernels.push_back({"avx2", shade_row_avx2, resolve_row_avx2});
+  if (cpu_has_avx512()) vector_kernels.push_back({"avx512", shade_row_avx512, resolve_row_avx2});
 #endif
 #if defined(TERRALIGN_HAVE_NEON)
-  vector_kernels.push_back({"neon", shade_row_neon, resolve_run_neon});
+  vector_kernels.push_back({"neon", shade_row_neon, resolve_row_neon});
 #endif
   if (vector_kernels.empty()) MESSAGE("this CPU or build has no vector shading kernel: nothing to compare");
   std::mt19937 rng(12345);
@@ -188,18 +188,27 @@ TEST_CASE("the shading and resolve kernels agree bit for bit on seeded random in
   int valid = 0;
   for (auto v : val_s) valid += v != 0;
   CHECK(valid > n / 4);  // the test exercises real samples, not only invalid pixels
-  // The resolve kernel: a run of 29 pixels (vectors of 8 and a tail) of a tilted plane.
-  const ResolveRun run{0.0021f, -1.3e-6f, 1.7f, 0.0003f, -0.9f, 0.0002f, -1.3e-6f, 2.1e-6f, 0.0003f, 0.00011f, 0.0002f, -0.0004f, 5.0f};
-  std::vector<float> a(4 * 29);
-  resolve_run_scalar(29, run, a.data(), a.data() + 29, a.data() + 58, a.data() + 87);
+  // The resolve kernel: a row of 61 pixels (vectors and a tail) seeing five tilted planes in
+  // runs of every length from 1 to 9, lanes of one plane, of several, and of none (-1).
+  const int m = 61;
+  std::vector<float> coef;
+  for (int e = 0; e < 5; ++e)
+    for (float v : {0.0021f, -1.3e-6f, 2.1e-6f, 1.7f, 0.0003f, 0.00011f, -0.9f, 0.0002f, -0.0004f})
+      coef.push_back(v * (1.0f + 0.1f * static_cast<float>(e)));
+  std::vector<int> ids;
+  for (int run = 1; static_cast<int>(ids.size()) < m; ++run)
+    for (int i = 0; i < run % 10 && static_cast<int>(ids.size()) < m; ++i) ids.push_back(run % 6 - 1);
+  for (int i = 16; i < 24; ++i) ids[static_cast<std::size_t>(i)] = 3;  // one plane over a whole vector
+  std::vector<float> a(4 * m);
+  resolve_row_scalar(m, ids.data(), coef.data(), 5.0f, 7.0f, a.data(), a.data() + m, a.data() + 2 * m, a.data() + 3 * m);
   for (const Kernels& k : vector_kernels) {
     CAPTURE(std::string(k.name));
     std::vector<std::uint8_t> rgb_v(3 * n), val_v(n);
     k.shade(n, wx.data(), wy.data(), lf.data(), rgb_v.data(), val_v.data(), p);
     CHECK(rgb_s == rgb_v);
     CHECK(val_s == val_v);
-    std::vector<float> b(4 * 29);
-    k.resolve(29, run, b.data(), b.data() + 29, b.data() + 58, b.data() + 87);
+    std::vector<float> b(4 * m);
+    k.resolve(m, ids.data(), coef.data(), 5.0f, 7.0f, b.data(), b.data() + m, b.data() + 2 * m, b.data() + 3 * m);
     CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0);
   }
 }

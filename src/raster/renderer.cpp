@@ -26,6 +26,14 @@ struct ClipVert {
   float wx, wy;     // local world position
 };
 
+// A vertex inside the clip volume, projected: screen position (pixel centres at integers),
+// 1/z, the fixed-point snap of the position, and its local world position.
+struct ProjVert {
+  double sx, sy, iz;
+  std::int64_t X, Y;
+  float wx, wy;
+};
+
 // A screen triangle ready for rasterization. Plane coefficients q(x, y) = A x + B y + C in
 // pixel coordinates (centres at integers) for 1/z, x_world/z and y_world/z.
 struct Tri {
@@ -50,10 +58,11 @@ struct Renderer::Impl {
   geo::CameraModel pinhole;       // the G-buffer's camera (= camera without distortion)
   RenderOptions options;
   double ox = 0, oy = 0, oz = 0;  // local origin in map coordinates
+  float guard[4] = {};            // guard band: x/z left, right, y/z top, bottom
   Terrain terrain;
   std::vector<LayerTexture> layers;
   ShadeRowFn shade = shade_row_scalar;
-  ResolveRunFn resolve = resolve_run_scalar;
+  ResolveRowFn resolve = resolve_row_scalar;
   const char* simd = "scalar";
   std::unique_ptr<ThreadPool> pool;
 
@@ -72,6 +81,8 @@ struct Renderer::Impl {
   std::vector<float> gx, gy, gz;          // per output pixel: local world x, y; depth
   std::vector<float> log2fp;              // per output pixel
   std::vector<ClipVert> chunk_verts;      // (kChunkQuads + 1)^2
+  std::vector<ProjVert> chunk_proj;       // their projections, where chunk_out is 0
+  std::vector<std::uint8_t> chunk_out;    // per vertex: bit p set when outside clip plane p
   std::vector<int> chunk_stack;
   int fragments = 0;
 
@@ -82,7 +93,10 @@ struct Renderer::Impl {
   bool overflow = false;
   int chunks_drawn = 0;
 
-  void emit_triangle(const ClipVert& a, const ClipVert& b, const ClipVert& c);
+  ProjVert project(const ClipVert& v) const;
+  std::uint8_t outcode(const ClipVert& v) const;
+  void emit_triangle(const ProjVert& a, const ProjVert& b, const ProjVert& c);
+  float clip_dist(int plane, const ClipVert& v) const;
   void clip_and_emit(const ClipVert* v, int n);
   void draw_chunk(const TerrainChunk& c);
   bool chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const;
@@ -214,6 +228,10 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   }
   m.vw = m.pinhole.width;
   m.vh = m.pinhole.height;
+  m.guard[0] = static_cast<float>((-kGuardPx - m.pinhole.cx) / m.pinhole.fx);
+  m.guard[1] = static_cast<float>((m.vw + kGuardPx - m.pinhole.cx) / m.pinhole.fx);
+  m.guard[2] = static_cast<float>((-kGuardPx - m.pinhole.cy) / m.pinhole.fy);
+  m.guard[3] = static_cast<float>((m.vh + kGuardPx - m.pinhole.cy) / m.pinhole.fy);
   m.tiles_x = (m.vw + kTileW - 1) / kTileW;
   m.tiles_y = (m.vh + kTileH - 1) / kTileH;
   const std::size_t tiles = static_cast<std::size_t>(m.tiles_x) * static_cast<std::size_t>(m.tiles_y);
@@ -237,6 +255,8 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.gz.resize(opx);
   m.log2fp.resize(opx);
   m.chunk_verts.resize(static_cast<std::size_t>(kChunkQuads + 1) * (kChunkQuads + 1));
+  m.chunk_proj.resize(m.chunk_verts.size());
+  m.chunk_out.resize(m.chunk_verts.size());
   m.chunk_stack.reserve(m.terrain.chunks().size() + 8);
 
   const bool avx2 = cpu_has_avx2();
@@ -245,7 +265,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
 #if defined(TERRALIGN_HAVE_AVX2)
   if (avx2 && options.simd != RenderOptions::Simd::Scalar) {
     m.shade = shade_row_avx2;
-    m.resolve = resolve_run_avx2;
+    m.resolve = resolve_row_avx2;
     m.simd = "avx2";
   }
 #endif
@@ -260,7 +280,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   if (options.simd == RenderOptions::Simd::Neon) {
 #if defined(TERRALIGN_HAVE_NEON)
     m.shade = shade_row_neon;
-    m.resolve = resolve_run_neon;
+    m.resolve = resolve_row_neon;
     m.simd = "neon";
 #else
     return Error{"render options: NEON kernels requested but this build (not aarch64) has none"};
@@ -269,7 +289,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
 #if defined(TERRALIGN_HAVE_NEON)
   if (options.simd == RenderOptions::Simd::Auto) {  // every aarch64 core has NEON
     m.shade = shade_row_neon;
-    m.resolve = resolve_run_neon;
+    m.resolve = resolve_row_neon;
     m.simd = "neon";
   }
 #endif
@@ -312,22 +332,29 @@ Result<RenderOutput> Renderer::make_output(const std::vector<std::string>& names
 
 // ---- geometry ----
 
-void Renderer::Impl::emit_triangle(const ClipVert& a, const ClipVert& b, const ClipVert& c) {
+ProjVert Renderer::Impl::project(const ClipVert& v) const {
+  ProjVert p;
+  p.iz = 1.0 / static_cast<double>(v.z);
+  p.sx = pinhole.fx * v.x * p.iz + pinhole.cx;
+  p.sy = pinhole.fy * v.y * p.iz + pinhole.cy;
+  p.X = std::llround(p.sx * (1 << kSubBits));
+  p.Y = std::llround(p.sy * (1 << kSubBits));
+  p.wx = v.wx;
+  p.wy = v.wy;
+  return p;
+}
+
+void Renderer::Impl::emit_triangle(const ProjVert& a, const ProjVert& b, const ProjVert& c) {
   if (n_tris >= options.max_triangles) {
     overflow = true;
     return;
   }
-  const ClipVert* v[3] = {&a, &b, &c};
-  double sx[3], sy[3], iz[3];
-  for (int k = 0; k < 3; ++k) {
-    iz[k] = 1.0 / static_cast<double>(v[k]->z);
-    sx[k] = pinhole.fx * v[k]->x * iz[k] + pinhole.cx;
-    sy[k] = pinhole.fy * v[k]->y * iz[k] + pinhole.cy;
-  }
+  const ProjVert* v[3] = {&a, &b, &c};
+  const double sx[3] = {a.sx, b.sx, c.sx}, sy[3] = {a.sy, b.sy, c.sy}, iz[3] = {a.iz, b.iz, c.iz};
   Tri& t = tris[static_cast<std::size_t>(n_tris)];
   for (int k = 0; k < 3; ++k) {
-    t.X[k] = std::llround(sx[k] * (1 << kSubBits));
-    t.Y[k] = std::llround(sy[k] * (1 << kSubBits));
+    t.X[k] = v[k]->X;
+    t.Y[k] = v[k]->Y;
   }
   std::int64_t area = (t.X[1] - t.X[0]) * (t.Y[2] - t.Y[0]) - (t.Y[1] - t.Y[0]) * (t.X[2] - t.X[0]);
   if (area == 0) return;
@@ -359,22 +386,26 @@ void Renderer::Impl::emit_triangle(const ClipVert& a, const ClipVert& b, const C
   ++n_tris;
 }
 
+// Signed distance of v to clip plane p (>= 0: inside): near, then a guard band around the
+// image (left, right, top, bottom).
+inline float Renderer::Impl::clip_dist(int plane, const ClipVert& v) const {
+  switch (plane) {
+    case 0: return v.z - static_cast<float>(options.near_m);
+    case 1: return v.x - guard[0] * v.z;
+    case 2: return guard[1] * v.z - v.x;
+    case 3: return v.y - guard[2] * v.z;
+    default: return guard[3] * v.z - v.y;
+  }
+}
+
+std::uint8_t Renderer::Impl::outcode(const ClipVert& v) const {
+  std::uint8_t code = 0;
+  for (int plane = 0; plane < 5; ++plane) code |= static_cast<std::uint8_t>((clip_dist(plane, v) >= 0 ? 0 : 1) << plane);
+  return code;
+}
+
 void Renderer::Impl::clip_and_emit(const ClipVert* in, int n) {
-  // Planes d(v) >= 0: near, then a guard band around the image.
-  const float gl = static_cast<float>((-kGuardPx - pinhole.cx) / pinhole.fx);
-  const float gr = static_cast<float>((vw + kGuardPx - pinhole.cx) / pinhole.fx);
-  const float gt = static_cast<float>((-kGuardPx - pinhole.cy) / pinhole.fy);
-  const float gb = static_cast<float>((vh + kGuardPx - pinhole.cy) / pinhole.fy);
   const float near = static_cast<float>(options.near_m);
-  auto dist = [&](int plane, const ClipVert& v) {
-    switch (plane) {
-      case 0: return v.z - near;
-      case 1: return v.x - gl * v.z;
-      case 2: return gr * v.z - v.x;
-      case 3: return v.y - gt * v.z;
-      default: return gb * v.z - v.y;
-    }
-  };
   ClipVert buf[2][kMaxClipVerts];
   int count = n;
   std::copy(in, in + n, buf[0]);
@@ -382,7 +413,7 @@ void Renderer::Impl::clip_and_emit(const ClipVert* in, int n) {
   for (int plane = 0; plane < 5; ++plane) {
     bool all_in = true, all_out = true;
     for (int i = 0; i < count; ++i) {
-      const bool inside = dist(plane, buf[cur][i]) >= 0;
+      const bool inside = clip_dist(plane, buf[cur][i]) >= 0;
       all_in = all_in && inside;
       all_out = all_out && !inside;
     }
@@ -392,7 +423,7 @@ void Renderer::Impl::clip_and_emit(const ClipVert* in, int n) {
     for (int i = 0; i < count && m < kMaxClipVerts - 1; ++i) {
       const ClipVert& a = buf[cur][i];
       const ClipVert& b = buf[cur][(i + 1) % count];
-      const float da = dist(plane, a), db = dist(plane, b);
+      const float da = clip_dist(plane, a), db = clip_dist(plane, b);
       if (da >= 0) buf[1 - cur][m++] = a;
       if ((da >= 0) != (db >= 0)) {
         const float s = da / (da - db);
@@ -410,7 +441,9 @@ void Renderer::Impl::clip_and_emit(const ClipVert* in, int n) {
     count = m;
     if (count < 3) return;
   }
-  for (int i = 1; i + 1 < count; ++i) emit_triangle(buf[cur][0], buf[cur][i], buf[cur][i + 1]);
+  ProjVert p[kMaxClipVerts];
+  for (int i = 0; i < count; ++i) p[i] = project(buf[cur][i]);
+  for (int i = 1; i + 1 < count; ++i) emit_triangle(p[0], p[i], p[i + 1]);
 }
 
 bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const {
@@ -457,6 +490,9 @@ void Renderer::Impl::draw_chunk(const TerrainChunk& c) {
       nan_post[b * n + a] = !std::isfinite(z);
       const Eigen::Vector3f p = R_C_W * (Eigen::Vector3f(x, y, nan_post[b * n + a] ? 0.0f : z) - t_local);
       v = {p.x(), p.y(), p.z(), x, y};
+      const std::size_t k = static_cast<std::size_t>(b * n + a);
+      chunk_out[k] = outcode(v);
+      if (chunk_out[k] == 0) chunk_proj[k] = project(v);
     }
   // No back-face culling: render() refuses a camera below the terrain, and above it the
   // visible side of a heightfield faces the camera, so culling would only save time.
@@ -466,6 +502,15 @@ void Renderer::Impl::draw_chunk(const TerrainChunk& c) {
       if (ii[a + 1] == ii[a]) continue;
       const int k00 = b * n + a, k10 = k00 + 1, k01 = k00 + n, k11 = k01 + 1;
       if (nan_post[k00] || nan_post[k10] || nan_post[k01] || nan_post[k11]) continue;
+      // Wholly inside the clip volume (most triangles): each vertex was projected once.
+      if ((chunk_out[static_cast<std::size_t>(k00)] | chunk_out[static_cast<std::size_t>(k10)] |
+           chunk_out[static_cast<std::size_t>(k01)] | chunk_out[static_cast<std::size_t>(k11)]) == 0) {
+        const ProjVert& p00 = chunk_proj[static_cast<std::size_t>(k00)];
+        const ProjVert& p11 = chunk_proj[static_cast<std::size_t>(k11)];
+        emit_triangle(p00, chunk_proj[static_cast<std::size_t>(k10)], p11);
+        emit_triangle(p00, p11, chunk_proj[static_cast<std::size_t>(k01)]);
+        continue;
+      }
       const ClipVert& v00 = chunk_verts[static_cast<std::size_t>(k00)];
       const ClipVert& v10 = chunk_verts[static_cast<std::size_t>(k10)];
       const ClipVert& v01 = chunk_verts[static_cast<std::size_t>(k01)];
@@ -528,7 +573,13 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   long frags = 0;
   const int first = tile_start[static_cast<std::size_t>(tile)];
   const int count = tile_count[static_cast<std::size_t>(tile)];
+  // Pinhole camera: each entry that covers a pixel gets its planes in float relative to the
+  // tile's corner, for the resolve below (depth to about 3e-7 relative: the planes were
+  // fitted in double).
+  float* coef = tile_coef[static_cast<std::size_t>(thread)].data();
+  const bool resolve_here = remap_u.empty();
   for (int e = 0; e < count; ++e) {
+    const long frags_before = frags;
     const int id = bin_entries[static_cast<std::size_t>(first + e)];
     const Tri& t = tris[static_cast<std::size_t>(id)];
     const int bx0 = std::max(t.bx0, x0), bx1 = std::min(t.bx1, x1);
@@ -601,6 +652,14 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
         }
       }
     }
+    if (resolve_here && frags > frags_before) {
+      float* c = coef + 9 * e;
+      for (int q = 0; q < 3; ++q) {
+        c[3 * q + 0] = static_cast<float>(t.A[q] * x0 + t.B[q] * y0 + t.C[q]);
+        c[3 * q + 1] = static_cast<float>(t.A[q]);
+        c[3 * q + 2] = static_cast<float>(t.B[q]);
+      }
+    }
   }
   tile_fragments[static_cast<std::size_t>(tile)] = frags;
   if (!remap_u.empty()) {
@@ -612,46 +671,12 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     }
     return;
   }
-  // Pinhole camera: resolve this tile now, in float relative to the tile's corner (depth to
-  // about 3e-7 relative: the planes were fitted in double).
-  float* coef = tile_coef[static_cast<std::size_t>(thread)].data();
-  for (int e = 0; e < count; ++e) coef[9 * e] = NAN;  // computed on first use
-  const int w = camera.width;
+  // Pinhole camera: resolve this tile now, row by row.
+  const std::size_t w = static_cast<std::size_t>(camera.width);
   for (int y = y0; y <= y1; ++y) {
-    const int* irow = idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
-    const std::size_t row = static_cast<std::size_t>(y) * static_cast<std::size_t>(w);
-    float* dst_x = gx.data() + row;
-    float* dst_y = gy.data() + row;
-    float* dst_z = gz.data() + row;
-    float* dst_l = log2fp.data() + row;
-    const float dy = static_cast<float>(y - y0);
-    // Runs of pixels that see the same triangle share its coefficients.
-    for (int x = x0; x <= x1;) {
-      const int e = irow[x];
-      int end = x + 1;
-      while (end <= x1 && irow[end] == e) ++end;
-      if (e < 0) {
-        for (int i = x; i < end; ++i) {
-          dst_x[i] = dst_y[i] = dst_z[i] = NAN;
-          dst_l[i] = 0.0f;
-        }
-        x = end;
-        continue;
-      }
-      float* c = coef + 9 * e;
-      if (c[0] != c[0]) {
-        const Tri& t = tris[static_cast<std::size_t>(bin_entries[static_cast<std::size_t>(first + e)])];
-        for (int q = 0; q < 3; ++q) {
-          c[3 * q + 0] = static_cast<float>(t.A[q] * x0 + t.B[q] * y0 + t.C[q]);
-          c[3 * q + 1] = static_cast<float>(t.A[q]);
-          c[3 * q + 2] = static_cast<float>(t.B[q]);
-        }
-      }
-      const ResolveRun run{c[0] + c[2] * dy, c[1], c[3] + c[5] * dy, c[4], c[6] + c[8] * dy, c[7],
-                           c[1], c[2], c[4], c[5], c[7], c[8], static_cast<float>(x - x0)};
-      resolve(end - x, run, dst_x + x, dst_y + x, dst_z + x, dst_l + x);
-      x = end;
-    }
+    const std::size_t row = static_cast<std::size_t>(y) * w + static_cast<std::size_t>(x0);
+    resolve(x1 - x0 + 1, idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw + x0, coef, 0.0f, static_cast<float>(y - y0),
+            gx.data() + row, gy.data() + row, gz.data() + row, log2fp.data() + row);
   }
 }
 

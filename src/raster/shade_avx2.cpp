@@ -3,6 +3,7 @@
 // the output matches it bit for bit. The tail (n % 8) runs the scalar kernel.
 #include <terralign/raster/shade_kernels.hpp>
 
+#include <cmath>
 #include <cstring>
 
 #include <immintrin.h>
@@ -132,24 +133,45 @@ void shade_row_avx2(int n, const float* wx, const float* wy, const float* log2fp
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
 }
 
-void resolve_run_avx2(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp) {
+void resolve_row_avx2(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
+                      float* z, float* log2fp) {
   const __m256 lane = _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7);
-  const __m256 one = _mm256_set1_ps(1.0f);
+  const __m256 one = _mm256_set1_ps(1.0f), nan = _mm256_set1_ps(NAN), zero = _mm256_setzero_ps();
+  const __m256 vdy = _mm256_set1_ps(dy);
   auto b = [](float v) { return _mm256_set1_ps(v); };
   int i = 0;
   for (; i + 8 <= n; i += 8) {
-    const __m256 dx = _mm256_add_ps(_mm256_set1_ps(r.dx0 + static_cast<float>(i)), lane);
-    const __m256 iz = _mm256_add_ps(b(r.iz0), _mm256_mul_ps(b(r.iz_dx), dx));
+    const __m256i id = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(ids + i));
+    const __m256 seen = _mm256_castsi256_ps(_mm256_cmpgt_epi32(id, _mm256_set1_epi32(-1)));
+    const int seen_bits = _mm256_movemask_ps(seen);
+    if (seen_bits == 0) {
+      _mm256_storeu_ps(z + i, nan);
+      _mm256_storeu_ps(wx + i, nan);
+      _mm256_storeu_ps(wy + i, nan);
+      _mm256_storeu_ps(log2fp + i, zero);
+      continue;
+    }
+    // The planes of each lane's entry: one broadcast when the eight pixels see one triangle
+    // (most of a frame), else gathered lane by lane.
+    __m256 c[9];
+    const bool one_entry = seen_bits == 0xff &&
+        _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(id, _mm256_set1_epi32(ids[i])))) == 0xff;
+    if (one_entry) {
+      const float* ce = coef + 9 * static_cast<std::ptrdiff_t>(ids[i]);
+      for (int k = 0; k < 9; ++k) c[k] = _mm256_set1_ps(ce[k]);
+    } else {
+      const __m256i idx = _mm256_add_epi32(_mm256_slli_epi32(id, 3), id);  // 9 e
+      for (int k = 0; k < 9; ++k) c[k] = _mm256_mask_i32gather_ps(zero, coef + k, idx, seen, 4);
+    }
+    const __m256 dx = _mm256_add_ps(_mm256_set1_ps(dx0 + static_cast<float>(i)), lane);
+    const __m256 iz = _mm256_add_ps(_mm256_add_ps(c[0], _mm256_mul_ps(c[2], vdy)), _mm256_mul_ps(c[1], dx));
     const __m256 zz = _mm256_div_ps(one, iz);
-    const __m256 x = _mm256_mul_ps(_mm256_add_ps(b(r.wxz0), _mm256_mul_ps(b(r.wxz_dx), dx)), zz);
-    const __m256 y = _mm256_mul_ps(_mm256_add_ps(b(r.wyz0), _mm256_mul_ps(b(r.wyz_dx), dx)), zz);
-    _mm256_storeu_ps(z + i, zz);
-    _mm256_storeu_ps(wx + i, x);
-    _mm256_storeu_ps(wy + i, y);
-    const __m256 du_x = _mm256_mul_ps(_mm256_sub_ps(b(r.A1), _mm256_mul_ps(x, b(r.A0))), zz);
-    const __m256 du_y = _mm256_mul_ps(_mm256_sub_ps(b(r.A2), _mm256_mul_ps(y, b(r.A0))), zz);
-    const __m256 dv_x = _mm256_mul_ps(_mm256_sub_ps(b(r.B1), _mm256_mul_ps(x, b(r.B0))), zz);
-    const __m256 dv_y = _mm256_mul_ps(_mm256_sub_ps(b(r.B2), _mm256_mul_ps(y, b(r.B0))), zz);
+    const __m256 x = _mm256_mul_ps(_mm256_add_ps(_mm256_add_ps(c[3], _mm256_mul_ps(c[5], vdy)), _mm256_mul_ps(c[4], dx)), zz);
+    const __m256 y = _mm256_mul_ps(_mm256_add_ps(_mm256_add_ps(c[6], _mm256_mul_ps(c[8], vdy)), _mm256_mul_ps(c[7], dx)), zz);
+    const __m256 du_x = _mm256_mul_ps(_mm256_sub_ps(c[4], _mm256_mul_ps(x, c[1])), zz);
+    const __m256 du_y = _mm256_mul_ps(_mm256_sub_ps(c[7], _mm256_mul_ps(y, c[1])), zz);
+    const __m256 dv_x = _mm256_mul_ps(_mm256_sub_ps(c[5], _mm256_mul_ps(x, c[2])), zz);
+    const __m256 dv_y = _mm256_mul_ps(_mm256_sub_ps(c[8], _mm256_mul_ps(y, c[2])), zz);
     const __m256 su = _mm256_add_ps(_mm256_mul_ps(du_x, du_x), _mm256_mul_ps(du_y, du_y));
     const __m256 sv = _mm256_add_ps(_mm256_mul_ps(dv_x, dv_x), _mm256_mul_ps(dv_y, dv_y));
     __m256 d2 = _mm256_blendv_ps(sv, su, _mm256_cmp_ps(su, sv, _CMP_GT_OQ));
@@ -161,13 +183,13 @@ void resolve_run_avx2(int n, const ResolveRun& r, float* wx, float* wy, float* z
                                                          _mm256_set1_epi32(0x3f800000)));
     const __m256 poly = _mm256_sub_ps(_mm256_mul_ps(_mm256_add_ps(_mm256_mul_ps(b(-0.34484843f), m), b(2.02466578f)), m),
                                       b(0.67487759f));
-    _mm256_storeu_ps(log2fp + i, _mm256_mul_ps(b(0.5f), _mm256_add_ps(e, poly)));
+    const __m256 l2 = _mm256_mul_ps(b(0.5f), _mm256_add_ps(e, poly));
+    _mm256_storeu_ps(z + i, _mm256_blendv_ps(nan, zz, seen));
+    _mm256_storeu_ps(wx + i, _mm256_blendv_ps(nan, x, seen));
+    _mm256_storeu_ps(wy + i, _mm256_blendv_ps(nan, y, seen));
+    _mm256_storeu_ps(log2fp + i, _mm256_blendv_ps(zero, l2, seen));
   }
-  if (i < n) {
-    ResolveRun tail = r;
-    tail.dx0 = r.dx0 + static_cast<float>(i);
-    resolve_run_scalar(n - i, tail, wx + i, wy + i, z + i, log2fp + i);
-  }
+  if (i < n) resolve_row_scalar(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, wx + i, wy + i, z + i, log2fp + i);
 }
 
 }  // namespace terralign::raster

@@ -5,6 +5,8 @@
 
 #include <arm_neon.h>
 
+#include <cmath>
+
 namespace terralign::raster {
 namespace {
 
@@ -122,43 +124,49 @@ void shade_row_neon(int n, const float* wx, const float* wy, const float* log2fp
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
 }
 
-void resolve_run_neon(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp) {
-  const float32x4_t one = vdupq_n_f32(1.0f);
+void resolve_row_neon(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
+                      float* z, float* log2fp) {
+  const float32x4_t one = vdupq_n_f32(1.0f), vdy = vdupq_n_f32(dy);
   auto b = [](float v) { return vdupq_n_f32(v); };
-  static const float lanes[8] = {0, 1, 2, 3, 4, 5, 6, 7};
+  static const float lanes[4] = {0, 1, 2, 3};
   int i = 0;
-  // Eight pixels a step, as the scalar twin's dx = (dx0 + i - i % 8) + i % 8.
-  for (; i + 8 <= n; i += 8)
-    for (int h = 0; h < 2; ++h) {
-      const int j = i + 4 * h;
-      const float32x4_t dx = vaddq_f32(vdupq_n_f32(r.dx0 + static_cast<float>(i)), vld1q_f32(lanes + 4 * h));
-      const float32x4_t iz = vaddq_f32(b(r.iz0), vmulq_f32(b(r.iz_dx), dx));
-      const float32x4_t zz = vdivq_f32(one, iz);
-      const float32x4_t x = vmulq_f32(vaddq_f32(b(r.wxz0), vmulq_f32(b(r.wxz_dx), dx)), zz);
-      const float32x4_t y = vmulq_f32(vaddq_f32(b(r.wyz0), vmulq_f32(b(r.wyz_dx), dx)), zz);
-      vst1q_f32(z + j, zz);
-      vst1q_f32(wx + j, x);
-      vst1q_f32(wy + j, y);
-      const float32x4_t du_x = vmulq_f32(vsubq_f32(b(r.A1), vmulq_f32(x, b(r.A0))), zz);
-      const float32x4_t du_y = vmulq_f32(vsubq_f32(b(r.A2), vmulq_f32(y, b(r.A0))), zz);
-      const float32x4_t dv_x = vmulq_f32(vsubq_f32(b(r.B1), vmulq_f32(x, b(r.B0))), zz);
-      const float32x4_t dv_y = vmulq_f32(vsubq_f32(b(r.B2), vmulq_f32(y, b(r.B0))), zz);
-      const float32x4_t su = vaddq_f32(vmulq_f32(du_x, du_x), vmulq_f32(du_y, du_y));
-      const float32x4_t sv = vaddq_f32(vmulq_f32(dv_x, dv_x), vmulq_f32(dv_y, dv_y));
-      float32x4_t d2 = vbslq_f32(vcgtq_f32(su, sv), su, sv);
-      d2 = vbslq_f32(vcgtq_f32(d2, b(1e-12f)), d2, b(1e-12f));
-      // fast_log2, lane-wise: exponent plus a quadratic in the mantissa.
-      const uint32x4_t bits = vreinterpretq_u32_f32(d2);
-      const float32x4_t e = vcvtq_f32_s32(vsubq_s32(vreinterpretq_s32_u32(vshrq_n_u32(bits, 23)), vdupq_n_s32(127)));
-      const float32x4_t m = vreinterpretq_f32_u32(vorrq_u32(vandq_u32(bits, vdupq_n_u32(0x7fffff)), vdupq_n_u32(0x3f800000)));
-      const float32x4_t poly = vsubq_f32(vmulq_f32(vaddq_f32(vmulq_f32(b(-0.34484843f), m), b(2.02466578f)), m), b(0.67487759f));
-      vst1q_f32(log2fp + j, vmulq_f32(b(0.5f), vaddq_f32(e, poly)));
-    }
-  if (i < n) {
-    ResolveRun tail = r;
-    tail.dx0 = r.dx0 + static_cast<float>(i);
-    resolve_run_scalar(n - i, tail, wx + i, wy + i, z + i, log2fp + i);
+  for (; i + 4 <= n; i += 4) {
+    // Each lane's planes, loaded lane by lane (NEON has no gather); lanes with no terrain
+    // compute on zeros and are overwritten below.
+    float cl[9][4];
+    for (int l = 0; l < 4; ++l)
+      for (int k = 0; k < 9; ++k) cl[k][l] = ids[i + l] < 0 ? 0.0f : coef[9 * static_cast<std::ptrdiff_t>(ids[i + l]) + k];
+    float32x4_t c[9];
+    for (int k = 0; k < 9; ++k) c[k] = vld1q_f32(cl[k]);
+    const float32x4_t dx = vaddq_f32(vdupq_n_f32(dx0 + static_cast<float>(i)), vld1q_f32(lanes));
+    const float32x4_t iz = vaddq_f32(vaddq_f32(c[0], vmulq_f32(c[2], vdy)), vmulq_f32(c[1], dx));
+    const float32x4_t zz = vdivq_f32(one, iz);
+    const float32x4_t x = vmulq_f32(vaddq_f32(vaddq_f32(c[3], vmulq_f32(c[5], vdy)), vmulq_f32(c[4], dx)), zz);
+    const float32x4_t y = vmulq_f32(vaddq_f32(vaddq_f32(c[6], vmulq_f32(c[8], vdy)), vmulq_f32(c[7], dx)), zz);
+    vst1q_f32(z + i, zz);
+    vst1q_f32(wx + i, x);
+    vst1q_f32(wy + i, y);
+    const float32x4_t du_x = vmulq_f32(vsubq_f32(c[4], vmulq_f32(x, c[1])), zz);
+    const float32x4_t du_y = vmulq_f32(vsubq_f32(c[7], vmulq_f32(y, c[1])), zz);
+    const float32x4_t dv_x = vmulq_f32(vsubq_f32(c[5], vmulq_f32(x, c[2])), zz);
+    const float32x4_t dv_y = vmulq_f32(vsubq_f32(c[8], vmulq_f32(y, c[2])), zz);
+    const float32x4_t su = vaddq_f32(vmulq_f32(du_x, du_x), vmulq_f32(du_y, du_y));
+    const float32x4_t sv = vaddq_f32(vmulq_f32(dv_x, dv_x), vmulq_f32(dv_y, dv_y));
+    float32x4_t d2 = vbslq_f32(vcgtq_f32(su, sv), su, sv);
+    d2 = vbslq_f32(vcgtq_f32(d2, b(1e-12f)), d2, b(1e-12f));
+    // fast_log2, lane-wise: exponent plus a quadratic in the mantissa.
+    const uint32x4_t bits = vreinterpretq_u32_f32(d2);
+    const float32x4_t e = vcvtq_f32_s32(vsubq_s32(vreinterpretq_s32_u32(vshrq_n_u32(bits, 23)), vdupq_n_s32(127)));
+    const float32x4_t m = vreinterpretq_f32_u32(vorrq_u32(vandq_u32(bits, vdupq_n_u32(0x7fffff)), vdupq_n_u32(0x3f800000)));
+    const float32x4_t poly = vsubq_f32(vmulq_f32(vaddq_f32(vmulq_f32(b(-0.34484843f), m), b(2.02466578f)), m), b(0.67487759f));
+    vst1q_f32(log2fp + i, vmulq_f32(b(0.5f), vaddq_f32(e, poly)));
+    for (int l = 0; l < 4; ++l)
+      if (ids[i + l] < 0) {
+        wx[i + l] = wy[i + l] = z[i + l] = NAN;
+        log2fp[i + l] = 0.0f;
+      }
   }
+  if (i < n) resolve_row_scalar(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, wx + i, wy + i, z + i, log2fp + i);
 }
 
 }  // namespace terralign::raster

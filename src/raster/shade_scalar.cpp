@@ -73,18 +73,27 @@ void shade_row_scalar(int n, const float* wx, const float* wy, const float* log2
   }
 }
 
-void resolve_run_scalar(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp) {
+void resolve_row_scalar(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
+                        float* z, float* log2fp) {
   for (int i = 0; i < n; ++i) {
-    const float dx = (r.dx0 + static_cast<float>(i - i % 8)) + static_cast<float>(i % 8);  // as the AVX2 lanes
-    const float iz = r.iz0 + r.iz_dx * dx;
+    if (ids[i] < 0) {
+      wx[i] = wy[i] = z[i] = NAN;
+      log2fp[i] = 0.0f;
+      continue;
+    }
+    const float* c = coef + 9 * static_cast<std::ptrdiff_t>(ids[i]);
+    const float dx = dx0 + static_cast<float>(i);
+    const float iz = (c[0] + c[2] * dy) + c[1] * dx;
     const float zz = 1.0f / iz;
-    const float x = (r.wxz0 + r.wxz_dx * dx) * zz;
-    const float y = (r.wyz0 + r.wyz_dx * dx) * zz;
+    const float x = ((c[3] + c[5] * dy) + c[4] * dx) * zz;
+    const float y = ((c[6] + c[8] * dy) + c[7] * dx) * zz;
     z[i] = zz;
     wx[i] = x;
     wy[i] = y;
-    const float du_x = (r.A1 - x * r.A0) * zz, du_y = (r.A2 - y * r.A0) * zz;
-    const float dv_x = (r.B1 - x * r.B0) * zz, dv_y = (r.B2 - y * r.B0) * zz;
+    // The footprint from the planes' derivatives: A (per column) = c[1], c[4], c[7];
+    // B (per row) = c[2], c[5], c[8].
+    const float du_x = (c[4] - x * c[1]) * zz, du_y = (c[7] - y * c[1]) * zz;
+    const float dv_x = (c[5] - x * c[2]) * zz, dv_y = (c[8] - y * c[2]) * zz;
     const float su = du_x * du_x + du_y * du_y, sv = dv_x * dv_x + dv_y * dv_y;
     float d2 = su > sv ? su : sv;
     d2 = d2 > 1e-12f ? d2 : 1e-12f;

@@ -43,25 +43,23 @@ void shade_row_neon(int n, const float* wx, const float* wy, const float* log2fp
                     std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p);
 #endif
 
-// One run of pixels of a row that see the same triangle: for pixel i of the run at
-// dx = dx0 + i (pixels from the tile's corner), 1/z = iz0 + iz_dx dx, x/z and y/z likewise;
-// the footprint coefficients are the planes' derivatives (A: per column, B: per row) of 1/z,
-// x/z and y/z.
-struct ResolveRun {
-  float iz0, iz_dx, wxz0, wxz_dx, wyz0, wyz_dx;
-  float A0, B0, A1, B1, A2, B2;
-  float dx0;
-};
-
-// Writes world x, y, depth z and log2 of the ground footprint (metres) for n pixels.
-void resolve_run_scalar(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp);
+// One row of a tile after visibility: pixel i, dx0 + i columns right of the tile's corner and
+// dy rows below it, sees bin entry ids[i] (-1: no terrain), whose planes at the tile's corner
+// are coef[9 e .. 9 e + 8] = {q0, dq0/dx, dq0/dy, q1, dq1/dx, dq1/dy, q2, dq2/dx, dq2/dy} for
+// q0 = 1/z, q1 = x/z, q2 = y/z (local world x, y). Writes world x, y, depth z (NaN: no
+// terrain) and log2 of the ground footprint in metres (0: no terrain) for n pixels. Reads
+// coefficients only of the entries named.
+void resolve_row_scalar(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
+                        float* z, float* log2fp);
 #if defined(TERRALIGN_HAVE_AVX2)
-void resolve_run_avx2(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp);
+void resolve_row_avx2(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
+                      float* z, float* log2fp);
 #endif
 #if defined(TERRALIGN_HAVE_NEON)
-void resolve_run_neon(int n, const ResolveRun& r, float* wx, float* wy, float* z, float* log2fp);
+void resolve_row_neon(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
+                      float* z, float* log2fp);
 #endif
-using ResolveRunFn = void (*)(int, const ResolveRun&, float*, float*, float*, float*);
+using ResolveRowFn = void (*)(int, const int*, const float*, float, float, float*, float*, float*, float*);
 
 // log2 to about 0.005 (exponent plus a quadratic in the mantissa): enough to pick a mip
 // level, and the same on every machine.
