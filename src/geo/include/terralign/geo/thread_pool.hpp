@@ -5,11 +5,11 @@
 // since tasks write disjoint outputs the result never depends on the thread count or on
 // scheduling. Threads are created in the constructor; run() allocates nothing.
 //
-// Waking a sleeping thread costs tens of microseconds (a futex and, in a virtual machine, an
-// inter-processor interrupt), and the tracker and the networks call run() a hundred times or more a frame (once per solver step, once per layer); so a
-// worker that has finished spins for a short while (1500 pauses: some tens of
-// microseconds) watching for the next run before it sleeps, and the caller likewise spins
-// before sleeping on the workers' completion.
+// Waking a sleeping thread costs tens of microseconds (a futex and, in a virtual machine,
+// an inter-processor interrupt), and the tracker and the networks call run() a hundred times
+// or more a frame (once per solver step, once per layer); so a worker that has finished
+// spins for a short while (1500 pauses: some tens of microseconds) watching for the next run
+// before it sleeps, and the caller likewise spins before sleeping on the workers' completion.
 #pragma once
 
 #if !defined(TERRALIGN_NO_THREADS)
