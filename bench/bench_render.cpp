@@ -72,7 +72,8 @@ double median(std::vector<double> v) {
 }
 
 // Frames per second (median of five timed batches) and the median per-stage times of the
-// frames (geometry + binning, rasterization + resolve, shading) in `stage_ms`.
+// frames (geometry + binning; visibility, resolve and, for a pinhole camera, shading; shading
+// of a distorted camera) in `stage_ms`.
 double fps(raster::Renderer& r, raster::RenderOutput& out, const geo::Pose& T, int frames, double stage_ms[3] = nullptr) {
   std::vector<double> per, geo_ms, raster_ms, shade_ms;
   raster::RenderStats st;
@@ -118,7 +119,7 @@ int main(int argc, char** argv) {
        geo::pose_from_ypr({500, 150, 500}, 0, 0, 0, geo::tilted_mount(45)), "tex"},
   };
   const int sizes[][2] = {{188, 120}, {376, 240}, {752, 480}, {1504, 960}};
-  std::printf("| scene | view | size | threads | fps | ms/frame | geometry ms | raster ms | shade ms | triangles |\n"
+  std::printf("| scene | view | size | threads | fps | ms/frame | geometry ms | raster (+ shade) ms | shade ms (distorted) | triangles |\n"
               "|---|---|---|---|---|---|---|---|---|---|\n");
   for (const auto& s : scenes)
     for (int view = 0; view < 2; ++view)

@@ -78,8 +78,10 @@ struct Renderer::Impl {
   std::vector<float> zbuf;                // 1/z of the nearest triangle so far, 0: none
   std::vector<int> idbuf;                 // its index, -1: none
   std::vector<float> remap_u, remap_v;    // per output pixel, pinhole position (distortion)
-  std::vector<float> gx, gy, gz;          // per output pixel: local world x, y; depth
-  std::vector<float> log2fp;              // per output pixel
+  std::vector<float> gx, gy, gz;          // distorted camera, per output pixel: local world x, y; depth
+  std::vector<float> log2fp;              // distorted camera, per output pixel
+  std::vector<float> row_g;               // pinhole camera, per thread: one tile row of x, y, log2fp
+  std::vector<ShadeParams> layer_params;  // per layer
   std::vector<ClipVert> chunk_verts;      // (kChunkQuads + 1)^2
   std::vector<ProjVert> chunk_proj;       // their projections, where chunk_out is 0
   std::vector<std::uint8_t> chunk_out;    // per vertex: bit p set when outside clip plane p
@@ -87,6 +89,7 @@ struct Renderer::Impl {
   int fragments = 0;
 
   // Per-frame state.
+  RenderOutput* frame_out = nullptr;
   Eigen::Matrix3f R_C_W;
   Eigen::Vector3f t_local;     // camera centre, local
   int n_tris = 0;
@@ -102,6 +105,7 @@ struct Renderer::Impl {
   bool chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const;
   void raster_tile(int tile, int thread);
   void resolve_rows(int row0, int row1);
+  void shade_span(int y, int x, int n, const float* wx, const float* wy, const float* log2fp);
 };
 
 namespace {
@@ -249,11 +253,18 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   const std::size_t vpx = static_cast<std::size_t>(m.vw) * static_cast<std::size_t>(m.vh);
   m.zbuf.resize(vpx);
   m.idbuf.resize(vpx);
-  const std::size_t opx = static_cast<std::size_t>(camera.width) * static_cast<std::size_t>(camera.height);
-  m.gx.resize(opx);
-  m.gy.resize(opx);
-  m.gz.resize(opx);
-  m.log2fp.resize(opx);
+  if (!m.remap_u.empty()) {
+    const std::size_t opx = static_cast<std::size_t>(camera.width) * static_cast<std::size_t>(camera.height);
+    m.gx.resize(opx);
+    m.gy.resize(opx);
+    m.gz.resize(opx);
+    m.log2fp.resize(opx);
+  }
+  m.row_g.resize(static_cast<std::size_t>(options.threads) * 3 * kTileW);
+  for (const LayerTexture& T : m.layers)
+    m.layer_params.push_back({T.texels.data(), T.levels.data(), static_cast<int>(T.levels.size()),
+                              static_cast<float>(T.a0), static_cast<float>(T.a1), static_cast<float>(T.a2),
+                              static_cast<float>(T.b0), static_cast<float>(T.b1), static_cast<float>(T.b2), T.lod_bias});
   m.chunk_verts.resize(static_cast<std::size_t>(kChunkQuads + 1) * (kChunkQuads + 1));
   m.chunk_proj.resize(m.chunk_verts.size());
   m.chunk_out.resize(m.chunk_verts.size());
@@ -671,13 +682,26 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     }
     return;
   }
-  // Pinhole camera: resolve this tile now, row by row.
+  // Pinhole camera: resolve and shade this tile now, row by row, the row's world positions
+  // kept in this thread's scratch (never written to memory in full).
   const std::size_t w = static_cast<std::size_t>(camera.width);
+  float* rx = row_g.data() + static_cast<std::size_t>(thread) * 3 * kTileW;
+  float* ry = rx + kTileW;
+  float* rl = ry + kTileW;
   for (int y = y0; y <= y1; ++y) {
-    const std::size_t row = static_cast<std::size_t>(y) * w + static_cast<std::size_t>(x0);
+    float* depth = frame_out->depth.data() + static_cast<std::size_t>(y) * w + static_cast<std::size_t>(x0);
     resolve(x1 - x0 + 1, idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw + x0, coef, 0.0f, static_cast<float>(y - y0),
-            gx.data() + row, gy.data() + row, gz.data() + row, log2fp.data() + row);
+            rx, ry, depth, rl);
+    shade_span(y, x0, x1 - x0 + 1, rx, ry, rl);
   }
+}
+
+// Shades pixels [x, x + n) of output row y in every requested layer.
+void Renderer::Impl::shade_span(int y, int x, int n, const float* wx, const float* wy, const float* l2) {
+  const std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(camera.width) + static_cast<std::size_t>(x);
+  for (std::size_t l = 0; l < frame_out->layer_names.size(); ++l)
+    shade(n, wx, wy, l2, frame_out->rgb[l].data() + 3 * k, frame_out->valid[l].data() + k,
+          layer_params[static_cast<std::size_t>(frame_out->layer_index[l])]);
 }
 
 void Renderer::Impl::resolve_rows(int row0, int row1) {
@@ -737,6 +761,7 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
     return Error{"render: camera at z " + std::to_string(t.z()) + " m is below the terrain (" +
                  std::to_string(ground) + " m) at (" + std::to_string(t.x()) + ", " + std::to_string(t.y()) + ")"};
   }
+  m.frame_out = &out;
   m.R_C_W = T_W_C.q_W_C.conjugate().toRotationMatrix().cast<float>();
   m.t_local = Eigen::Vector3f(static_cast<float>(t.x() - m.ox), static_cast<float>(t.y() - m.oy),
                               static_cast<float>(t.z() - m.oz));
@@ -791,8 +816,8 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   }
   const auto t1 = Clock::now();
 
-  // 3-4. Visibility per tile (resolved in the tile for a pinhole camera), then, for a
-  // distorted camera, resolve per output row block.
+  // 3-5. Visibility per tile; for a pinhole camera the tile is resolved and shaded there,
+  // for a distorted one each output row block is resolved and shaded afterwards.
   for (int c : m.tile_count)
     if (c > m.max_tile_entries) {
       invalidate();
@@ -803,34 +828,21 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
     auto* x = static_cast<TaskCtx*>(c);
     x->m->raster_tile(i, i % x->m->pool->threads());
   }, &ctx);
-  const int h = m.camera.height;
-  const int blocks = (h + ctx.rows_per_task - 1) / ctx.rows_per_task;
-  if (!m.remap_u.empty())
+  const auto t2 = Clock::now();
+  if (!m.remap_u.empty()) {
+    const int blocks = (m.camera.height + ctx.rows_per_task - 1) / ctx.rows_per_task;
     m.pool->run(blocks, [](void* c, int i) {
       auto* x = static_cast<TaskCtx*>(c);
-      x->m->resolve_rows(i * x->rows_per_task, std::min((i + 1) * x->rows_per_task, x->m->camera.height));
-    }, &ctx);
-  const auto t2 = Clock::now();
-
-  // 5. Shading, every requested layer, by row blocks.
-  std::copy(m.gz.begin(), m.gz.end(), out.depth.pixels().begin());
-  m.pool->run(blocks, [](void* c, int i) {
-    auto* x = static_cast<TaskCtx*>(c);
-    Impl& im = *x->m;
-    const int w = im.camera.width;
-    const int r0 = i * x->rows_per_task, r1 = std::min(r0 + x->rows_per_task, im.camera.height);
-    for (std::size_t l = 0; l < x->out->layer_names.size(); ++l) {
-      const LayerTexture* T = &im.layers[static_cast<std::size_t>(x->out->layer_index[l])];
-      ShadeParams p{T->texels.data(), T->levels.data(), static_cast<int>(T->levels.size()),
-                    static_cast<float>(T->a0), static_cast<float>(T->a1), static_cast<float>(T->a2),
-                    static_cast<float>(T->b0), static_cast<float>(T->b1), static_cast<float>(T->b2), T->lod_bias};
+      Impl& im = *x->m;
+      const int r0 = i * x->rows_per_task, r1 = std::min(r0 + x->rows_per_task, im.camera.height);
+      im.resolve_rows(r0, r1);
       for (int y = r0; y < r1; ++y) {
-        const std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(w);
-        im.shade(w, im.gx.data() + k, im.gy.data() + k, im.log2fp.data() + k,
-                 x->out->rgb[l].data() + 3 * k, x->out->valid[l].data() + k, p);
+        const std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(im.camera.width);
+        im.shade_span(y, 0, im.camera.width, im.gx.data() + k, im.gy.data() + k, im.log2fp.data() + k);
       }
-    }
-  }, &ctx);
+    }, &ctx);
+    std::copy(m.gz.begin(), m.gz.end(), out.depth.pixels().begin());
+  }
   const auto t3 = Clock::now();
   if (stats) {
     stats->triangles = m.n_tris;
@@ -842,7 +854,7 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
     stats->ms_shade = std::chrono::duration<double, std::milli>(t3 - t2).count();
   }
   bool any = false;
-  for (float z : m.gz)
+  for (float z : out.depth.pixels())
     if (z == z) {
       any = true;
       break;

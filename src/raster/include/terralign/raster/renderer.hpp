@@ -56,6 +56,9 @@ struct RenderStats {
   int triangles = 0;        // after LOD and clipping
   int chunks = 0;           // terrain chunks drawn
   long fragments = 0;       // pixels that passed a triangle's coverage test (overdraw included)
+  // Stage times: LOD, geometry and binning; visibility per tile (for a pinhole camera also
+  // the resolve and the shading of every layer, done tile by tile); for a distorted camera,
+  // the remap, resolve and shading afterwards (0 for a pinhole camera).
   double ms_geometry = 0, ms_raster = 0, ms_shade = 0;
 };
 
