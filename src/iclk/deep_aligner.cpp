@@ -130,6 +130,8 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   o.normalize = true;
   o.block.fill(1);
   o.robust = iclk::Robust::None;
+  if (o.probe_px == 0) o.probe_px = kProbePx;
+  if (o.min_sharpness == 0) o.min_sharpness = kMinSharpness;
   // Every pixel of four levels: enough work per iteration for the threads to pay off
   // (unlike the sparse classical selection); chunked sums keep the result thread-count free.
   o.threads = threads;

@@ -483,6 +483,22 @@ double Tracker<S, Warp, C>::residual_correlation(int n) const {
 }
 
 template <class S, class Warp, int C>
+double Tracker<S, Warp, C>::mean_square_residual(int n) const {
+  double sum = 0;
+  long count = 0;
+  for (int i = 0; i < n; ++i) {
+    const std::size_t k = static_cast<std::size_t>(i);
+    if (!ok_[k]) continue;
+    for (int c = 0; c < C; ++c) {
+      const double r = static_cast<double>(r_[k * C + static_cast<std::size_t>(c)]);
+      sum += r * r;
+    }
+    ++count;
+  }
+  return count > 0 ? sum / (static_cast<double>(count) * C) : 0.0;
+}
+
+template <class S, class Warp, int C>
 const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const Params& init,
                                                      const ImageView<const float>* weights, LevelWeights* level_weights) {
   TrackResult<Warp>& R = result_;
@@ -566,6 +582,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
     if (level == 0) {
       evaluate(n, init, K[0], g, Hout, cost, wsum);
       R.cost_init = wsum > 0 ? cost / wsum : 0;
+      R.residual_init = mean_square_residual(n);
     }
     for (int it = 0; it < opt_.iterations; ++it) {
       const int valid = evaluate(n, p, K[level], g, Hout, cost, wsum);
@@ -598,6 +615,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       const int valid = evaluate(n, p, K[0], g, Hout, cost, wsum);
       R.valid_pixels = valid;
       R.cost_final = wsum > 0 ? cost / wsum : 0;
+      R.residual_final = mean_square_residual(n);
       Hv = H - Hout;
       if (valid < opt_.min_valid_pixels) return fail("too few pixels land inside the live image");
       // Information per unit of rotation and of translation / median depth, so that the
@@ -633,6 +651,20 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
         const double r_rms = std::sqrt(radius2_sum_ / std::max(n, 1));  // rotation and scale: RMS 1 px
         if (r_rms > 0) B.template rightCols<2>() /= r_rms;
         R.covariance += opt_.registration_floor_px * opt_.registration_floor_px * Mi * B * B.transpose() * Mi;
+      }
+      if (Warp::kNeedsDepth && opt_.probe_px > 0) {
+        double least = INFINITY;
+        for (int k = 0; k < 4; ++k) {
+          Eigen::Matrix<S, DoF, 1> nudge = Eigen::Matrix<S, DoF, 1>::Zero();
+          const double px = (k & 1 ? -1.0 : 1.0) * opt_.probe_px;
+          nudge[k < 2 ? 1 : 0] = static_cast<S>(k < 2 ? px / static_cast<double>(K[0].fx) : px / static_cast<double>(K[0].fy));
+          Params q = p;
+          Warp::update(q, nudge);
+          evaluate(n, q, K[0], g, Hout, cost, wsum);
+          least = std::min(least, mean_square_residual(n));
+        }
+        R.sharpness = R.residual_final > 0 ? least / R.residual_final : 0.0;
+        if (R.sharpness < opt_.min_sharpness) return fail("ambiguous: the image agreement is as good a few pixels away");
       }
     }
   }

@@ -73,7 +73,8 @@ struct Method {
   bool learned = false;
   std::vector<double> epe_m, angle, trans, epe_px, ms;
   std::vector<char> ok;  // reported converged
-  std::vector<double> cost_init, cost_final;
+  std::vector<double> cost_init, cost_final, residual_init, residual_final, sharpness;
+  std::vector<const char*> reason;
   int converged = 0;
 };
 
@@ -230,6 +231,10 @@ int run_eval(const std::vector<std::string>& argv) {
         m.ok.push_back(out->converged);
         m.cost_init.push_back(out->cost_init);
         m.cost_final.push_back(out->cost_final);
+        m.residual_init.push_back(out->residual_init);
+        m.residual_final.push_back(out->residual_final);
+        m.sharpness.push_back(out->sharpness);
+        m.reason.push_back(out->reason);
       } else {
         m.converged += 1;
         m.ok.push_back(1);
@@ -303,6 +308,10 @@ int run_eval(const std::vector<std::string>& argv) {
       if (k < m.cost_final.size()) {
         sj["cost_init"] = m.cost_init[k];
         sj["cost_final"] = m.cost_final[k];
+        sj["residual_init"] = m.residual_init[k];
+        sj["residual_final"] = m.residual_final[k];
+        sj["sharpness"] = m.sharpness[k];
+        sj["reason"] = m.reason[k];
       }
       mj["samples"].push_back(sj);
     }

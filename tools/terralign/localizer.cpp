@@ -115,6 +115,9 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   out.iterations = r.iterations;
   out.cost_init = r.cost_init;
   out.cost_final = r.cost_final;
+  out.residual_init = r.residual_init;
+  out.residual_final = r.residual_final;
+  out.sharpness = r.sharpness;
   out.residual_correlation = r.residual_correlation;
   out.covariance_inflation = r.covariance_inflation;
   out.ms_pyramid = r.ms_pyramid;

@@ -76,6 +76,11 @@ struct TrackerOptions {
   // sigma_floor^2 M^-1 (sum_m b_m b_m^T) M^-1, M = sum dW^T dW, b_m = sum dW^T d_m.
   // 0.1 px: about the position RMSE of same-year rendered flights (README, tracking).
   double registration_floor_px = 0.1;
+  // The sharpness test (TrackResult::sharpness): the nudge in finest-level pixels (0: not
+  // measured) and the least sharpness a converged answer must have. Off for the classical
+  // tracker; the learned one sets them (DeepAligner).
+  double probe_px = 0;
+  double min_sharpness = 0;
   int threads = 1;                   // residuals in fixed chunks: same result on any count
   // The vector (AVX2) residual kernel where the CPU has it; false: its scalar twin. Both give
   // the same bits (evaluate_kernels.hpp); tests compare them.
@@ -98,6 +103,17 @@ struct TrackResult {
   // Mean weighted squared residual at the finest level: at the initial parameters, where
   // the finest level started (after the coarse levels), and at the end.
   double cost_init = 0, cost_start = 0, cost_final = 0;
+  // The same without the weights: the mean squared residual per channel over the finest
+  // level's pixels that land inside, at the initial parameters and at the end. With
+  // normalised features about 2 (1 - NCC): how well the whole image agrees, not only the
+  // pixels a (learned) M-estimator kept.
+  double residual_init = 0, residual_final = 0;
+  // How sharply the answer is a minimum (6-DoF warp with probe_px > 0; else 0): the residual
+  // with the pose nudged by TrackerOptions::probe_px finest-level pixels left, right, up and
+  // down (rotations about the camera's y and x axes), the smallest of the four, over
+  // residual_final. A right answer sits in a narrow valley of the image agreement; a wrong
+  // one, where the features do not agree anyway, in a flat one.
+  double sharpness = 0;
   // Covariance of the last step's parameters dxi (the solver's tangent at the estimate,
   // reference side): f sigma^2 (J^T W J)^-1 at the finest level, sigma^2 = sum w r^2 /
   // (sum w - DoF). Neighbouring residuals are not independent (interpolation, blur, and the
@@ -166,7 +182,8 @@ class Tracker {
   const TrackResult<Warp>& solve(const Pinhole<S>& K0, const Params& init, const ImageView<const float>* weights,
                                  LevelWeights* level_weights);
   void learned_weights(int n, int level, const Params& p, const Pinhole<S>& K, LevelWeights& lw);
-  double residual_correlation(int n) const;  // of the residuals of the last evaluate() at the finest level
+  double residual_correlation(int n) const;
+  double mean_square_residual(int n) const;  // unweighted, of the last evaluate()  // of the residuals of the last evaluate() at the finest level
   int select_pixels(int level, const Pinhole<S>& K);
   void robust_weights(int n, const ImageView<const float>* weights, int level);
   // Residuals and J^T W r at `p`; returns the valid count, fills cost (sum w r^2), sum of w
