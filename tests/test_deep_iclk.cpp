@@ -123,3 +123,39 @@ TEST_CASE("learned tracker: refuses a size too small for its levels and another 
   REQUIRE_FALSE(other.ok());
   MESSAGE(other.error().message);
 }
+
+TEST_CASE("learned tracker: the sharpness test reads its threshold from the weights and fails a flat answer") {
+  const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
+  auto threshold = iclk::DeepAligner::min_sharpness(weights);
+  REQUIRE(threshold.ok());
+  CHECK(threshold.value() == doctest::Approx(1.025));  // written by training/calibrate_sharpness.py
+  const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
+  const Pair p = pair_of(vectors, 0);
+  auto run = [&](double min_sharpness) {
+    iclk::TrackerOptions o = options();
+    o.min_sharpness = min_sharpness;
+    auto D = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), o, 1);
+    REQUIRE(D.ok());
+    return D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
+  };
+  // A right same-year answer sits in a valley: its residual 2 px away is higher.
+  const auto right = run(0);  // the weights' threshold
+  CHECK(right.converged);
+  CHECK(right.sharpness >= threshold.value());
+  // Asked for more sharpness than it has, the same answer is reported as failed, with the
+  // prior returned.
+  const auto flat = run(right.sharpness * 1.01);
+  CHECK_FALSE(flat.converged);
+  CHECK(std::string(flat.reason).rfind("ambiguous", 0) == 0);
+  CHECK(flat.params.t.norm() == 0.0f);
+  // A negative threshold turns the test off: the answer stands.
+  CHECK(run(-1).converged);
+  // A weight file with a malformed threshold is refused, naming the line.
+  nn::WeightFile bad = weights;
+  const auto at = bad.architecture.find("# min-sharpness ");
+  REQUIRE(at != std::string::npos);
+  bad.architecture.replace(at, bad.architecture.find('\n', at) - at, "# min-sharpness nan");
+  auto refused = iclk::DeepAligner::create(bad, p.ref.width(), p.ref.height(), options(), 1);
+  REQUIRE_FALSE(refused.ok());
+  CHECK(refused.error().message.find("# min-sharpness nan") != std::string::npos);
+}

@@ -9,9 +9,8 @@ parity-vector writer. Layout (little-endian), as read by src/nn/weights.cpp:
   u64       data block length, then the data (each tensor 16-byte aligned)
   u64       FNV-1a 64 of every byte before it
 """
+import os
 import struct
-
-import numpy as np
 
 MAGIC = b"TLNNWGT\0"
 VERSION = 1
@@ -27,6 +26,7 @@ def fnv1a64(data):
 
 def write(path, arch, tensors):
     """tensors: list of (name, numpy float32 array)."""
+    import numpy as np  # only the writer needs it: replace_architecture() runs on the stdlib
     head = bytearray(MAGIC)
     head += struct.pack("<I", VERSION)
     a = arch.encode()
@@ -43,7 +43,28 @@ def write(path, arch, tensors):
         head += struct.pack("<QQ", len(blob), arr.nbytes)
         blob += arr.tobytes()
     body = bytes(head) + struct.pack("<Q", len(blob)) + bytes(blob)
+    _write_atomic(path, body)
+
+
+def _write_atomic(path, body):
     with open(path + ".tmp", "wb") as f:
         f.write(body + struct.pack("<Q", fnv1a64(body)))
-    import os
     os.replace(path + ".tmp", path)
+
+
+def architecture(path):
+    """The architecture text of a weight file (after checking its magic and checksum)."""
+    data = open(path, "rb").read()
+    if data[:8] != MAGIC or struct.unpack_from("<Q", data, len(data) - 8)[0] != fnv1a64(data[:-8]):
+        raise ValueError(f"{path}: not a terralign weight file, or its checksum does not match")
+    (n,) = struct.unpack_from("<I", data, 12)
+    return data[16:16 + n].decode(), data
+
+
+def replace_architecture(path, arch):
+    """Rewrites a weight file with another architecture text (e.g. a new comment line); the
+    tensors are kept byte for byte (their offsets count from the data block)."""
+    old, data = architecture(path)
+    a = arch.encode()
+    body = data[:12] + struct.pack("<I", len(a)) + a + data[16 + len(old.encode()):-8]
+    _write_atomic(path, body)

@@ -75,6 +75,14 @@ Result<int> DeepAligner::levels(const nn::WeightFile& weights) {
   return static_cast<int>(n);
 }
 
+Result<double> DeepAligner::min_sharpness(const nn::WeightFile& weights) {
+  std::string line;
+  double v = 0;
+  if (comment_value(weights, "min-sharpness", line, v) && !(v >= 0 && v <= 10))
+    return Error{weights.name + ": '" + line + "': the sharpness threshold must be in [0, 10]"};
+  return v;
+}
+
 Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& weights, int width, int height,
                                                          const iclk::TrackerOptions& options, int threads,
                                                          int use_levels) {
@@ -131,7 +139,9 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   o.block.fill(1);
   o.robust = iclk::Robust::None;
   if (o.probe_px == 0) o.probe_px = kProbePx;
-  if (o.min_sharpness == 0) o.min_sharpness = kMinSharpness;
+  if (o.min_sharpness == 0) {
+    TERRALIGN_TRY_ASSIGN(o.min_sharpness, DeepAligner::min_sharpness(weights));
+  }
   // Every pixel of four levels: enough work per iteration for the threads to pay off
   // (unlike the sparse classical selection); chunked sums keep the result thread-count free.
   o.threads = threads;

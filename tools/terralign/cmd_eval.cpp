@@ -109,7 +109,8 @@ ImageU8 overlay(const ImageF& ref_grey, const ImageF& depth, const ImageF& query
 
 int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
-                                 "json", "overlays", "threads", "robust", "levels", "weights", "area"}, {});
+                                 "json", "overlays", "threads", "robust", "levels", "weights", "area",
+                                 "min-sharpness"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -132,6 +133,9 @@ int run_eval(const std::vector<std::string>& argv) {
   if (!robust.ok()) return usage_error("eval", robust.error());
   auto levels = args->get_int("levels", 4, 1, 6);
   if (!levels.ok()) return usage_error("eval", levels.error());
+  auto min_sharpness = args->get_double("min-sharpness", 0.0);
+  if (!min_sharpness.ok() || !(std::abs(min_sharpness.value()) <= 10))
+    return usage_error("eval", Error{"--min-sharpness must be in [-10, 10] (negative: no sharpness test)"});
   std::vector<Method> methods;
   {
     for (const std::string& m : split_commas(args->get("methods", "init,classic:20,classic:50"))) {
@@ -183,6 +187,7 @@ int run_eval(const std::vector<std::string>& argv) {
   iclk::TrackerOptions opt;
   opt.robust = robust.value();
   opt.levels = levels.value();
+  opt.min_sharpness = min_sharpness.value();
   auto loc = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value());
   if (!loc.ok()) return fail(loc.error());
   std::unique_ptr<Localizer> learned;

@@ -36,7 +36,8 @@ const std::vector<Command>& commands() {
        "usage: terralign eval --map MAP.json --camera CAMERA.json --ref-layer A --query-layer B --count N\n"
        "                      --seed S --altitude LO:HI [--tilt DEG] [--methods init,classic:20,classic:50]\n"
        "                      [--robust none|huber|tukey] [--levels L] [--json OUT] [--overlays DIR]\n"
-       "                      [--threads N] [--weights FILE] [--area MINX,MINY,MAXX,MAXY]\n\n"
+       "                      [--threads N] [--weights FILE] [--area MINX,MINY,MAXX,MAXY]\n"
+       "                      [--min-sharpness S]\n\n"
        "Samples N true poses with the whole footprint on the map (altitude above ground in\n"
        "[LO, HI] m, tilt off nadir up to DEG, any heading), perturbs each for the prior (rotation\n"
        "about a random axis by U[0, 6] deg, translation by U[0, 0.13 x altitude] m in a random\n"
@@ -46,7 +47,9 @@ const std::vector<Command>& commands() {
        "fraction, how many converged answers are within 5 px, and the alignment time (nn: with both\n"
        "encoders; neither includes rendering). Methods: init, classic:N, nn:N (the learned tracker,\n"
        "N iterations per level; --weights as for align). --area keeps every footprint inside a part\n"
-       "of the map (e.g. ground the learned tracker was not trained on).\n",
+       "of the map (e.g. ground the learned tracker was not trained on). --min-sharpness sets the\n"
+       "learned tracker's sharpness test (default 1.03; negative: none): an answer whose feature\n"
+       "agreement is within that factor as good 2 px away is reported as failed (the prior).\n",
        run_eval},
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
        "usage: terralign flight --map MAP.json --camera CAMERA.json --layer NAME --path lawnmower|circle|FILE\n"

@@ -1,0 +1,64 @@
+#!/usr/bin/env python3
+"""Calibrates the learned tracker's sharpness test for one weight file and writes the
+threshold into it as `# min-sharpness X` (read by src/iclk/deep_aligner.cpp).
+
+The tracker reports an answer as failed when its feature agreement 2 px away is within a
+factor `min-sharpness` of the final one (iclk::TrackResult::sharpness). The threshold keeps
+`--keep` (97 %) of the right converged answers (2-D EPE < 5 px) of an adjacent-year pair on
+calibration poses (seed 11; the README's tables use seed 7), rounded down to 0.005. Runs
+`terralign eval ... --min-sharpness -1 --json` (the test off); Python's standard library only.
+
+  training/calibrate_sharpness.py weights/deep_iclk_s16.tlw
+"""
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import tlw  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("weights")
+    p.add_argument("--terralign", default=os.path.join(ROOT, "build/release/tools/terralign/terralign"))
+    p.add_argument("--map", default=os.path.join(ROOT, "data/naip_west/map.json"))
+    p.add_argument("--camera", default=os.path.join(ROOT, "data/cameras/uav_752x480.json"))
+    p.add_argument("--pair", default="2016,2017", help="reference and query layers")
+    p.add_argument("--count", type=int, default=100)
+    p.add_argument("--seed", type=int, default=11)
+    p.add_argument("--keep", type=float, default=0.97, help="share of right converged answers to keep")
+    a = p.parse_args()
+    ref, query = a.pair.split(",")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "eval.json")
+        subprocess.run([a.terralign, "eval", "--map", a.map, "--camera", a.camera, "--ref-layer", ref,
+                        "--query-layer", query, "--count", str(a.count), "--seed", str(a.seed), "--altitude",
+                        "700:900", "--tilt", "10", "--methods", "nn:20", "--weights", a.weights,
+                        "--min-sharpness", "-1", "--json", out], check=True, stdout=subprocess.DEVNULL)
+        samples = json.load(open(out))["methods"]["nn:20"]["samples"]
+    right = sorted(s["sharpness"] for s in samples if s["converged"] and s["epe_px"] < 5)
+    wrong = [s["sharpness"] for s in samples if s["converged"] and s["epe_px"] >= 5]
+    if len(right) < 20:
+        sys.exit(f"{a.weights}: only {len(right)} right converged answers on {ref} -> {query}: too few to calibrate")
+    q = right[int(math.floor((1 - a.keep) * (len(right) - 1)))]
+    threshold = math.floor(q / 0.005) * 0.005
+    kept = sum(v >= threshold for v in right)
+    rejected = sum(v < threshold for v in wrong)
+    arch, _ = tlw.architecture(a.weights)
+    lines = [l for l in arch.split("\n") if not l.startswith("# min-sharpness ")]
+    at = next(i for i, l in enumerate(lines) if l.startswith("# levels ")) + 1
+    lines.insert(at, f"# min-sharpness {threshold:.3f}")
+    tlw.replace_architecture(a.weights, "\n".join(lines))
+    print(f"{a.weights}: min-sharpness {threshold:.3f} ({ref} -> {query}, {a.count} poses, seed {a.seed}): keeps "
+          f"{kept} of {len(right)} right converged answers, fails {rejected} of {len(wrong)} wrong ones")
+
+
+if __name__ == "__main__":
+    main()
