@@ -69,12 +69,15 @@ struct Renderer::Impl {
   // Frame buffers, sized at construction.
   int vw = 0, vh = 0;                     // pinhole (G-buffer) size
   int tiles_x = 0, tiles_y = 0;
-  std::vector<Tri> tris;
+  // Sized for max_triangles but not zeroed (default-initialised): a view touches, and so
+  // commits to memory, only the pages of the triangles it draws.
+  std::unique_ptr<Tri[]> tris;
   std::vector<int> tile_count, tile_start, tile_fill;
   std::vector<long> tile_fragments;
   std::vector<std::vector<float>> tile_coef;  // per thread: 9 floats per bin entry of a tile
   int max_tile_entries = 0;                    // bin entries one tile may hold
-  std::vector<int> bin_entries;
+  std::unique_ptr<int[]> bin_entries;     // likewise not zeroed
+  std::size_t bin_capacity = 0;
   std::vector<float> zbuf;                // 1/z of the nearest triangle so far, 0: none
   std::vector<int> idbuf;                 // its index, -1: none
   std::vector<float> remap_u, remap_v;    // per output pixel, pinhole position (distortion)
@@ -239,7 +242,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.tiles_x = (m.vw + kTileW - 1) / kTileW;
   m.tiles_y = (m.vh + kTileH - 1) / kTileH;
   const std::size_t tiles = static_cast<std::size_t>(m.tiles_x) * static_cast<std::size_t>(m.tiles_y);
-  m.tris.resize(static_cast<std::size_t>(options.max_triangles));
+  m.tris.reset(new Tri[static_cast<std::size_t>(options.max_triangles)]);
   m.tile_count.resize(tiles);
   m.tile_start.resize(tiles + 1);
   m.tile_fill.resize(tiles);
@@ -249,7 +252,8 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.max_tile_entries = std::min(kMaxTileEntries, options.max_triangles);
   m.tile_coef.resize(static_cast<std::size_t>(options.threads));
   for (auto& coef : m.tile_coef) coef.resize(9 * static_cast<std::size_t>(m.max_tile_entries));
-  m.bin_entries.resize(static_cast<std::size_t>(options.max_triangles) * 4 + tiles * 256);
+  m.bin_capacity = static_cast<std::size_t>(options.max_triangles) * 4 + tiles * 256;
+  m.bin_entries.reset(new int[m.bin_capacity]);
   const std::size_t vpx = static_cast<std::size_t>(m.vw) * static_cast<std::size_t>(m.vh);
   m.zbuf.resize(vpx);
   m.idbuf.resize(vpx);
@@ -803,7 +807,7 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   }
   m.tile_start[0] = 0;
   for (std::size_t k = 0; k < m.tile_count.size(); ++k) m.tile_start[k + 1] = m.tile_start[k] + m.tile_count[k];
-  if (static_cast<std::size_t>(m.tile_start.back()) > m.bin_entries.size()) {
+  if (static_cast<std::size_t>(m.tile_start.back()) > m.bin_capacity) {
     invalidate();
     return Error{"render: tile bins overflow (" + std::to_string(m.tile_start.back()) + " entries)"};
   }
