@@ -47,7 +47,6 @@ void ThreadPool::do_tasks(int id) {
   for (int i = id; i < tasks_; i += threads_) fn_(ctx_, i);
 }
 
-
 void ThreadPool::run(int tasks, Task fn, void* ctx) {
   if (threads_ == 1 || tasks <= 1) {
     for (int i = 0; i < tasks; ++i) fn(ctx, i);
