@@ -34,23 +34,6 @@ struct ProjVert {
   float wx, wy;
 };
 
-struct Tri;
-
-// One thread's geometry: its part of the triangle array and its chunk scratch.
-struct GeomCtx {
-  Tri* tris = nullptr;  // max_triangles long
-  int n = 0;
-  bool overflow = false;
-  std::vector<ClipVert> verts;      // a chunk's (kChunkQuads + 1)^2 vertices
-  std::vector<ProjVert> proj;       // their projections, where out is 0
-  std::vector<std::uint8_t> out;    // per vertex: bit p set when outside clip plane p
-};
-
-// Where a drawn chunk's triangles are: thread, first index in its part, count.
-struct ChunkTris {
-  int thread, start, count;
-};
-
 // A screen triangle ready for rasterization. Plane coefficients q(x, y) = A x + B y + C in
 // pixel coordinates (centres at integers) for 1/z, x_world/z and y_world/z.
 struct Tri {
@@ -88,10 +71,7 @@ struct Renderer::Impl {
   int tiles_x = 0, tiles_y = 0;
   // Sized for max_triangles but not zeroed (default-initialised): a view touches, and so
   // commits to memory, only the pages of the triangles it draws.
-  std::unique_ptr<Tri[]> tris;            // threads x max_triangles: each thread's part
-  std::vector<GeomCtx> geom;              // per thread
-  std::vector<int> draw_list;             // the chunks a frame draws, in traversal order
-  std::vector<ChunkTris> chunk_tris;      // per drawn chunk
+  std::unique_ptr<Tri[]> tris;
   std::vector<int> tile_count, tile_start, tile_fill;
   std::vector<long> tile_fragments;
   std::vector<std::vector<float>> tile_coef;  // per thread: 9 floats per bin entry of a tile
@@ -105,6 +85,9 @@ struct Renderer::Impl {
   std::vector<float> log2fp;              // distorted camera, per output pixel
   std::vector<float> row_g;               // pinhole camera, per thread: one tile row of x, y, log2fp
   std::vector<ShadeParams> layer_params;  // per layer
+  std::vector<ClipVert> chunk_verts;      // (kChunkQuads + 1)^2
+  std::vector<ProjVert> chunk_proj;       // their projections, where chunk_out is 0
+  std::vector<std::uint8_t> chunk_out;    // per vertex: bit p set when outside clip plane p
   std::vector<int> chunk_stack;
   int fragments = 0;
 
@@ -113,13 +96,15 @@ struct Renderer::Impl {
   Eigen::Matrix3f R_C_W;
   Eigen::Vector3f t_local;     // camera centre, local
   int n_tris = 0;
+  bool overflow = false;
+  int chunks_drawn = 0;
 
   ProjVert project(const ClipVert& v) const;
   std::uint8_t outcode(const ClipVert& v) const;
-  void emit_triangle(GeomCtx& g, const ProjVert& a, const ProjVert& b, const ProjVert& c) const;
+  void emit_triangle(const ProjVert& a, const ProjVert& b, const ProjVert& c);
   float clip_dist(int plane, const ClipVert& v) const;
-  void clip_and_emit(GeomCtx& g, const ClipVert* v, int n) const;
-  void draw_chunk(GeomCtx& g, const TerrainChunk& c) const;
+  void clip_and_emit(const ClipVert* v, int n);
+  void draw_chunk(const TerrainChunk& c);
   bool chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const;
   void raster_tile(int tile, int thread);
   void resolve_rows(int row0, int row1);
@@ -188,9 +173,6 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     return Error{"render options: lod_error_px and near_m must be > 0"};
   if (options.max_triangles < 1024 || options.max_triangles > (1 << 24))
     return Error{"render options: max_triangles " + std::to_string(options.max_triangles) + " is outside 1024..2^24"};
-  if (static_cast<long>(options.threads) * options.max_triangles > (1L << 25))
-    return Error{"render options: threads x max_triangles (" + std::to_string(options.threads) + " x " +
-                 std::to_string(options.max_triangles) + ") is over 2^25: each thread holds room for max_triangles"};
   auto impl = std::make_unique<Impl>();
   Impl& m = *impl;
   m.map = &map;
@@ -260,7 +242,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.tiles_x = (m.vw + kTileW - 1) / kTileW;
   m.tiles_y = (m.vh + kTileH - 1) / kTileH;
   const std::size_t tiles = static_cast<std::size_t>(m.tiles_x) * static_cast<std::size_t>(m.tiles_y);
-  m.tris.reset(new Tri[static_cast<std::size_t>(options.threads) * static_cast<std::size_t>(options.max_triangles)]);
+  m.tris.reset(new Tri[static_cast<std::size_t>(options.max_triangles)]);
   m.tile_count.resize(tiles);
   m.tile_start.resize(tiles + 1);
   m.tile_fill.resize(tiles);
@@ -287,16 +269,9 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.layer_params.push_back({T.texels.data(), T.levels.data(), static_cast<int>(T.levels.size()),
                               static_cast<float>(T.a0), static_cast<float>(T.a1), static_cast<float>(T.a2),
                               static_cast<float>(T.b0), static_cast<float>(T.b1), static_cast<float>(T.b2), T.lod_bias});
-  m.geom.resize(static_cast<std::size_t>(options.threads));
-  for (std::size_t k = 0; k < m.geom.size(); ++k) {
-    GeomCtx& g = m.geom[k];
-    g.tris = m.tris.get() + k * static_cast<std::size_t>(options.max_triangles);
-    g.verts.resize(static_cast<std::size_t>(kChunkQuads + 1) * (kChunkQuads + 1));
-    g.proj.resize(g.verts.size());
-    g.out.resize(g.verts.size());
-  }
-  m.draw_list.reserve(m.terrain.chunks().size());
-  m.chunk_tris.resize(m.terrain.chunks().size());
+  m.chunk_verts.resize(static_cast<std::size_t>(kChunkQuads + 1) * (kChunkQuads + 1));
+  m.chunk_proj.resize(m.chunk_verts.size());
+  m.chunk_out.resize(m.chunk_verts.size());
   m.chunk_stack.reserve(m.terrain.chunks().size() + 8);
 
   const bool avx2 = cpu_has_avx2();
@@ -384,14 +359,14 @@ ProjVert Renderer::Impl::project(const ClipVert& v) const {
   return p;
 }
 
-void Renderer::Impl::emit_triangle(GeomCtx& g, const ProjVert& a, const ProjVert& b, const ProjVert& c) const {
-  if (g.n >= options.max_triangles) {
-    g.overflow = true;
+void Renderer::Impl::emit_triangle(const ProjVert& a, const ProjVert& b, const ProjVert& c) {
+  if (n_tris >= options.max_triangles) {
+    overflow = true;
     return;
   }
   const ProjVert* v[3] = {&a, &b, &c};
   const double sx[3] = {a.sx, b.sx, c.sx}, sy[3] = {a.sy, b.sy, c.sy}, iz[3] = {a.iz, b.iz, c.iz};
-  Tri& t = g.tris[static_cast<std::size_t>(g.n)];
+  Tri& t = tris[static_cast<std::size_t>(n_tris)];
   for (int k = 0; k < 3; ++k) {
     t.X[k] = v[k]->X;
     t.Y[k] = v[k]->Y;
@@ -423,7 +398,7 @@ void Renderer::Impl::emit_triangle(GeomCtx& g, const ProjVert& a, const ProjVert
     t.B[p] = (d2 * e1x - d1 * e2x) / det;
     t.C[p] = q[p][0] - t.A[p] * x0 - t.B[p] * y0;
   }
-  ++g.n;
+  ++n_tris;
 }
 
 // Signed distance of v to clip plane p (>= 0: inside): near, then a guard band around the
@@ -444,7 +419,7 @@ std::uint8_t Renderer::Impl::outcode(const ClipVert& v) const {
   return code;
 }
 
-void Renderer::Impl::clip_and_emit(GeomCtx& g, const ClipVert* in, int n) const {
+void Renderer::Impl::clip_and_emit(const ClipVert* in, int n) {
   const float near = static_cast<float>(options.near_m);
   ClipVert buf[2][kMaxClipVerts];
   int count = n;
@@ -483,7 +458,7 @@ void Renderer::Impl::clip_and_emit(GeomCtx& g, const ClipVert* in, int n) const 
   }
   ProjVert p[kMaxClipVerts];
   for (int i = 0; i < count; ++i) p[i] = project(buf[cur][i]);
-  for (int i = 1; i + 1 < count; ++i) emit_triangle(g, p[0], p[i], p[i + 1]);
+  for (int i = 1; i + 1 < count; ++i) emit_triangle(p[0], p[i], p[i + 1]);
 }
 
 bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const {
@@ -512,7 +487,7 @@ bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool
   return true;
 }
 
-void Renderer::Impl::draw_chunk(GeomCtx& g, const TerrainChunk& c) const {
+void Renderer::Impl::draw_chunk(const TerrainChunk& c) {
   const int step = 1 << c.level;
   const int nx = terrain.posts_x(), ny = terrain.posts_y();
   const int n = kChunkQuads + 1;
@@ -526,13 +501,13 @@ void Renderer::Impl::draw_chunk(GeomCtx& g, const TerrainChunk& c) const {
     for (int a = 0; a < n; ++a) {
       float x, y, z;
       terrain.post(ii[a], jj[b], x, y, z);
-      ClipVert& v = g.verts[static_cast<std::size_t>(b * n + a)];
+      ClipVert& v = chunk_verts[static_cast<std::size_t>(b * n + a)];
       nan_post[b * n + a] = !std::isfinite(z);
       const Eigen::Vector3f p = R_C_W * (Eigen::Vector3f(x, y, nan_post[b * n + a] ? 0.0f : z) - t_local);
       v = {p.x(), p.y(), p.z(), x, y};
       const std::size_t k = static_cast<std::size_t>(b * n + a);
-      g.out[k] = outcode(v);
-      if (g.out[k] == 0) g.proj[k] = project(v);
+      chunk_out[k] = outcode(v);
+      if (chunk_out[k] == 0) chunk_proj[k] = project(v);
     }
   // No back-face culling: render() refuses a camera below the terrain, and above it the
   // visible side of a heightfield faces the camera, so culling would only save time.
@@ -543,21 +518,21 @@ void Renderer::Impl::draw_chunk(GeomCtx& g, const TerrainChunk& c) const {
       const int k00 = b * n + a, k10 = k00 + 1, k01 = k00 + n, k11 = k01 + 1;
       if (nan_post[k00] || nan_post[k10] || nan_post[k01] || nan_post[k11]) continue;
       // Wholly inside the clip volume (most triangles): each vertex was projected once.
-      if ((g.out[static_cast<std::size_t>(k00)] | g.out[static_cast<std::size_t>(k10)] |
-           g.out[static_cast<std::size_t>(k01)] | g.out[static_cast<std::size_t>(k11)]) == 0) {
-        const ProjVert& p00 = g.proj[static_cast<std::size_t>(k00)];
-        const ProjVert& p11 = g.proj[static_cast<std::size_t>(k11)];
-        emit_triangle(g, p00, g.proj[static_cast<std::size_t>(k10)], p11);
-        emit_triangle(g, p00, p11, g.proj[static_cast<std::size_t>(k01)]);
+      if ((chunk_out[static_cast<std::size_t>(k00)] | chunk_out[static_cast<std::size_t>(k10)] |
+           chunk_out[static_cast<std::size_t>(k01)] | chunk_out[static_cast<std::size_t>(k11)]) == 0) {
+        const ProjVert& p00 = chunk_proj[static_cast<std::size_t>(k00)];
+        const ProjVert& p11 = chunk_proj[static_cast<std::size_t>(k11)];
+        emit_triangle(p00, chunk_proj[static_cast<std::size_t>(k10)], p11);
+        emit_triangle(p00, p11, chunk_proj[static_cast<std::size_t>(k01)]);
         continue;
       }
-      const ClipVert& v00 = g.verts[static_cast<std::size_t>(k00)];
-      const ClipVert& v10 = g.verts[static_cast<std::size_t>(k10)];
-      const ClipVert& v01 = g.verts[static_cast<std::size_t>(k01)];
-      const ClipVert& v11 = g.verts[static_cast<std::size_t>(k11)];
+      const ClipVert& v00 = chunk_verts[static_cast<std::size_t>(k00)];
+      const ClipVert& v10 = chunk_verts[static_cast<std::size_t>(k10)];
+      const ClipVert& v01 = chunk_verts[static_cast<std::size_t>(k01)];
+      const ClipVert& v11 = chunk_verts[static_cast<std::size_t>(k11)];
       const ClipVert t1[3] = {v00, v10, v11}, t2[3] = {v00, v11, v01};
-      clip_and_emit(g, t1, 3);
-      clip_and_emit(g, t2, 3);
+      clip_and_emit(t1, 3);
+      clip_and_emit(t2, 3);
     }
   }
   // Skirts along the four borders hide cracks against coarser neighbours.
@@ -565,16 +540,16 @@ void Renderer::Impl::draw_chunk(GeomCtx& g, const TerrainChunk& c) const {
     const float drop = c.error + 0.01f;
     auto skirt = [&](int ka, int kb) {
       if (nan_post[ka] || nan_post[kb]) return;
-      const ClipVert& a = g.verts[static_cast<std::size_t>(ka)];
-      const ClipVert& b = g.verts[static_cast<std::size_t>(kb)];
+      const ClipVert& a = chunk_verts[static_cast<std::size_t>(ka)];
+      const ClipVert& b = chunk_verts[static_cast<std::size_t>(kb)];
       // Dropping a vertex by `drop` along world -z is -drop times the world z axis in C.
       const Eigen::Vector3f down = R_C_W * Eigen::Vector3f(0, 0, -drop);
       ClipVert a2 = a, b2 = b;
       a2.x += down.x(); a2.y += down.y(); a2.z += down.z();
       b2.x += down.x(); b2.y += down.y(); b2.z += down.z();
       const ClipVert s1[3] = {a, b, b2}, s2[3] = {a, b2, a2};
-      clip_and_emit(g, s1, 3);
-      clip_and_emit(g, s2, 3);
+      clip_and_emit(s1, 3);
+      clip_and_emit(s2, 3);
     };
     for (int k = 0; k < kChunkQuads; ++k) {
       skirt(k, k + 1);                                  // top row
@@ -583,6 +558,7 @@ void Renderer::Impl::draw_chunk(GeomCtx& g, const TerrainChunk& c) const {
       skirt(k * n + kChunkQuads, (k + 1) * n + kChunkQuads);  // right column
     }
   }
+  ++chunks_drawn;
 }
 
 // ---- rasterization ----
@@ -793,14 +769,16 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   m.R_C_W = T_W_C.q_W_C.conjugate().toRotationMatrix().cast<float>();
   m.t_local = Eigen::Vector3f(static_cast<float>(t.x() - m.ox), static_cast<float>(t.y() - m.oy),
                               static_cast<float>(t.z() - m.oz));
-  // 1. Level of detail: the chunks to draw, in traversal order.
-  m.draw_list.clear();
+  m.n_tris = 0;
+  m.overflow = false;
+  m.chunks_drawn = 0;
+
+  // 1-2. Level of detail and geometry.
   m.chunk_stack.clear();
   m.chunk_stack.push_back(m.terrain.root());
   const auto& chunks = m.terrain.chunks();
   while (!m.chunk_stack.empty()) {
-    const int index = m.chunk_stack.back();
-    const TerrainChunk& c = chunks[static_cast<std::size_t>(index)];
+    const TerrainChunk& c = chunks[static_cast<std::size_t>(m.chunk_stack.back())];
     m.chunk_stack.pop_back();
     bool refine = false;
     if (!m.chunk_visible_and_coarse_enough(c, refine)) continue;
@@ -808,31 +786,10 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
       for (int k = 3; k >= 0; --k)
         if (c.child[k] >= 0) m.chunk_stack.push_back(c.child[k]);
     } else {
-      m.draw_list.push_back(index);
+      m.draw_chunk(c);
     }
   }
-  // 2. Geometry, chunk i on thread i % threads into that thread's part of the triangle
-  // array. Binning reads the triangles back in chunk order, so the frame sees them in the
-  // same order whatever the thread count.
-  for (GeomCtx& g : m.geom) {
-    g.n = 0;
-    g.overflow = false;
-  }
-  m.pool->run(static_cast<int>(m.draw_list.size()), [](void* c, int i) {
-    auto* im = static_cast<Impl*>(c);
-    const int thread = i % im->pool->threads();
-    GeomCtx& g = im->geom[static_cast<std::size_t>(thread)];
-    const int start = g.n;
-    im->draw_chunk(g, im->terrain.chunks()[static_cast<std::size_t>(im->draw_list[static_cast<std::size_t>(i)])]);
-    im->chunk_tris[static_cast<std::size_t>(i)] = {thread, start, g.n - start};
-  }, &m);
-  m.n_tris = 0;
-  bool overflow = false;
-  for (const GeomCtx& g : m.geom) {
-    m.n_tris += g.n;
-    overflow = overflow || g.overflow;
-  }
-  if (overflow || m.n_tris > m.options.max_triangles) {
+  if (m.overflow) {
     invalidate();
     return Error{"render: the view needs more than " + std::to_string(m.options.max_triangles) +
                  " triangles (raise max_triangles or lod_error_px)"};
@@ -842,19 +799,12 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   auto tile_range = [&](const Tri& tr, int& a0, int& a1, int& b0, int& b1) {
     a0 = tr.bx0 / kTileW; a1 = tr.bx1 / kTileW; b0 = tr.by0 / kTileH; b1 = tr.by1 / kTileH;
   };
-  auto for_each_triangle = [&](auto&& fn) {  // in chunk order: the triangle's index in tris
-    for (std::size_t i = 0; i < m.draw_list.size(); ++i) {
-      const ChunkTris& ct = m.chunk_tris[i];
-      const int base = ct.thread * m.options.max_triangles + ct.start;
-      for (int k = 0; k < ct.count; ++k) fn(base + k);
-    }
-  };
-  for_each_triangle([&](int i) {
+  for (int i = 0; i < m.n_tris; ++i) {
     int a0, a1, b0, b1;
     tile_range(m.tris[static_cast<std::size_t>(i)], a0, a1, b0, b1);
     for (int b = b0; b <= b1; ++b)
       for (int a = a0; a <= a1; ++a) ++m.tile_count[static_cast<std::size_t>(b * m.tiles_x + a)];
-  });
+  }
   m.tile_start[0] = 0;
   for (std::size_t k = 0; k < m.tile_count.size(); ++k) m.tile_start[k + 1] = m.tile_start[k] + m.tile_count[k];
   if (static_cast<std::size_t>(m.tile_start.back()) > m.bin_capacity) {
@@ -862,12 +812,12 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
     return Error{"render: tile bins overflow (" + std::to_string(m.tile_start.back()) + " entries)"};
   }
   std::copy(m.tile_start.begin(), m.tile_start.end() - 1, m.tile_fill.begin());
-  for_each_triangle([&](int i) {
+  for (int i = 0; i < m.n_tris; ++i) {
     int a0, a1, b0, b1;
     tile_range(m.tris[static_cast<std::size_t>(i)], a0, a1, b0, b1);
     for (int b = b0; b <= b1; ++b)
       for (int a = a0; a <= a1; ++a) m.bin_entries[static_cast<std::size_t>(m.tile_fill[static_cast<std::size_t>(b * m.tiles_x + a)]++)] = i;
-  });
+  }
   const auto t1 = Clock::now();
 
   // 3-5. Visibility per tile; for a pinhole camera the tile is resolved and shaded there,
@@ -900,7 +850,7 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   const auto t3 = Clock::now();
   if (stats) {
     stats->triangles = m.n_tris;
-    stats->chunks = static_cast<int>(m.draw_list.size());
+    stats->chunks = m.chunks_drawn;
     stats->fragments = 0;
     for (long f : m.tile_fragments) stats->fragments += f;
     stats->ms_geometry = std::chrono::duration<double, std::milli>(t1 - t0).count();
