@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <cstdlib>
@@ -211,6 +212,28 @@ TEST_CASE("the shading and resolve kernels agree bit for bit on seeded random in
     k.resolve(m, ids.data(), coef.data(), 5.0f, 7.0f, b.data(), b.data() + m, b.data() + 2 * m, b.data() + 3 * m);
     CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0);
   }
+}
+
+TEST_CASE("a view needing more than max_triangles fails with a clear error, the same on 1 and 2 threads") {
+  const geo::Map map = test::dem_map(257, 257, 0, 2000, 7.8125, [](double x, double y) {
+    return 100 + 30 * std::sin(x * 0.04) * std::cos(y * 0.06);
+  }, smooth_layer());
+  const geo::CameraModel cam = camera(333, 211, 280);
+  std::string errors[2];
+  for (int threads = 1; threads <= 2; ++threads) {
+    RenderOptions o;
+    o.threads = threads;
+    o.max_triangles = 1024;
+    auto r = make(map, cam, o);
+    auto out = r->make_output({"all"});
+    REQUIRE(out.ok());
+    const Status st = r->render(look_down(1000, 1000, 400, 50, 30), out.value());
+    REQUIRE_FALSE(st.ok());
+    errors[threads - 1] = st.error().message;
+    CHECK(std::all_of(out->valid[0].pixels().begin(), out->valid[0].pixels().end(), [](std::uint8_t v) { return v == 0; }));
+  }
+  CHECK(errors[0].find("more than 1024 triangles") != std::string::npos);
+  CHECK(errors[0] == errors[1]);
 }
 
 TEST_CASE("a frame allocates nothing after set-up") {
