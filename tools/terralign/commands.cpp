@@ -48,8 +48,9 @@ const std::vector<Command>& commands() {
        "encoders; neither includes rendering). Methods: init, classic:N, nn:N (the learned tracker,\n"
        "N iterations per level; --weights as for align). --area keeps every footprint inside a part\n"
        "of the map (e.g. ground the learned tracker was not trained on). --min-sharpness sets the\n"
-       "learned tracker's sharpness test (default 1.03; negative: none): an answer whose feature\n"
-       "agreement is within that factor as good 2 px away is reported as failed (the prior).\n",
+       "learned tracker's sharpness test (default: the weight file's '# min-sharpness'; negative:\n"
+       "none): an answer whose feature agreement is within that factor as good 2 px away is\n"
+       "reported as failed (the prior).\n",
        run_eval},
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
        "usage: terralign flight --map MAP.json --camera CAMERA.json --layer NAME --path lawnmower|circle|FILE\n"
