@@ -677,7 +677,7 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     }
   }
   tile_fragments[static_cast<std::size_t>(tile)] = frags;
-  if (!remap_u.empty()) {
+  if (!resolve_here) {
     // Distorted camera: resolve_rows() reads this tile later; it needs triangle indices.
     for (int y = y0; y <= y1; ++y) {
       int* irow = idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
