@@ -63,6 +63,7 @@ struct Renderer::Impl {
   std::vector<LayerTexture> layers;
   ShadeRowFn shade = shade_row_scalar;
   ResolveRowFn resolve = resolve_row_scalar;
+  DepthBlockFn depth_block = depth_block_scalar;
   const char* simd = "scalar";
   std::unique_ptr<ThreadPool> pool;
 
@@ -122,19 +123,21 @@ void build_mips(const geo::Layer& L, LayerTexture& T) {
     T.levels.push_back({});
   }
   T.levels.clear();
-  T.texels.resize(total);
+  // A guard texel (0) at each end: the AVX-512 kernel reads a row's two taps as one pair,
+  // which may start one texel before a level or end one after it (shade_kernels.hpp).
+  T.texels.assign(total + 2, 0u);
   // Level 0.
   const std::uint8_t* src = L.rgba.data();
   for (std::size_t k = 0; k < static_cast<std::size_t>(w) * static_cast<std::size_t>(h); ++k)
-    T.texels[k] = std::uint32_t{src[4 * k]} | std::uint32_t{src[4 * k + 1]} << 8 |
+    T.texels[1 + k] = std::uint32_t{src[4 * k]} | std::uint32_t{src[4 * k + 1]} << 8 |
                   std::uint32_t{src[4 * k + 2]} << 16 | std::uint32_t{src[4 * k + 3]} << 24;
-  T.levels.push_back({0, w, h, 1.0f});
-  std::size_t off = static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
+  T.levels.push_back({1, w, h, 1.0f});
+  std::size_t off = 1 + static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
   float scale = 1.0f;
   while (!(w == 1 && h == 1) && T.levels.size() < 16) {
     const MipLevel prev = T.levels.back();
     const int nw = std::max(1, (w + 1) / 2), nh = std::max(1, (h + 1) / 2);
-    if (off + static_cast<std::size_t>(nw) * static_cast<std::size_t>(nh) > total) break;
+    if (off + static_cast<std::size_t>(nw) * static_cast<std::size_t>(nh) > 1 + total) break;
     scale *= 0.5f;
     for (int y = 0; y < nh; ++y)
       for (int x = 0; x < nw; ++x) {
@@ -281,6 +284,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   if (avx2 && options.simd != RenderOptions::Simd::Scalar) {
     m.shade = shade_row_avx2;
     m.resolve = resolve_row_avx2;
+    m.depth_block = depth_block_avx2;
     m.simd = "avx2";
   }
 #endif
@@ -288,7 +292,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     return Error{"render options: AVX-512 kernels requested but this CPU (or build) has none"};
 #if defined(TERRALIGN_HAVE_AVX2)
   if (cpu_has_avx512() && (options.simd == RenderOptions::Simd::Auto || options.simd == RenderOptions::Simd::Avx512)) {
-    m.shade = shade_row_avx512;  // the resolve kernel stays AVX2
+    m.shade = shade_row_avx512;  // the resolve and depth kernels stay AVX2
     m.simd = "avx512";
   }
 #endif
@@ -296,6 +300,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
 #if defined(TERRALIGN_HAVE_NEON)
     m.shade = shade_row_neon;
     m.resolve = resolve_row_neon;
+    m.depth_block = depth_block_neon;
     m.simd = "neon";
 #else
     return Error{"render options: NEON kernels requested but this build (not aarch64) has none"};
@@ -305,6 +310,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   if (options.simd == RenderOptions::Simd::Auto) {  // every aarch64 core has NEON
     m.shade = shade_row_neon;
     m.resolve = resolve_row_neon;
+    m.depth_block = depth_block_neon;
     m.simd = "neon";
   }
 #endif
@@ -634,20 +640,16 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
           inside = inside && lo >= 0;
         }
         if (outside) continue;
+        if (inside) {
+          const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by) * vw + bx;
+          depth_block(ex1 - bx + 1, ey1 - by + 1, base, A, B, bx - bx0, by - by0, zbuf.data() + at, idbuf.data() + at, vw, e);
+          frags += static_cast<long>(ex1 - bx + 1) * (ey1 - by + 1);
+          continue;
+        }
         for (int y = by; y <= ey1; ++y) {
           float* zrow = zbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
           int* irow = idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
           const float rowz = base + B * static_cast<float>(y - by0);
-          if (inside) {
-            for (int x = bx; x <= ex1; ++x) {
-              const float iz = rowz + A * static_cast<float>(x - bx0);
-              const bool nearer = iz > zrow[x];
-              zrow[x] = nearer ? iz : zrow[x];
-              irow[x] = nearer ? e : irow[x];
-            }
-            frags += ex1 - bx + 1;
-            continue;
-          }
           std::int64_t e0 = E[0] + dEx[0] * (bx - bx0) + dEy[0] * (y - by0);
           std::int64_t e1 = E[1] + dEx[1] * (bx - bx0) + dEy[1] * (y - by0);
           std::int64_t e2 = E[2] + dEx[2] * (bx - bx0) + dEy[2] * (y - by0);

@@ -192,4 +192,31 @@ void resolve_row_avx2(int n, const int* ids, const float* coef, float dx0, float
   if (i < n) resolve_row_scalar(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, wx + i, wy + i, z + i, log2fp + i);
 }
 
+void depth_block_avx2(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
+                      std::ptrdiff_t stride, int e) {
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256 ax = _mm256_mul_ps(_mm256_set1_ps(A), _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(dx), lane)));
+  const __m256i ve = _mm256_set1_epi32(e);
+  if (w == 8) {  // the usual block: plain loads and stores
+    for (int r = 0; r < h; ++r, z += stride, id += stride) {
+      const __m256 iz = _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax);
+      const __m256 old = _mm256_loadu_ps(z);
+      const __m256 nearer = _mm256_cmp_ps(iz, old, _CMP_GT_OQ);
+      _mm256_storeu_ps(z, _mm256_blendv_ps(old, iz, nearer));
+      const __m256i oid = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(id));
+      _mm256_storeu_si256(reinterpret_cast<__m256i*>(id), _mm256_blendv_epi8(oid, ve, _mm256_castps_si256(nearer)));
+    }
+    return;
+  }
+  const __m256i cols = _mm256_cmpgt_epi32(_mm256_set1_epi32(w), lane);
+  for (int r = 0; r < h; ++r, z += stride, id += stride) {
+    const __m256 iz = _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax);
+    const __m256 old = _mm256_maskload_ps(z, cols);
+    const __m256i nearer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(iz, old, _CMP_GT_OQ)), cols);
+    _mm256_maskstore_ps(z, nearer, iz);
+    _mm256_maskstore_epi32(id, nearer, ve);
+  }
+}
+
 }  // namespace terralign::raster
+

@@ -169,4 +169,42 @@ void resolve_row_neon(int n, const int* ids, const float* coef, float dx0, float
   if (i < n) resolve_row_scalar(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, wx + i, wy + i, z + i, log2fp + i);
 }
 
+void depth_block_neon(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
+                      std::ptrdiff_t stride, int e) {
+  if (w < 4) {
+    depth_block_scalar(w, h, base, A, B, dx, dy, z, id, stride, e);
+    return;
+  }
+  static const std::int32_t lanes[4] = {0, 1, 2, 3};
+  const int32x4_t lane = vld1q_s32(lanes);
+  const float32x4_t a0 = vmulq_n_f32(vcvtq_f32_s32(vaddq_s32(vdupq_n_s32(dx), lane)), A);
+  const float32x4_t a1 = vmulq_n_f32(vcvtq_f32_s32(vaddq_s32(vdupq_n_s32(dx + 4), lane)), A);
+  const int32x4_t ve = vdupq_n_s32(e);
+  for (int r = 0; r < h; ++r, z += stride, id += stride) {
+    const float rowz = base + B * static_cast<float>(dy + r);
+    const float32x4_t rz = vdupq_n_f32(rowz);
+    const float32x4_t iz = vaddq_f32(rz, a0);
+    const float32x4_t old = vld1q_f32(z);
+    const uint32x4_t nearer = vcgtq_f32(iz, old);
+    vst1q_f32(z, vbslq_f32(nearer, iz, old));
+    vst1q_s32(id, vbslq_s32(nearer, ve, vld1q_s32(id)));
+    if (w == 8) {
+      const float32x4_t iz1 = vaddq_f32(rz, a1);
+      const float32x4_t old1 = vld1q_f32(z + 4);
+      const uint32x4_t nearer1 = vcgtq_f32(iz1, old1);
+      vst1q_f32(z + 4, vbslq_f32(nearer1, iz1, old1));
+      vst1q_s32(id + 4, vbslq_s32(nearer1, ve, vld1q_s32(id + 4)));
+    } else {
+      for (int i = 4; i < w; ++i) {
+        const float izs = rowz + A * static_cast<float>(dx + i);
+        if (izs > z[i]) {
+          z[i] = izs;
+          id[i] = e;
+        }
+      }
+    }
+  }
+}
+
 }  // namespace terralign::raster
+

@@ -101,4 +101,18 @@ void resolve_row_scalar(int n, const int* ids, const float* coef, float dx0, flo
   }
 }
 
+void depth_block_scalar(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
+                        std::ptrdiff_t stride, int e) {
+  for (int r = 0; r < h; ++r, z += stride, id += stride) {
+    const float rowz = base + B * static_cast<float>(dy + r);
+    for (int i = 0; i < w; ++i) {
+      const float iz = rowz + A * static_cast<float>(dx + i);
+      if (iz > z[i]) {
+        z[i] = iz;
+        id[i] = e;
+      }
+    }
+  }
+}
+
 }  // namespace terralign::raster

@@ -4,6 +4,7 @@
 // so they agree bit for bit.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 
 namespace terralign::raster {
@@ -16,7 +17,8 @@ struct MipLevel {
 };
 
 struct ShadeParams {
-  const std::uint32_t* texels;  // RGBA8 packed (R in the low byte), every level back to back
+  const std::uint32_t* texels;  // RGBA8 packed (R in the low byte), every level back to back,
+                                // and a readable guard texel before the first and after the last
   const MipLevel* levels;
   int n_levels;                 // >= 1
   // Level-0 texel coordinates (pixel centres at integers) of a local world point:
@@ -60,6 +62,22 @@ void resolve_row_neon(int n, const int* ids, const float* coef, float dx0, float
                       float* z, float* log2fp);
 #endif
 using ResolveRowFn = void (*)(int, const int*, const float*, float, float, float*, float*, float*, float*);
+
+// Visibility in a block that one triangle covers wholly: rows r < h, columns i < w (w <= 8)
+// from z and id (row stride `stride`); the triangle's 1/z there is (base + B (dy + r)) +
+// A (dx + i), in that order; where it is larger than z (nearer), it replaces z and id
+// becomes e. The block's rows and ids are the only memory read or written.
+void depth_block_scalar(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
+                        std::ptrdiff_t stride, int e);
+#if defined(TERRALIGN_HAVE_AVX2)
+void depth_block_avx2(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
+                      std::ptrdiff_t stride, int e);
+#endif
+#if defined(TERRALIGN_HAVE_NEON)
+void depth_block_neon(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
+                      std::ptrdiff_t stride, int e);
+#endif
+using DepthBlockFn = void (*)(int, int, float, float, float, int, int, float*, int*, std::ptrdiff_t, int);
 
 // log2 to about 0.005 (exponent plus a quadratic in the mantissa): enough to pick a mip
 // level, and the same on every machine.
