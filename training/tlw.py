@@ -61,6 +61,31 @@ def architecture(path):
     return data[16:16 + n].decode(), data
 
 
+def read(path):
+    """The tensors of a weight file as {name: numpy float32 array} (e.g. to warm-start training
+    from shipped weights: the names are the PyTorch state-dict keys export_deep.py wrote)."""
+    import numpy as np
+    arch, data = architecture(path)
+    pos = 16 + len(arch.encode())
+    (count,) = struct.unpack_from("<I", data, pos)
+    pos += 4
+    heads = []
+    for _ in range(count):
+        (n,) = struct.unpack_from("<H", data, pos)
+        name = data[pos + 2:pos + 2 + n].decode()
+        pos += 2 + n
+        dtype, rank = struct.unpack_from("<BB", data, pos)
+        if dtype != 1:
+            raise ValueError(f"{path}: tensor {name} has dtype {dtype}, only 1 (float32) is known")
+        dims = struct.unpack_from("<" + "I" * rank, data, pos + 2)
+        off, size = struct.unpack_from("<QQ", data, pos + 2 + 4 * rank)
+        pos += 2 + 4 * rank + 16
+        heads.append((name, dims, off, size))
+    base = pos + 8  # after the u64 data block length
+    return {name: np.frombuffer(data, "<f4", size // 4, base + off).reshape(dims).copy()
+            for name, dims, off, size in heads}
+
+
 def replace_architecture(path, arch):
     """Rewrites a weight file with another architecture text (e.g. a new comment line); the
     tensors are kept byte for byte (their offsets count from the data block)."""

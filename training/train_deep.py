@@ -25,6 +25,7 @@ import torch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import deep_iclk as D  # noqa: E402
+import tlw  # noqa: E402
 
 
 def read_pfm(path):
@@ -160,7 +161,7 @@ def main():
     p.add_argument("--val-every", type=int, default=250)
     p.add_argument("--val-count", type=int, default=64)
     p.add_argument("--resume", action="store_true")
-    p.add_argument("--init", help="start from this checkpoint's weights where the shapes match (warm start)")
+    p.add_argument("--init", help="start from this checkpoint's (.pt) or weight file's (.tlw) weights where the shapes match (warm start)")
     a = p.parse_args()
     torch.set_num_threads(a.threads)
     torch.manual_seed(a.seed)
@@ -185,7 +186,10 @@ def main():
         print(f"resumed at step {step}", flush=True)
     else:
         if a.init:
-            src = torch.load(a.init, map_location="cpu")["model"]
+            if a.init.endswith(".tlw"):  # shipped weights: the tensors are the state dict
+                src = {k: torch.from_numpy(v) for k, v in tlw.read(a.init).items()}
+            else:
+                src = torch.load(a.init, map_location="cpu")["model"]
             own = model.state_dict()
             take = {k: v for k, v in src.items() if k in own and own[k].shape == v.shape}
             model.load_state_dict(take, strict=False)
