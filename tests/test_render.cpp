@@ -150,7 +150,7 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
   std::vector<Kernels> vector_kernels;
 #if defined(TERRALIGN_HAVE_AVX2)
   if (cpu_has_avx2()) vector_kernels.push_back({"avx2", shade_row_avx2, resolve_row_avx2, depth_block_avx2});
-  if (cpu_has_avx512()) vector_kernels.push_back({"avx512", shade_row_avx512, resolve_row_avx2, depth_block_avx2});
+  if (cpu_has_avx512()) vector_kernels.push_back({"avx512", shade_row_avx512, resolve_row_avx512, depth_block_avx2});
 #endif
 #if defined(TERRALIGN_HAVE_NEON)
   vector_kernels.push_back({"neon", shade_row_neon, resolve_row_neon, depth_block_neon});
@@ -193,9 +193,9 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
   int valid = 0;
   for (auto v : val_s) valid += v != 0;
   CHECK(valid > n / 4);  // the test exercises real samples, not only invalid pixels
-  // The resolve kernel: a row of 61 pixels (vectors and a tail) seeing five tilted planes in
+  // The resolve kernel: a row of 93 pixels (vectors and a tail) seeing five tilted planes in
   // runs of every length from 1 to 9, lanes of one plane, of several, and of none (-1).
-  const int m = 61;
+  const int m = 93;
   std::vector<float> coef;
   for (int e = 0; e < 5; ++e)
     for (float v : {0.0021f, -1.3e-6f, 2.1e-6f, 1.7f, 0.0003f, 0.00011f, -0.9f, 0.0002f, -0.0004f})
@@ -203,7 +203,8 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
   std::vector<int> ids;
   for (int run = 1; static_cast<int>(ids.size()) < m; ++run)
     for (int i = 0; i < run % 10 && static_cast<int>(ids.size()) < m; ++i) ids.push_back(run % 6 - 1);
-  for (int i = 16; i < 24; ++i) ids[static_cast<std::size_t>(i)] = 3;  // one plane over a whole vector
+  for (int i = 16; i < 32; ++i) ids[static_cast<std::size_t>(i)] = 3;  // one plane over a whole vector
+  for (int i = 32; i < 48; ++i) ids[static_cast<std::size_t>(i)] = -1;  // and no terrain over one
   std::vector<float> a(4 * m);
   resolve_row_scalar(m, ids.data(), coef.data(), 5.0f, 7.0f, a.data(), a.data() + m, a.data() + 2 * m, a.data() + 3 * m);
   for (const Kernels& k : vector_kernels) {

@@ -292,7 +292,8 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     return Error{"render options: AVX-512 kernels requested but this CPU (or build) has none"};
 #if defined(TERRALIGN_HAVE_AVX2)
   if (cpu_has_avx512() && (options.simd == RenderOptions::Simd::Auto || options.simd == RenderOptions::Simd::Avx512)) {
-    m.shade = shade_row_avx512;  // the resolve and depth kernels stay AVX2
+    m.shade = shade_row_avx512;  // the depth kernel stays AVX2
+    m.resolve = resolve_row_avx512;
     m.simd = "avx512";
   }
 #endif

@@ -1,10 +1,12 @@
 // AVX-512 build of the shading kernel: 16 pixels a step, texels fetched with gathers. Same
 // float operations in the same order as shade_scalar.cpp (compiled without FMA contraction),
-// so the output matches it bit for bit. The tail (n % 16) runs the scalar kernel. The resolve
-// kernel stays AVX2 on these machines (its lane order follows groups of eight).
+// so the output matches it bit for bit. The shading tail (n % 16) runs the scalar kernel, the
+// resolve tail the AVX2 one.
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <immintrin.h>
+
+#include <cmath>
 
 #include "pack_avx2.hpp"
 
@@ -134,4 +136,61 @@ void shade_row_avx512(int n, const float* wx, const float* wy, const float* log2
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
 }
 
+void resolve_row_avx512(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
+                        float* z, float* log2fp) {
+  const __m512 lane = _mm512_setr_ps(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const __m512 one = _mm512_set1_ps(1.0f), nan = _mm512_set1_ps(NAN), zero = _mm512_setzero_ps();
+  const __m512 vdy = _mm512_set1_ps(dy);
+  auto b = [](float v) { return _mm512_set1_ps(v); };
+  int i = 0;
+  for (; i + 16 <= n; i += 16) {
+    const __m512i id = _mm512_loadu_si512(ids + i);
+    const __mmask16 seen = _mm512_cmpgt_epi32_mask(id, _mm512_set1_epi32(-1));
+    if (seen == 0) {
+      _mm512_storeu_ps(z + i, nan);
+      _mm512_storeu_ps(wx + i, nan);
+      _mm512_storeu_ps(wy + i, nan);
+      _mm512_storeu_ps(log2fp + i, zero);
+      continue;
+    }
+    // The planes of each lane's entry: broadcast when the 16 pixels see one triangle (most
+    // of a frame), else gathered.
+    __m512 c[9];
+    if (seen == 0xFFFF && _mm512_cmpeq_epi32_mask(id, _mm512_set1_epi32(ids[i])) == 0xFFFF) {
+      const float* ce = coef + 9 * static_cast<std::ptrdiff_t>(ids[i]);
+      for (int k = 0; k < 9; ++k) c[k] = _mm512_set1_ps(ce[k]);
+    } else {
+      const __m512i idx = _mm512_add_epi32(_mm512_slli_epi32(id, 3), id);  // 9 e
+      for (int k = 0; k < 9; ++k) c[k] = _mm512_mask_i32gather_ps(zero, seen, idx, coef + k, 4);
+    }
+    // The AVX2 kernel's operations in the same order, 16 lanes wide.
+    const __m512 dx = _mm512_add_ps(_mm512_set1_ps(dx0 + static_cast<float>(i)), lane);
+    const __m512 iz = _mm512_add_ps(_mm512_add_ps(c[0], _mm512_mul_ps(c[2], vdy)), _mm512_mul_ps(c[1], dx));
+    const __m512 zz = _mm512_div_ps(one, iz);
+    const __m512 x = _mm512_mul_ps(_mm512_add_ps(_mm512_add_ps(c[3], _mm512_mul_ps(c[5], vdy)), _mm512_mul_ps(c[4], dx)), zz);
+    const __m512 y = _mm512_mul_ps(_mm512_add_ps(_mm512_add_ps(c[6], _mm512_mul_ps(c[8], vdy)), _mm512_mul_ps(c[7], dx)), zz);
+    const __m512 du_x = _mm512_mul_ps(_mm512_sub_ps(c[4], _mm512_mul_ps(x, c[1])), zz);
+    const __m512 du_y = _mm512_mul_ps(_mm512_sub_ps(c[7], _mm512_mul_ps(y, c[1])), zz);
+    const __m512 dv_x = _mm512_mul_ps(_mm512_sub_ps(c[5], _mm512_mul_ps(x, c[2])), zz);
+    const __m512 dv_y = _mm512_mul_ps(_mm512_sub_ps(c[8], _mm512_mul_ps(y, c[2])), zz);
+    const __m512 su = _mm512_add_ps(_mm512_mul_ps(du_x, du_x), _mm512_mul_ps(du_y, du_y));
+    const __m512 sv = _mm512_add_ps(_mm512_mul_ps(dv_x, dv_x), _mm512_mul_ps(dv_y, dv_y));
+    __m512 d2 = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(su, sv, _CMP_GT_OQ), sv, su);
+    d2 = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(d2, b(1e-12f), _CMP_GT_OQ), b(1e-12f), d2);
+    const __m512i bits = _mm512_castps_si512(d2);
+    const __m512 e = _mm512_cvtepi32_ps(_mm512_sub_epi32(_mm512_srli_epi32(bits, 23), _mm512_set1_epi32(127)));
+    const __m512 m = _mm512_castsi512_ps(_mm512_or_si512(_mm512_and_si512(bits, _mm512_set1_epi32(0x7fffff)),
+                                                         _mm512_set1_epi32(0x3f800000)));
+    const __m512 poly = _mm512_sub_ps(_mm512_mul_ps(_mm512_add_ps(_mm512_mul_ps(b(-0.34484843f), m), b(2.02466578f)), m),
+                                      b(0.67487759f));
+    const __m512 l2 = _mm512_mul_ps(b(0.5f), _mm512_add_ps(e, poly));
+    _mm512_storeu_ps(z + i, _mm512_mask_blend_ps(seen, nan, zz));
+    _mm512_storeu_ps(wx + i, _mm512_mask_blend_ps(seen, nan, x));
+    _mm512_storeu_ps(wy + i, _mm512_mask_blend_ps(seen, nan, y));
+    _mm512_storeu_ps(log2fp + i, _mm512_mask_blend_ps(seen, zero, l2));
+  }
+  if (i < n) resolve_row_avx2(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, wx + i, wy + i, z + i, log2fp + i);
+}
+
 }  // namespace terralign::raster
+

@@ -1,6 +1,7 @@
 // Texture shading kernels: world (x, y) of each pixel -> bilinear / trilinear mip-mapped
 // RGBA sample of one layer. One kernel, a scalar build, AVX2 and AVX-512 builds (x86-64;
-// the resolve kernel has no AVX-512 build) and a NEON build (aarch64), with the same float operations in the same order (no FMA contraction),
+// the depth kernel has no AVX-512 build) and a NEON build (aarch64), with the same float
+// operations in the same order (no FMA contraction),
 // so they agree bit for bit.
 #pragma once
 
@@ -56,6 +57,10 @@ void resolve_row_scalar(int n, const int* ids, const float* coef, float dx0, flo
 #if defined(TERRALIGN_HAVE_AVX2)
 void resolve_row_avx2(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
                       float* z, float* log2fp);
+#endif
+#if defined(TERRALIGN_HAVE_AVX2)
+void resolve_row_avx512(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
+                        float* z, float* log2fp);
 #endif
 #if defined(TERRALIGN_HAVE_NEON)
 void resolve_row_neon(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
