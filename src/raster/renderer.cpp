@@ -64,6 +64,7 @@ struct Renderer::Impl {
   ShadeRowFn shade = shade_row_scalar;
   ResolveRowFn resolve = resolve_row_scalar;
   DepthBlockFn depth_block = depth_block_scalar;
+  EdgeBlockFn edge_block = edge_block_scalar;
   const char* simd = "scalar";
   std::unique_ptr<ThreadPool> pool;
 
@@ -285,6 +286,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.shade = shade_row_avx2;
     m.resolve = resolve_row_avx2;
     m.depth_block = depth_block_avx2;
+    m.edge_block = edge_block_avx2;
     m.simd = "avx2";
   }
 #endif
@@ -292,7 +294,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     return Error{"render options: AVX-512 kernels requested but this CPU (or build) has none"};
 #if defined(TERRALIGN_HAVE_AVX2)
   if (cpu_has_avx512() && (options.simd == RenderOptions::Simd::Auto || options.simd == RenderOptions::Simd::Avx512)) {
-    m.shade = shade_row_avx512;  // the depth kernel stays AVX2
+    m.shade = shade_row_avx512;  // the depth kernels stay AVX2
     m.resolve = resolve_row_avx512;
     m.simd = "avx512";
   }
@@ -625,48 +627,31 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     const float base = static_cast<float>(t.A[0] * bx0 + t.B[0] * by0 + t.C[0]);
     // 8 x 8 blocks: the edge functions are linear, so their values at a block's corners say
     // whether the block is wholly inside (no per-pixel test), wholly outside one edge
-    // (skipped), or crossed (tested per pixel).
+    // (skipped), or crossed (tested per pixel, in the edge kernel).
     for (int by = by0; by <= by1; by += 8) {
       const int ey1 = std::min(by + 7, by1);
       for (int bx = bx0; bx <= bx1; bx += 8) {
         const int ex1 = std::min(bx + 7, bx1);
         bool outside = false, inside = true;
+        std::int64_t corner[3] = {0, 0, 0};
         for (int k = 0; k < 3 && !outside; ++k) {
           const std::int64_t c00 = E[k] + dEx[k] * (bx - bx0) + dEy[k] * (by - by0);
           const std::int64_t c10 = c00 + dEx[k] * (ex1 - bx), c01 = c00 + dEy[k] * (ey1 - by);
           const std::int64_t c11 = c10 + dEy[k] * (ey1 - by);
           const std::int64_t lo = std::min(std::min(c00, c10), std::min(c01, c11));
           const std::int64_t hi = std::max(std::max(c00, c10), std::max(c01, c11));
+          corner[k] = c00;
           outside = hi < 0;
           inside = inside && lo >= 0;
         }
         if (outside) continue;
+        const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by) * vw + bx;
         if (inside) {
-          const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by) * vw + bx;
           depth_block(ex1 - bx + 1, ey1 - by + 1, base, A, B, bx - bx0, by - by0, zbuf.data() + at, idbuf.data() + at, vw, e);
           frags += static_cast<long>(ex1 - bx + 1) * (ey1 - by + 1);
-          continue;
-        }
-        for (int y = by; y <= ey1; ++y) {
-          float* zrow = zbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
-          int* irow = idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
-          const float rowz = base + B * static_cast<float>(y - by0);
-          std::int64_t e0 = E[0] + dEx[0] * (bx - bx0) + dEy[0] * (y - by0);
-          std::int64_t e1 = E[1] + dEx[1] * (bx - bx0) + dEy[1] * (y - by0);
-          std::int64_t e2 = E[2] + dEx[2] * (bx - bx0) + dEy[2] * (y - by0);
-          for (int x = bx; x <= ex1; ++x) {
-            if ((e0 | e1 | e2) >= 0) {
-              ++frags;
-              const float iz = rowz + A * static_cast<float>(x - bx0);
-              if (iz > zrow[x]) {
-                zrow[x] = iz;
-                irow[x] = e;
-              }
-            }
-            e0 += dEx[0];
-            e1 += dEx[1];
-            e2 += dEx[2];
-          }
+        } else {
+          frags += edge_block(ex1 - bx + 1, ey1 - by + 1, corner, dEx, dEy, base, A, B, bx - bx0, by - by0, zbuf.data() + at,
+                              idbuf.data() + at, vw, e);
         }
       }
     }

@@ -218,5 +218,45 @@ void depth_block_avx2(int w, int h, float base, float A, float B, int dx, int dy
   }
 }
 
+long edge_block_avx2(int w, int h, const std::int64_t* E, const std::int64_t* dEx, const std::int64_t* dEy, float base,
+                     float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e) {
+  // Edge k at columns 0..3 and 4..7 of a row: row start + {0..3} dEx, + {4..7} dEx.
+  __m256i step_lo[3], step_hi[3], row[3], down[3];
+  for (int k = 0; k < 3; ++k) {
+    const std::int64_t d = dEx[k];
+    step_lo[k] = _mm256_setr_epi64x(0, d, 2 * d, 3 * d);
+    step_hi[k] = _mm256_setr_epi64x(4 * d, 5 * d, 6 * d, 7 * d);
+    row[k] = _mm256_set1_epi64x(E[k]);
+    down[k] = _mm256_set1_epi64x(dEy[k]);
+  }
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256i cols = _mm256_cmpgt_epi32(_mm256_set1_epi32(w), lane);
+  const __m256 ax = _mm256_mul_ps(_mm256_set1_ps(A), _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(dx), lane)));
+  const __m256i ve = _mm256_set1_epi32(e), none = _mm256_set1_epi64x(-1);
+  long covered = 0;
+  for (int r = 0; r < h; ++r, z += stride, id += stride) {
+    const __m256i lo = _mm256_or_si256(_mm256_or_si256(_mm256_add_epi64(row[0], step_lo[0]), _mm256_add_epi64(row[1], step_lo[1])),
+                                       _mm256_add_epi64(row[2], step_lo[2]));
+    const __m256i hi = _mm256_or_si256(_mm256_or_si256(_mm256_add_epi64(row[0], step_hi[0]), _mm256_add_epi64(row[1], step_hi[1])),
+                                       _mm256_add_epi64(row[2], step_hi[2]));
+    for (int k = 0; k < 3; ++k) row[k] = _mm256_add_epi64(row[k], down[k]);
+    // All-ones 64-bit lanes where covered, packed to eight 32-bit lanes in column order.
+    const __m256i in64_lo = _mm256_cmpgt_epi64(lo, none), in64_hi = _mm256_cmpgt_epi64(hi, none);
+    const __m256i in = _mm256_and_si256(
+        _mm256_permutevar8x32_epi32(_mm256_blend_epi32(in64_lo, _mm256_slli_epi64(in64_hi, 32), 0xAA),
+                                    _mm256_setr_epi32(0, 2, 4, 6, 1, 3, 5, 7)),
+        cols);
+    const int bits = _mm256_movemask_ps(_mm256_castsi256_ps(in));
+    if (bits == 0) continue;
+    covered += __builtin_popcount(static_cast<unsigned>(bits));
+    const __m256 iz = _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax);
+    const __m256 old = _mm256_maskload_ps(z, in);
+    const __m256i nearer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(iz, old, _CMP_GT_OQ)), in);
+    _mm256_maskstore_ps(z, nearer, iz);
+    _mm256_maskstore_epi32(id, nearer, ve);
+  }
+  return covered;
+}
+
 }  // namespace terralign::raster
 

@@ -115,4 +115,24 @@ void depth_block_scalar(int w, int h, float base, float A, float B, int dx, int 
   }
 }
 
+long edge_block_scalar(int w, int h, const std::int64_t* E, const std::int64_t* dEx, const std::int64_t* dEy, float base,
+                       float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e) {
+  long covered = 0;
+  for (int r = 0; r < h; ++r, z += stride, id += stride) {
+    const float rowz = base + B * static_cast<float>(dy + r);
+    std::int64_t e0 = E[0] + dEy[0] * r, e1 = E[1] + dEy[1] * r, e2 = E[2] + dEy[2] * r;
+    for (int i = 0; i < w; ++i, e0 += dEx[0], e1 += dEx[1], e2 += dEx[2]) {
+      if ((e0 | e1 | e2) < 0) continue;
+      ++covered;
+      const float iz = rowz + A * static_cast<float>(dx + i);
+      if (iz > z[i]) {
+        z[i] = iz;
+        id[i] = e;
+      }
+    }
+  }
+  return covered;
+}
+
 }  // namespace terralign::raster
+

@@ -84,6 +84,19 @@ void depth_block_neon(int w, int h, float base, float A, float B, int dx, int dy
 #endif
 using DepthBlockFn = void (*)(int, int, float, float, float, int, int, float*, int*, std::ptrdiff_t, int);
 
+// The same in a block the triangle's edges cross: pixel (i, r) is covered where all three
+// 64-bit edge functions E[k] + dEx[k] i + dEy[k] r (at the block's corner) are >= 0, and
+// only covered pixels are depth-tested. Returns the number of covered pixels. No NEON build
+// (aarch64 runs the scalar one).
+long edge_block_scalar(int w, int h, const std::int64_t* E, const std::int64_t* dEx, const std::int64_t* dEy, float base,
+                       float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e);
+#if defined(TERRALIGN_HAVE_AVX2)
+long edge_block_avx2(int w, int h, const std::int64_t* E, const std::int64_t* dEx, const std::int64_t* dEy, float base,
+                     float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e);
+#endif
+using EdgeBlockFn = long (*)(int, int, const std::int64_t*, const std::int64_t*, const std::int64_t*, float, float, float,
+                             int, int, float*, int*, std::ptrdiff_t, int);
+
 // log2 to about 0.005 (exponent plus a quadratic in the mantissa): enough to pick a mip
 // level, and the same on every machine.
 inline float fast_log2(float x) {
