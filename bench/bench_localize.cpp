@@ -14,6 +14,7 @@
 #include <vector>
 
 #include <sys/resource.h>
+#include <sys/wait.h>
 
 #include <terralign/geo/image_io.hpp>
 #include <terralign/geo/map.hpp>
@@ -119,7 +120,9 @@ int main(int argc, char** argv) {
     const int rc = std::system(cmd.c_str());
     rusage ru{};
     getrusage(RUSAGE_CHILDREN, &ru);
-    std::printf("  %-8s %.1f MiB (exit %d)\n", method, static_cast<double>(ru.ru_maxrss) / 1024.0, rc);
+    const int code = WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;  // terralign align: 3 = ran, did not converge
+    std::printf("  %-8s %.1f MiB (exit %d%s)\n", method, static_cast<double>(ru.ru_maxrss) / 1024.0, code,
+                code == 3 ? ": ran, not converged" : "");
   }
 #endif
   return 0;
