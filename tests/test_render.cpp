@@ -126,18 +126,54 @@ TEST_CASE("1 and 2 threads, and scalar and AVX2 shading, give the same bytes") {
   one.simd = RenderOptions::Simd::Scalar;
   RenderOptions two;
   two.threads = 2;
+  RenderOptions three;  // an odd count: the geometry's and the tiles' runs split unevenly
+  three.threads = 3;
   auto r1 = make(map, cam, one);
   auto r2 = make(map, cam, two);
+  auto r3 = make(map, cam, three);
   MESSAGE("shading kernel with 2 threads: " << std::string(r2->simd_name()));
-  auto o1 = r1->make_output({"all"}), o2 = r2->make_output({"all"});
-  REQUIRE((o1.ok() && o2.ok()));
+  auto o1 = r1->make_output({"all"}), o2 = r2->make_output({"all"}), o3 = r3->make_output({"all"});
+  REQUIRE((o1.ok() && o2.ok() && o3.ok()));
   for (const geo::Pose& T : {look_down(900, 1100, 900), look_down(700, 600, 500, 50, 30)}) {
-    REQUIRE(r1->render(T, o1.value()).ok());
+    RenderStats s1, s3;
+    REQUIRE(r1->render(T, o1.value(), &s1).ok());
     REQUIRE(r2->render(T, o2.value()).ok());
-    CHECK(o1->rgb[0].pixels() == o2->rgb[0].pixels());
-    CHECK(o1->valid[0].pixels() == o2->valid[0].pixels());
-    CHECK(std::memcmp(o1->depth.data(), o2->depth.data(), o1->depth.size() * sizeof(float)) == 0);
+    REQUIRE(r3->render(T, o3.value(), &s3).ok());
+    CHECK(s1.chunks > 3);  // enough chunks that every thread draws some
+    CHECK(s1.triangles == s3.triangles);
+    for (const RenderOutput* o : {&o2.value(), &o3.value()}) {
+      CHECK(o1->rgb[0].pixels() == o->rgb[0].pixels());
+      CHECK(o1->valid[0].pixels() == o->valid[0].pixels());
+      CHECK(std::memcmp(o1->depth.data(), o->depth.data(), o1->depth.size() * sizeof(float)) == 0);
+    }
   }
+}
+
+TEST_CASE("render options out of range are refused, naming the option and its value") {
+  const geo::Map map = test::dem_map(65, 65, 0, 2000, 31.25, [](double, double) { return 10.0; }, smooth_layer());
+  auto refused = [&](RenderOptions o, const char* what) {
+    auto r = Renderer::create(map, camera(), o);
+    REQUIRE_FALSE(r.ok());
+    CHECK_MESSAGE(r.error().message.find(what) != std::string::npos, r.error().message);
+  };
+  RenderOptions o;
+  o.threads = 0;
+  refused(o, "render threads 0");
+  o.threads = 65;
+  refused(o, "render threads 65");
+  o = {};
+  o.lod_error_px = NAN;
+  refused(o, "lod_error_px");
+  o = {};
+  o.max_triangles = 100;
+  refused(o, "max_triangles 100");
+  o = {};
+  o.threads = 4;
+  o.max_triangles = 1 << 24;  // each thread's slots would reserve 2.3 GB
+  refused(o, "threads x max_triangles (4 x 16777216)");
+  o.threads = 3;
+  o.max_triangles = 1 << 20;
+  CHECK(Renderer::create(map, camera(), o).ok());
 }
 
 TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded random inputs (AVX2, AVX-512, NEON vs scalar)") {

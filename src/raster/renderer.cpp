@@ -42,6 +42,20 @@ struct Tri {
   double A[3], B[3], C[3];     // [0]: 1/z, [1]: wx/z, [2]: wy/z
 };
 
+// One thread's share of a frame's geometry: the triangles of its run of chunks, in draw
+// order, in its own region of the triangle array, and the scratch of the chunk being drawn.
+struct GeomPart {
+  Tri* tris = nullptr;  // max_triangles entries
+  int n_tris = 0;
+  bool overflow = false;
+  int chunks_drawn = 0;
+  std::vector<ClipVert> verts;       // (kChunkQuads + 1)^2
+  std::vector<ProjVert> proj;        // their projections, where out is 0
+  std::vector<std::uint8_t> out;     // per vertex: bit p set when outside clip plane p
+  std::vector<int> tile_count;       // per screen tile: this part's triangles binned there
+  std::vector<int> tile_fill;        // per screen tile: where this part's next entry goes
+};
+
 struct LayerTexture {
   std::string name;
   std::vector<std::uint32_t> texels;
@@ -71,10 +85,13 @@ struct Renderer::Impl {
   // Frame buffers, sized at construction.
   int vw = 0, vh = 0;                     // pinhole (G-buffer) size
   int tiles_x = 0, tiles_y = 0;
-  // Sized for max_triangles but not zeroed (default-initialised): a view touches, and so
-  // commits to memory, only the pages of the triangles it draws.
+  // max_triangles per thread (thread j's triangles from j * max_triangles: a triangle's
+  // index names it everywhere below), not zeroed (default-initialised): a view touches, and
+  // so commits to memory, only the pages of the triangles it draws.
   std::unique_ptr<Tri[]> tris;
-  std::vector<int> tile_count, tile_start, tile_fill;
+  std::vector<GeomPart> parts;            // per thread
+  std::vector<int> draw_list;             // the chunks a frame draws, in traversal order
+  std::vector<int> tile_count, tile_start;  // per tile: bin entries, first entry
   std::vector<long> tile_fragments;
   std::vector<std::vector<float>> tile_coef;  // per thread: 9 floats per bin entry of a tile
   int max_tile_entries = 0;                    // bin entries one tile may hold
@@ -87,26 +104,21 @@ struct Renderer::Impl {
   std::vector<float> log2fp;              // distorted camera, per output pixel
   std::vector<float> row_g;               // pinhole camera, per thread: one tile row of x, y, log2fp
   std::vector<ShadeParams> layer_params;  // per layer
-  std::vector<ClipVert> chunk_verts;      // (kChunkQuads + 1)^2
-  std::vector<ProjVert> chunk_proj;       // their projections, where chunk_out is 0
-  std::vector<std::uint8_t> chunk_out;    // per vertex: bit p set when outside clip plane p
   std::vector<int> chunk_stack;
-  int fragments = 0;
 
   // Per-frame state.
   RenderOutput* frame_out = nullptr;
   Eigen::Matrix3f R_C_W;
   Eigen::Vector3f t_local;     // camera centre, local
-  int n_tris = 0;
-  bool overflow = false;
-  int chunks_drawn = 0;
 
   ProjVert project(const ClipVert& v) const;
   std::uint8_t outcode(const ClipVert& v) const;
-  void emit_triangle(const ProjVert& a, const ProjVert& b, const ProjVert& c);
+  void emit_triangle(GeomPart& g, const ProjVert& a, const ProjVert& b, const ProjVert& c) const;
   float clip_dist(int plane, const ClipVert& v) const;
-  void clip_and_emit(const ClipVert* v, int n);
-  void draw_chunk(const TerrainChunk& c);
+  void clip_and_emit(GeomPart& g, const ClipVert* v, int n) const;
+  void draw_chunk(GeomPart& g, const TerrainChunk& c) const;
+  void draw_chunks(int part);
+  void bin_part(int part);
   bool chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const;
   void raster_tile(int tile, int thread);
   void resolve_rows(int row0, int row1);
@@ -177,6 +189,11 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     return Error{"render options: lod_error_px and near_m must be > 0"};
   if (options.max_triangles < 1024 || options.max_triangles > (1 << 24))
     return Error{"render options: max_triangles " + std::to_string(options.max_triangles) + " is outside 1024..2^24"};
+  // Each thread has max_triangles slots of its own (its share of the geometry may be all of
+  // it), reserved but committed only where drawn; bound the reservation (4.3 GB at most).
+  if (static_cast<long>(options.threads) * options.max_triangles > (1L << 25))
+    return Error{"render options: threads x max_triangles (" + std::to_string(options.threads) + " x " +
+                 std::to_string(options.max_triangles) + ") is over 2^25"};
   auto impl = std::make_unique<Impl>();
   Impl& m = *impl;
   m.map = &map;
@@ -246,10 +263,19 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.tiles_x = (m.vw + kTileW - 1) / kTileW;
   m.tiles_y = (m.vh + kTileH - 1) / kTileH;
   const std::size_t tiles = static_cast<std::size_t>(m.tiles_x) * static_cast<std::size_t>(m.tiles_y);
-  m.tris.reset(new Tri[static_cast<std::size_t>(options.max_triangles)]);
+  m.tris.reset(new Tri[static_cast<std::size_t>(options.threads) * static_cast<std::size_t>(options.max_triangles)]);
+  m.parts.resize(static_cast<std::size_t>(options.threads));
+  for (std::size_t j = 0; j < m.parts.size(); ++j) {
+    GeomPart& g = m.parts[j];
+    g.tris = m.tris.get() + j * static_cast<std::size_t>(options.max_triangles);
+    g.verts.resize(static_cast<std::size_t>(kChunkQuads + 1) * (kChunkQuads + 1));
+    g.proj.resize(g.verts.size());
+    g.out.resize(g.verts.size());
+    g.tile_count.resize(tiles);
+    g.tile_fill.resize(tiles);
+  }
   m.tile_count.resize(tiles);
   m.tile_start.resize(tiles + 1);
-  m.tile_fill.resize(tiles);
   m.tile_fragments.resize(tiles);
   // A tile holds each triangle at most once: no more entries than triangles (a small target's
   // renderer, with a small max_triangles, stays small).
@@ -273,10 +299,8 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.layer_params.push_back({T.texels.data(), T.levels.data(), static_cast<int>(T.levels.size()),
                               static_cast<float>(T.a0), static_cast<float>(T.a1), static_cast<float>(T.a2),
                               static_cast<float>(T.b0), static_cast<float>(T.b1), static_cast<float>(T.b2), T.lod_bias});
-  m.chunk_verts.resize(static_cast<std::size_t>(kChunkQuads + 1) * (kChunkQuads + 1));
-  m.chunk_proj.resize(m.chunk_verts.size());
-  m.chunk_out.resize(m.chunk_verts.size());
   m.chunk_stack.reserve(m.terrain.chunks().size() + 8);
+  m.draw_list.reserve(m.terrain.chunks().size());
 
   const bool avx2 = cpu_has_avx2();
   if (options.simd == RenderOptions::Simd::Avx2 && !avx2)
@@ -368,14 +392,14 @@ ProjVert Renderer::Impl::project(const ClipVert& v) const {
   return p;
 }
 
-void Renderer::Impl::emit_triangle(const ProjVert& a, const ProjVert& b, const ProjVert& c) {
-  if (n_tris >= options.max_triangles) {
-    overflow = true;
+void Renderer::Impl::emit_triangle(GeomPart& g, const ProjVert& a, const ProjVert& b, const ProjVert& c) const {
+  if (g.n_tris >= options.max_triangles) {
+    g.overflow = true;
     return;
   }
   const ProjVert* v[3] = {&a, &b, &c};
   const double sx[3] = {a.sx, b.sx, c.sx}, sy[3] = {a.sy, b.sy, c.sy}, iz[3] = {a.iz, b.iz, c.iz};
-  Tri& t = tris[static_cast<std::size_t>(n_tris)];
+  Tri& t = g.tris[g.n_tris];
   for (int k = 0; k < 3; ++k) {
     t.X[k] = v[k]->X;
     t.Y[k] = v[k]->Y;
@@ -407,7 +431,7 @@ void Renderer::Impl::emit_triangle(const ProjVert& a, const ProjVert& b, const P
     t.B[p] = (d2 * e1x - d1 * e2x) / det;
     t.C[p] = q[p][0] - t.A[p] * x0 - t.B[p] * y0;
   }
-  ++n_tris;
+  ++g.n_tris;
 }
 
 // Signed distance of v to clip plane p (>= 0: inside): near, then a guard band around the
@@ -428,7 +452,7 @@ std::uint8_t Renderer::Impl::outcode(const ClipVert& v) const {
   return code;
 }
 
-void Renderer::Impl::clip_and_emit(const ClipVert* in, int n) {
+void Renderer::Impl::clip_and_emit(GeomPart& g, const ClipVert* in, int n) const {
   const float near = static_cast<float>(options.near_m);
   ClipVert buf[2][kMaxClipVerts];
   int count = n;
@@ -467,7 +491,7 @@ void Renderer::Impl::clip_and_emit(const ClipVert* in, int n) {
   }
   ProjVert p[kMaxClipVerts];
   for (int i = 0; i < count; ++i) p[i] = project(buf[cur][i]);
-  for (int i = 1; i + 1 < count; ++i) emit_triangle(p[0], p[i], p[i + 1]);
+  for (int i = 1; i + 1 < count; ++i) emit_triangle(g, p[0], p[i], p[i + 1]);
 }
 
 bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const {
@@ -496,7 +520,10 @@ bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool
   return true;
 }
 
-void Renderer::Impl::draw_chunk(const TerrainChunk& c) {
+void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
+  std::vector<ClipVert>& chunk_verts = g.verts;
+  std::vector<ProjVert>& chunk_proj = g.proj;
+  std::vector<std::uint8_t>& chunk_out = g.out;
   const int step = 1 << c.level;
   const int nx = terrain.posts_x(), ny = terrain.posts_y();
   const int n = kChunkQuads + 1;
@@ -531,8 +558,8 @@ void Renderer::Impl::draw_chunk(const TerrainChunk& c) {
            chunk_out[static_cast<std::size_t>(k01)] | chunk_out[static_cast<std::size_t>(k11)]) == 0) {
         const ProjVert& p00 = chunk_proj[static_cast<std::size_t>(k00)];
         const ProjVert& p11 = chunk_proj[static_cast<std::size_t>(k11)];
-        emit_triangle(p00, chunk_proj[static_cast<std::size_t>(k10)], p11);
-        emit_triangle(p00, p11, chunk_proj[static_cast<std::size_t>(k01)]);
+        emit_triangle(g, p00, chunk_proj[static_cast<std::size_t>(k10)], p11);
+        emit_triangle(g, p00, p11, chunk_proj[static_cast<std::size_t>(k01)]);
         continue;
       }
       const ClipVert& v00 = chunk_verts[static_cast<std::size_t>(k00)];
@@ -540,8 +567,8 @@ void Renderer::Impl::draw_chunk(const TerrainChunk& c) {
       const ClipVert& v01 = chunk_verts[static_cast<std::size_t>(k01)];
       const ClipVert& v11 = chunk_verts[static_cast<std::size_t>(k11)];
       const ClipVert t1[3] = {v00, v10, v11}, t2[3] = {v00, v11, v01};
-      clip_and_emit(t1, 3);
-      clip_and_emit(t2, 3);
+      clip_and_emit(g, t1, 3);
+      clip_and_emit(g, t2, 3);
     }
   }
   // Skirts along the four borders hide cracks against coarser neighbours.
@@ -557,8 +584,8 @@ void Renderer::Impl::draw_chunk(const TerrainChunk& c) {
       a2.x += down.x(); a2.y += down.y(); a2.z += down.z();
       b2.x += down.x(); b2.y += down.y(); b2.z += down.z();
       const ClipVert s1[3] = {a, b, b2}, s2[3] = {a, b2, a2};
-      clip_and_emit(s1, 3);
-      clip_and_emit(s2, 3);
+      clip_and_emit(g, s1, 3);
+      clip_and_emit(g, s2, 3);
     };
     for (int k = 0; k < kChunkQuads; ++k) {
       skirt(k, k + 1);                                  // top row
@@ -567,7 +594,39 @@ void Renderer::Impl::draw_chunk(const TerrainChunk& c) {
       skirt(k * n + kChunkQuads, (k + 1) * n + kChunkQuads);  // right column
     }
   }
-  ++chunks_drawn;
+  ++g.chunks_drawn;
+}
+
+// Part j of the frame's geometry: the j-th of `threads` equal runs of the draw list. The
+// parts, taken in order, hold the triangles in draw-list order whatever the thread count.
+void Renderer::Impl::draw_chunks(int part) {
+  GeomPart& g = parts[static_cast<std::size_t>(part)];
+  g.n_tris = 0;
+  g.overflow = false;
+  g.chunks_drawn = 0;
+  const std::size_t n = draw_list.size(), k = parts.size(), j = static_cast<std::size_t>(part);
+  const auto& chunks = terrain.chunks();
+  for (std::size_t i = j * n / k; i < (j + 1) * n / k; ++i)
+    draw_chunk(g, chunks[static_cast<std::size_t>(draw_list[i])]);
+  std::fill(g.tile_count.begin(), g.tile_count.end(), 0);
+  for (int i = 0; i < g.n_tris; ++i) {
+    const Tri& t = g.tris[i];
+    for (int b = t.by0 / kTileH; b <= t.by1 / kTileH; ++b)
+      for (int a = t.bx0 / kTileW; a <= t.bx1 / kTileW; ++a) ++g.tile_count[static_cast<std::size_t>(b * tiles_x + a)];
+  }
+}
+
+// Writes part j's triangles into the bins of the tiles they touch, from the offsets render()
+// gave it: within a tile, part 0's entries come first, so a tile's entries are in draw order.
+void Renderer::Impl::bin_part(int part) {
+  GeomPart& g = parts[static_cast<std::size_t>(part)];
+  const int first = part * options.max_triangles;
+  for (int i = 0; i < g.n_tris; ++i) {
+    const Tri& t = g.tris[i];
+    for (int b = t.by0 / kTileH; b <= t.by1 / kTileH; ++b)
+      for (int a = t.bx0 / kTileW; a <= t.bx1 / kTileW; ++a)
+        bin_entries[static_cast<std::size_t>(g.tile_fill[static_cast<std::size_t>(b * tiles_x + a)]++)] = first + i;
+  }
 }
 
 // ---- rasterization ----
@@ -757,55 +816,57 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   m.R_C_W = T_W_C.q_W_C.conjugate().toRotationMatrix().cast<float>();
   m.t_local = Eigen::Vector3f(static_cast<float>(t.x() - m.ox), static_cast<float>(t.y() - m.oy),
                               static_cast<float>(t.z() - m.oz));
-  m.n_tris = 0;
-  m.overflow = false;
-  m.chunks_drawn = 0;
 
   // 1-2. Level of detail and geometry.
   m.chunk_stack.clear();
   m.chunk_stack.push_back(m.terrain.root());
+  m.draw_list.clear();
   const auto& chunks = m.terrain.chunks();
   while (!m.chunk_stack.empty()) {
-    const TerrainChunk& c = chunks[static_cast<std::size_t>(m.chunk_stack.back())];
+    const int index = m.chunk_stack.back();
     m.chunk_stack.pop_back();
+    const TerrainChunk& c = chunks[static_cast<std::size_t>(index)];
     bool refine = false;
     if (!m.chunk_visible_and_coarse_enough(c, refine)) continue;
     if (refine) {
       for (int k = 3; k >= 0; --k)
         if (c.child[k] >= 0) m.chunk_stack.push_back(c.child[k]);
     } else {
-      m.draw_chunk(c);
+      m.draw_list.push_back(index);
     }
   }
-  if (m.overflow) {
+  m.pool->run(m.pool->threads(), [](void* c, int j) { static_cast<Impl*>(c)->draw_chunks(j); }, &m);
+  int n_tris = 0, chunks_drawn = 0;
+  bool overflow = false;
+  for (const GeomPart& g : m.parts) {
+    n_tris += g.n_tris;
+    chunks_drawn += g.chunks_drawn;
+    overflow = overflow || g.overflow;
+  }
+  if (overflow || n_tris > m.options.max_triangles) {
     invalidate();
     return Error{"render: the view needs more than " + std::to_string(m.options.max_triangles) +
                  " triangles (raise max_triangles or lod_error_px)"};
   }
-  // Binning: counts, prefix sums, fill (triangle order kept within each tile).
-  std::fill(m.tile_count.begin(), m.tile_count.end(), 0);
-  auto tile_range = [&](const Tri& tr, int& a0, int& a1, int& b0, int& b1) {
-    a0 = tr.bx0 / kTileW; a1 = tr.bx1 / kTileW; b0 = tr.by0 / kTileH; b1 = tr.by1 / kTileH;
-  };
-  for (int i = 0; i < m.n_tris; ++i) {
-    int a0, a1, b0, b1;
-    tile_range(m.tris[static_cast<std::size_t>(i)], a0, a1, b0, b1);
-    for (int b = b0; b <= b1; ++b)
-      for (int a = a0; a <= a1; ++a) ++m.tile_count[static_cast<std::size_t>(b * m.tiles_x + a)];
+  // Binning: each part counted its triangles per tile; prefix sums over tiles and, within a
+  // tile, over parts; then each part fills its share (triangle order kept within each tile).
+  long total = 0;
+  for (std::size_t k = 0; k < m.tile_count.size(); ++k) {
+    m.tile_start[k] = static_cast<int>(std::min<long>(total, std::numeric_limits<int>::max()));
+    int count = 0;
+    for (GeomPart& g : m.parts) {
+      g.tile_fill[k] = m.tile_start[k] + count;
+      count += g.tile_count[k];
+    }
+    m.tile_count[k] = count;
+    total += count;
   }
-  m.tile_start[0] = 0;
-  for (std::size_t k = 0; k < m.tile_count.size(); ++k) m.tile_start[k + 1] = m.tile_start[k] + m.tile_count[k];
-  if (static_cast<std::size_t>(m.tile_start.back()) > m.bin_capacity) {
+  if (total > static_cast<long>(m.bin_capacity)) {
     invalidate();
-    return Error{"render: tile bins overflow (" + std::to_string(m.tile_start.back()) + " entries)"};
+    return Error{"render: tile bins overflow (" + std::to_string(total) + " entries)"};
   }
-  std::copy(m.tile_start.begin(), m.tile_start.end() - 1, m.tile_fill.begin());
-  for (int i = 0; i < m.n_tris; ++i) {
-    int a0, a1, b0, b1;
-    tile_range(m.tris[static_cast<std::size_t>(i)], a0, a1, b0, b1);
-    for (int b = b0; b <= b1; ++b)
-      for (int a = a0; a <= a1; ++a) m.bin_entries[static_cast<std::size_t>(m.tile_fill[static_cast<std::size_t>(b * m.tiles_x + a)]++)] = i;
-  }
+  m.tile_start.back() = static_cast<int>(total);
+  m.pool->run(m.pool->threads(), [](void* c, int j) { static_cast<Impl*>(c)->bin_part(j); }, &m);
   const auto t1 = Clock::now();
 
   // 3-5. Visibility per tile; for a pinhole camera the tile is resolved and shaded there,
@@ -846,8 +907,8 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   }
   const auto t3 = Clock::now();
   if (stats) {
-    stats->triangles = m.n_tris;
-    stats->chunks = m.chunks_drawn;
+    stats->triangles = n_tris;
+    stats->chunks = chunks_drawn;
     stats->fragments = 0;
     for (long f : m.tile_fragments) stats->fragments += f;
     stats->ms_geometry = std::chrono::duration<double, std::milli>(t1 - t0).count();
