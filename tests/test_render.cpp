@@ -311,6 +311,22 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
       CHECK(std::memcmp(zs.data(), zv.data(), zs.size() * sizeof(float)) == 0);
       CHECK(is == iv);
     }
+#if defined(TERRALIGN_HAVE_AVX2)
+    // The 32-bit kernel on the same block: every value here fits (|E| < 6 * 2^16 + 14 * 3 * 2^16).
+    if (cpu_has_avx2()) {
+      const std::int32_t E32[3] = {static_cast<std::int32_t>(Ec[0]), static_cast<std::int32_t>(Ec[1]), static_cast<std::int32_t>(Ec[2])};
+      const std::int32_t dx32[3] = {static_cast<std::int32_t>(dx_[0]), static_cast<std::int32_t>(dx_[1]), static_cast<std::int32_t>(dx_[2])};
+      const std::int32_t dy32[3] = {static_cast<std::int32_t>(dy_[0]), static_cast<std::int32_t>(dy_[1]), static_cast<std::int32_t>(dy_[2])};
+      std::vector<float> zv = z0;
+      std::vector<int> iv = id0;
+      const long nv = edge_block32_avx2(bw, bh, E32, dx32, dy32, 0.001f, 1.3e-5f, -0.7e-5f, 3, 5, zv.data() + stride + 2,
+                                        iv.data() + stride + 2, stride, 7);
+      CAPTURE(tri);
+      CHECK(ns == nv);
+      CHECK(std::memcmp(zs.data(), zv.data(), zs.size() * sizeof(float)) == 0);
+      CHECK(is == iv);
+    }
+#endif
   }
   CHECK(covered_total > 0);
   CHECK(blocks_partly > 20);  // edges cross many of the blocks (not all in or all out)

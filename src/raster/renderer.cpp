@@ -21,6 +21,15 @@ constexpr int kMaxTileEntries = 1 << 16;  // triangles binned into one tile, at 
 
 using Clock = std::chrono::steady_clock;
 
+// Nearest integer (ties to even) of |v| < 2^51 in two additions: adding 1.5 * 2^52 leaves no
+// fraction bits, so the sum is rounded in the FPU's default mode (the same IEEE operation on
+// every machine). std::llround is a library call, 4 % of a synthetic-terrain frame; a
+// projected vertex is inside the guard band, |v| < 2^23.
+inline std::int64_t round_fixed(double v) {
+  constexpr double kMagic = 6755399441055744.0;
+  return static_cast<std::int64_t>((v + kMagic) - kMagic);
+}
+
 struct ClipVert {
   float x, y, z;    // camera frame
   float wx, wy;     // local world position
@@ -79,6 +88,7 @@ struct Renderer::Impl {
   ResolveRowFn resolve = resolve_row_scalar;
   DepthBlockFn depth_block = depth_block_scalar;
   EdgeBlockFn edge_block = edge_block_scalar;
+  EdgeBlock32Fn edge_block32 = nullptr;   // where built: blocks whose edge values fit 32 bits
   const char* simd = "scalar";
   std::unique_ptr<ThreadPool> pool;
 
@@ -311,6 +321,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.resolve = resolve_row_avx2;
     m.depth_block = depth_block_avx2;
     m.edge_block = edge_block_avx2;
+    m.edge_block32 = edge_block32_avx2;
     m.simd = "avx2";
   }
 #endif
@@ -385,8 +396,8 @@ ProjVert Renderer::Impl::project(const ClipVert& v) const {
   p.iz = 1.0 / static_cast<double>(v.z);
   p.sx = pinhole.fx * v.x * p.iz + pinhole.cx;
   p.sy = pinhole.fy * v.y * p.iz + pinhole.cy;
-  p.X = std::llround(p.sx * (1 << kSubBits));
-  p.Y = std::llround(p.sy * (1 << kSubBits));
+  p.X = round_fixed(p.sx * (1 << kSubBits));
+  p.Y = round_fixed(p.sy * (1 << kSubBits));
   p.wx = v.wx;
   p.wy = v.wy;
   return p;
@@ -691,7 +702,7 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
       const int ey1 = std::min(by + 7, by1);
       for (int bx = bx0; bx <= bx1; bx += 8) {
         const int ex1 = std::min(bx + 7, bx1);
-        bool outside = false, inside = true;
+        bool outside = false, inside = true, fits32 = true;
         std::int64_t corner[3] = {0, 0, 0};
         for (int k = 0; k < 3 && !outside; ++k) {
           const std::int64_t c00 = E[k] + dEx[k] * (bx - bx0) + dEy[k] * (by - by0);
@@ -702,12 +713,23 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
           corner[k] = c00;
           outside = hi < 0;
           inside = inside && lo >= 0;
+          fits32 = fits32 && lo >= std::numeric_limits<std::int32_t>::min() && hi <= std::numeric_limits<std::int32_t>::max();
         }
         if (outside) continue;
         const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by) * vw + bx;
         if (inside) {
           depth_block(ex1 - bx + 1, ey1 - by + 1, base, A, B, bx - bx0, by - by0, zbuf.data() + at, idbuf.data() + at, vw, e);
           frags += static_cast<long>(ex1 - bx + 1) * (ey1 - by + 1);
+        } else if (fits32 && edge_block32) {
+          // Narrowing is modular: the slopes may wrap, every pixel's value is exact.
+          const std::int32_t c32[3] = {static_cast<std::int32_t>(corner[0]), static_cast<std::int32_t>(corner[1]),
+                                       static_cast<std::int32_t>(corner[2])};
+          const std::int32_t dx32[3] = {static_cast<std::int32_t>(dEx[0]), static_cast<std::int32_t>(dEx[1]),
+                                        static_cast<std::int32_t>(dEx[2])};
+          const std::int32_t dy32[3] = {static_cast<std::int32_t>(dEy[0]), static_cast<std::int32_t>(dEy[1]),
+                                        static_cast<std::int32_t>(dEy[2])};
+          frags += edge_block32(ex1 - bx + 1, ey1 - by + 1, c32, dx32, dy32, base, A, B, bx - bx0, by - by0, zbuf.data() + at,
+                                idbuf.data() + at, vw, e);
         } else {
           frags += edge_block(ex1 - bx + 1, ey1 - by + 1, corner, dEx, dEy, base, A, B, bx - bx0, by - by0, zbuf.data() + at,
                               idbuf.data() + at, vw, e);

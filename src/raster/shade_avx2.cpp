@@ -258,5 +258,34 @@ long edge_block_avx2(int w, int h, const std::int64_t* E, const std::int64_t* dE
   return covered;
 }
 
-}  // namespace terralign::raster
+long edge_block32_avx2(int w, int h, const std::int32_t* E, const std::int32_t* dEx, const std::int32_t* dEy, float base,
+                       float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e) {
+  // Eight columns of edge k a row in one register; 32-bit lanes wrap, and wrapping is exact
+  // for every value that fits (the caller's promise for the block's pixels).
+  const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  __m256i row[3], down[3];
+  for (int k = 0; k < 3; ++k) {
+    row[k] = _mm256_add_epi32(_mm256_set1_epi32(E[k]), _mm256_mullo_epi32(_mm256_set1_epi32(dEx[k]), lane));
+    down[k] = _mm256_set1_epi32(dEy[k]);
+  }
+  const __m256i cols = _mm256_cmpgt_epi32(_mm256_set1_epi32(w), lane);
+  const __m256 ax = _mm256_mul_ps(_mm256_set1_ps(A), _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(dx), lane)));
+  const __m256i ve = _mm256_set1_epi32(e), none = _mm256_set1_epi32(-1);
+  long covered = 0;
+  for (int r = 0; r < h; ++r, z += stride, id += stride) {
+    const __m256i any = _mm256_or_si256(_mm256_or_si256(row[0], row[1]), row[2]);
+    for (int k = 0; k < 3; ++k) row[k] = _mm256_add_epi32(row[k], down[k]);
+    const __m256i in = _mm256_and_si256(_mm256_cmpgt_epi32(any, none), cols);  // all three >= 0
+    const int bits = _mm256_movemask_ps(_mm256_castsi256_ps(in));
+    if (bits == 0) continue;
+    covered += __builtin_popcount(static_cast<unsigned>(bits));
+    const __m256 iz = _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax);
+    const __m256 old = _mm256_maskload_ps(z, in);
+    const __m256i nearer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(iz, old, _CMP_GT_OQ)), in);
+    _mm256_maskstore_ps(z, nearer, iz);
+    _mm256_maskstore_epi32(id, nearer, ve);
+  }
+  return covered;
+}
 
+}  // namespace terralign::raster
