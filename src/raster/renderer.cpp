@@ -47,7 +47,7 @@ struct ProjVert {
 // A screen triangle ready for rasterization. Plane coefficients q(x, y) = A x + B y + C in
 // pixel coordinates (centres at integers) for 1/z, x_world/z and y_world/z.
 struct Tri {
-  std::int64_t X[3], Y[3];     // fixed point, kSubBits
+  std::int32_t X[3], Y[3];     // fixed point, kSubBits (inside the guard band: |X|, |Y| < 2^29)
   int bx0, by0, bx1, by1;      // inclusive pixel bounding box, clamped to the image
   double A[3], B[3], C[3];     // [0]: 1/z, [1]: wx/z, [2]: wy/z
 };
@@ -267,6 +267,9 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   }
   m.vw = m.pinhole.width;
   m.vh = m.pinhole.height;
+  if (m.vw > (1 << 20) || m.vh > (1 << 20))  // keeps fixed-point positions in 32 bits (Tri)
+    return Error{"camera: the undistorted view is " + std::to_string(m.vw) + " x " + std::to_string(m.vh) +
+                 " pixels, over 2^20 a side"};
   m.guard[0] = static_cast<float>((-kGuardPx - m.pinhole.cx) / m.pinhole.fx);
   m.guard[1] = static_cast<float>((m.vw + kGuardPx - m.pinhole.cx) / m.pinhole.fx);
   m.guard[2] = static_cast<float>((-kGuardPx - m.pinhole.cy) / m.pinhole.fy);
@@ -413,10 +416,11 @@ void Renderer::Impl::emit_triangle(GeomPart& g, const ProjVert& a, const ProjVer
   const double sx[3] = {a.sx, b.sx, c.sx}, sy[3] = {a.sy, b.sy, c.sy}, iz[3] = {a.iz, b.iz, c.iz};
   Tri& t = g.tris[g.n_tris];
   for (int k = 0; k < 3; ++k) {
-    t.X[k] = v[k]->X;
-    t.Y[k] = v[k]->Y;
+    t.X[k] = static_cast<std::int32_t>(v[k]->X);
+    t.Y[k] = static_cast<std::int32_t>(v[k]->Y);
   }
-  std::int64_t area = (t.X[1] - t.X[0]) * (t.Y[2] - t.Y[0]) - (t.Y[1] - t.Y[0]) * (t.X[2] - t.X[0]);
+  const std::int64_t area = (std::int64_t{t.X[1]} - t.X[0]) * (std::int64_t{t.Y[2]} - t.Y[0]) -
+                            (std::int64_t{t.Y[1]} - t.Y[0]) * (std::int64_t{t.X[2]} - t.X[0]);
   if (area == 0) return;
   if (area < 0) {  // make every triangle clockwise on screen (y down): area > 0
     std::swap(t.X[1], t.X[2]);
@@ -678,7 +682,7 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     const int id = bin_entries[static_cast<std::size_t>(first + e)];
     const Tri& t = tris[static_cast<std::size_t>(id)];
     if (e + kPrefetchAhead < count) {
-      // A view's triangles outgrow the caches (136 bytes each): fetch one a few entries ahead.
+      // A view's triangles outgrow the caches (112 bytes each): fetch one a few entries ahead.
       const char* next = reinterpret_cast<const char*>(&tris[static_cast<std::size_t>(bin_entries[static_cast<std::size_t>(first + e + kPrefetchAhead)])]);
       __builtin_prefetch(next);
       __builtin_prefetch(next + 64);
@@ -694,7 +698,7 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     const std::int64_t px = static_cast<std::int64_t>(bx0) << kSubBits, py = static_cast<std::int64_t>(by0) << kSubBits;
     for (int k = 0; k < 3; ++k) {
       const int k1 = (k + 1) % 3;
-      const std::int64_t ex = t.X[k1] - t.X[k], ey = t.Y[k1] - t.Y[k];
+      const std::int64_t ex = std::int64_t{t.X[k1]} - t.X[k], ey = std::int64_t{t.Y[k1]} - t.Y[k];
       const bool top_left = (ey == 0 && ex > 0) || ey < 0;
       E[k] = ex * (py - t.Y[k]) - ey * (px - t.X[k]) - (top_left ? 0 : 1);
       dEx[k] = -ey * (std::int64_t{1} << kSubBits);
