@@ -940,21 +940,27 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
     std::copy(m.gz.begin(), m.gz.end(), out.depth.pixels().begin());
   }
   const auto t3 = Clock::now();
+  // Terrain seen: for a pinhole camera every covered pixel has a depth (clipping keeps 1/z
+  // positive), so the tiles' fragment counts tell without a pass over the depth image.
+  long fragments = 0;
+  for (long f : m.tile_fragments) fragments += f;
   if (stats) {
     stats->triangles = n_tris;
     stats->chunks = chunks_drawn;
-    stats->fragments = 0;
-    for (long f : m.tile_fragments) stats->fragments += f;
+    stats->fragments = fragments;
     stats->ms_geometry = std::chrono::duration<double, std::milli>(t1 - t0).count();
     stats->ms_raster = std::chrono::duration<double, std::milli>(t2 - t1).count();
     stats->ms_shade = std::chrono::duration<double, std::milli>(t3 - t2).count();
   }
-  bool any = false;
-  for (float z : out.depth.pixels())
-    if (z == z) {
-      any = true;
-      break;
-    }
+  bool any = fragments > 0;
+  if (any && !m.remap_u.empty()) {
+    any = false;
+    for (float z : out.depth.pixels())
+      if (z == z) {
+        any = true;
+        break;
+      }
+  }
   if (!any) return Error{"render: the view from " + geo::format_pose(T_W_C) +
                          " sees no terrain (off the map, or looking at the sky)"};
   return Ok{};
