@@ -149,6 +149,33 @@ TEST_CASE("1 and 2 threads, and scalar and AVX2 shading, give the same bytes") {
   }
 }
 
+TEST_CASE("a distorted camera's render is the same bytes on 1, 2 and 3 threads") {
+  const geo::Map map = test::dem_map(257, 257, 0, 2000, 7.8125, [](double x, double y) {
+    return 100 + 30 * std::sin(x * 0.004) * std::cos(y * 0.006);
+  }, smooth_layer());
+  geo::CameraModel cam = camera(333, 211, 280);
+  cam.model = geo::DistortionModel::RadTan;
+  cam.k = {-0.12, 0.03, 4e-4, -3e-4, 0.0};
+  std::vector<std::unique_ptr<Renderer>> r;
+  std::vector<RenderOutput> o;
+  for (int threads = 1; threads <= 3; ++threads) {
+    RenderOptions opt;
+    opt.threads = threads;
+    r.push_back(make(map, cam, opt));
+    auto out = r.back()->make_output({"all"});
+    REQUIRE(out.ok());
+    o.push_back(std::move(out.value()));
+  }
+  const geo::Pose T = look_down(700, 600, 500, 50, 30);
+  for (std::size_t k = 0; k < r.size(); ++k) REQUIRE(r[k]->render(T, o[k]).ok());
+  CHECK(std::count(o[0].valid[0].pixels().begin(), o[0].valid[0].pixels().end(), std::uint8_t{255}) > 333 * 211 / 2);
+  for (std::size_t k = 1; k < r.size(); ++k) {
+    CHECK(o[0].rgb[0].pixels() == o[k].rgb[0].pixels());
+    CHECK(o[0].valid[0].pixels() == o[k].valid[0].pixels());
+    CHECK(std::memcmp(o[0].depth.data(), o[k].depth.data(), o[0].depth.size() * sizeof(float)) == 0);
+  }
+}
+
 TEST_CASE("render options out of range are refused, naming the option and its value") {
   const geo::Map map = test::dem_map(65, 65, 0, 2000, 31.25, [](double, double) { return 10.0; }, smooth_layer());
   auto refused = [&](RenderOptions o, const char* what) {

@@ -25,7 +25,7 @@ using Clock = std::chrono::steady_clock;
 // Nearest integer (ties to even) of |v| < 2^51 in two additions: adding 1.5 * 2^52 leaves no
 // fraction bits, so the sum is rounded in the FPU's default mode (the same IEEE operation on
 // every machine). std::llround is a library call, 4 % of a synthetic-terrain frame; a
-// projected vertex is inside the guard band, |v| < 2^23.
+// projected vertex is inside the guard band, |v| < 2^29 (see Tri).
 inline std::int64_t round_fixed(double v) {
   constexpr double kMagic = 6755399441055744.0;
   return static_cast<std::int64_t>((v + kMagic) - kMagic);
@@ -130,6 +130,12 @@ struct Renderer::Impl {
   void draw_chunk(GeomPart& g, const TerrainChunk& c) const;
   void draw_chunks(int part);
   void bin_part(int part);
+  // Calls f(tile index) for every screen tile t's bounding box touches.
+  template <class F>
+  void for_each_tile(const Tri& t, F&& f) const {
+    for (int b = t.by0 / kTileH; b <= t.by1 / kTileH; ++b)
+      for (int a = t.bx0 / kTileW; a <= t.bx1 / kTileW; ++a) f(static_cast<std::size_t>(b * tiles_x + a));
+  }
   bool chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const;
   void raster_tile(int tile, int thread);
   void resolve_rows(int row0, int row1);
@@ -625,11 +631,7 @@ void Renderer::Impl::draw_chunks(int part) {
   for (std::size_t i = j * n / k; i < (j + 1) * n / k; ++i)
     draw_chunk(g, chunks[static_cast<std::size_t>(draw_list[i])]);
   std::fill(g.tile_count.begin(), g.tile_count.end(), 0);
-  for (int i = 0; i < g.n_tris; ++i) {
-    const Tri& t = g.tris[i];
-    for (int b = t.by0 / kTileH; b <= t.by1 / kTileH; ++b)
-      for (int a = t.bx0 / kTileW; a <= t.bx1 / kTileW; ++a) ++g.tile_count[static_cast<std::size_t>(b * tiles_x + a)];
-  }
+  for (int i = 0; i < g.n_tris; ++i) for_each_tile(g.tris[i], [&](std::size_t tile) { ++g.tile_count[tile]; });
 }
 
 // Writes part j's triangles into the bins of the tiles they touch, from the offsets render()
@@ -637,12 +639,8 @@ void Renderer::Impl::draw_chunks(int part) {
 void Renderer::Impl::bin_part(int part) {
   GeomPart& g = parts[static_cast<std::size_t>(part)];
   const int first = part * options.max_triangles;
-  for (int i = 0; i < g.n_tris; ++i) {
-    const Tri& t = g.tris[i];
-    for (int b = t.by0 / kTileH; b <= t.by1 / kTileH; ++b)
-      for (int a = t.bx0 / kTileW; a <= t.bx1 / kTileW; ++a)
-        bin_entries[static_cast<std::size_t>(g.tile_fill[static_cast<std::size_t>(b * tiles_x + a)]++)] = first + i;
-  }
+  for (int i = 0; i < g.n_tris; ++i)
+    for_each_tile(g.tris[i], [&](std::size_t tile) { bin_entries[static_cast<std::size_t>(g.tile_fill[tile]++)] = first + i; });
 }
 
 // ---- rasterization ----
