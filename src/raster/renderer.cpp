@@ -68,7 +68,7 @@ struct GeomPart {
 
 struct LayerTexture {
   std::string name;
-  std::vector<std::uint32_t> texels;
+  std::unique_ptr<std::uint32_t[]> texels;
   std::vector<MipLevel> levels;
   double a0, a1, a2, b0, b1, b2;  // local world -> level-0 texel coordinates
   float lod_bias;
@@ -144,7 +144,22 @@ struct Renderer::Impl {
 
 namespace {
 
-void build_mips(const geo::Layer& L, LayerTexture& T) {
+// Calls fn(y) for y in [0, rows), split into fixed blocks of rows over the pool's threads
+// (each row is written by one call only, so the bytes do not depend on the thread count).
+template <class F>
+void for_rows(ThreadPool& pool, int rows, F fn) {
+  struct Ctx {
+    F* fn;
+    int rows;
+  } ctx{&fn, rows};
+  constexpr int kRows = 64;
+  pool.run((rows + kRows - 1) / kRows, [](void* c, int i) {
+    auto* x = static_cast<Ctx*>(c);
+    for (int y = i * kRows; y < std::min(x->rows, (i + 1) * kRows); ++y) (*x->fn)(y);
+  }, &ctx);
+}
+
+void build_mips(const geo::Layer& L, LayerTexture& T, ThreadPool& pool) {
   int w = L.rgba.width(), h = L.rgba.height();
   std::size_t total = 0;
   for (int lw = w, lh = h;; lw = std::max(1, (lw + 1) / 2), lh = std::max(1, (lh + 1) / 2)) {
@@ -154,13 +169,18 @@ void build_mips(const geo::Layer& L, LayerTexture& T) {
   }
   T.levels.clear();
   // A guard texel (0) at each end: the AVX-512 kernel reads a row's two taps as one pair,
-  // which may start one texel before a level or end one after it (shade_kernels.hpp).
-  T.texels.assign(total + 2, 0u);
+  // which may start one texel before a level or end one after it (shade_kernels.hpp). Not
+  // zero-filled here: every texel is written below, the rows split over the threads (a
+  // 20000^2 layer is 2.1 GB with its mips; the first touch of its pages is most of the cost).
+  T.texels.reset(new std::uint32_t[total + 2]);
+  T.texels[0] = 0;
   // Level 0.
   const std::uint8_t* src = L.rgba.data();
-  for (std::size_t k = 0; k < static_cast<std::size_t>(w) * static_cast<std::size_t>(h); ++k)
-    T.texels[1 + k] = std::uint32_t{src[4 * k]} | std::uint32_t{src[4 * k + 1]} << 8 |
-                  std::uint32_t{src[4 * k + 2]} << 16 | std::uint32_t{src[4 * k + 3]} << 24;
+  for_rows(pool, h, [&](int y) {
+    for (std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(w); k < static_cast<std::size_t>(y + 1) * static_cast<std::size_t>(w); ++k)
+      T.texels[1 + k] = std::uint32_t{src[4 * k]} | std::uint32_t{src[4 * k + 1]} << 8 |
+                        std::uint32_t{src[4 * k + 2]} << 16 | std::uint32_t{src[4 * k + 3]} << 24;
+  });
   T.levels.push_back({1, w, h, 1.0f});
   std::size_t off = 1 + static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
   float scale = 1.0f;
@@ -169,7 +189,7 @@ void build_mips(const geo::Layer& L, LayerTexture& T) {
     const int nw = std::max(1, (w + 1) / 2), nh = std::max(1, (h + 1) / 2);
     if (off + static_cast<std::size_t>(nw) * static_cast<std::size_t>(nh) > 1 + total) break;
     scale *= 0.5f;
-    for (int y = 0; y < nh; ++y)
+    for_rows(pool, nh, [&](int y) {
       for (int x = 0; x < nw; ++x) {
         // Alpha-weighted 2x2 box: no-data texels do not darken their neighbours.
         double acc[4] = {0, 0, 0, 0};
@@ -188,11 +208,13 @@ void build_mips(const geo::Layer& L, LayerTexture& T) {
         out |= static_cast<std::uint32_t>(std::lround(acc[3] / 4.0)) << 24;
         T.texels[off + static_cast<std::size_t>(y) * static_cast<std::size_t>(nw) + static_cast<std::size_t>(x)] = out;
       }
+    });
     T.levels.push_back({static_cast<std::int32_t>(off), nw, nh, scale});
     off += static_cast<std::size_t>(nw) * static_cast<std::size_t>(nh);
     w = nw;
     h = nh;
   }
+  std::fill(T.texels.get() + off, T.texels.get() + total + 2, 0u);  // the last guard, and any level not built
 }
 
 }  // namespace
@@ -220,12 +242,13 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.ox = 0.5 * (common.min_x + common.max_x);
   m.oy = 0.5 * (common.min_y + common.max_y);
   m.oz = map.dem.min_height;
+  m.pool = std::make_unique<ThreadPool>(options.threads);  // also builds the mip-maps below
   m.terrain = Terrain::build(map, m.ox, m.oy, m.oz);
 
   for (const auto& L : map.layers) {
     LayerTexture T;
     T.name = L.name;
-    build_mips(L, T);
+    build_mips(L, T, *m.pool);
     double u0, v0, u1, v1, u2, v2;
     L.transform.world_to_pixel(m.ox, m.oy, u0, v0);
     L.transform.world_to_pixel(m.ox + 1.0, m.oy, u1, v1);
@@ -316,7 +339,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   }
   m.row_g.resize(static_cast<std::size_t>(options.threads) * 3 * kTileW);
   for (const LayerTexture& T : m.layers)
-    m.layer_params.push_back({T.texels.data(), T.levels.data(), static_cast<int>(T.levels.size()),
+    m.layer_params.push_back({T.texels.get(), T.levels.data(), static_cast<int>(T.levels.size()),
                               static_cast<float>(T.a0), static_cast<float>(T.a1), static_cast<float>(T.a2),
                               static_cast<float>(T.b0), static_cast<float>(T.b1), static_cast<float>(T.b2), T.lod_bias});
   m.chunk_stack.reserve(m.terrain.chunks().size() + 8);
@@ -362,7 +385,6 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.simd = "neon";
   }
 #endif
-  m.pool = std::make_unique<ThreadPool>(options.threads);
   return std::unique_ptr<Renderer>(new Renderer(std::move(impl)));
 }
 
