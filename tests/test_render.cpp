@@ -281,6 +281,22 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
     k.resolve(m, ids.data(), coef.data(), 5.0f, 7.0f, b.data(), b.data() + m, b.data() + 2 * m, b.data() + 3 * m);
     CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0);
   }
+  // Positions well inside the texture at levels 0-2, so that every vector's taps are all
+  // inside (the AVX-512 kernel's shortcut past the edge masks), and NaN lanes among them.
+  std::uniform_real_distribution<float> inner(1, 12), inner_fp(-3, 1.5f);
+  for (int i = 0; i < n; ++i) {
+    wx[i] = i % 29 == 0 ? NAN : inner(rng);
+    wy[i] = inner(rng);
+    lf[i] = inner_fp(rng);
+  }
+  shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_s.data(), val_s.data(), p);
+  for (const Kernels& k : vector_kernels) {
+    CAPTURE(std::string(k.name));
+    std::vector<std::uint8_t> rgb_v(3 * n), val_v(n);
+    k.shade(n, wx.data(), wy.data(), lf.data(), rgb_v.data(), val_v.data(), p);
+    CHECK(rgb_s == rgb_v);
+    CHECK(val_s == val_v);
+  }
   // The depth kernel: blocks of every width 1..8 and height 1..8 written into a 12 x 10
   // buffer holding other triangles' depths (some nearer, some farther), with a row stride.
   const int stride = 12;

@@ -47,34 +47,53 @@ inline Acc16 sample16(const ShadeParams& p, __m512i level, __m512 u, __m512 v) {
   const __m512i zero = _mm512_setzero_si512(), ione = _mm512_set1_epi32(1), mone = _mm512_set1_epi32(-1);
   const __m512i wm1 = _mm512_sub_epi32(wid, ione), hm1 = _mm512_sub_epi32(hei, ione);
   const __m512i mask8 = _mm512_set1_epi32(255);
-  // Each row's two taps are neighbours in memory: one 64-bit gather fetches both (half the
-  // elements of two 32-bit gathers). The pair starts at x0 clamped to [-1, width - 1]; a tap
-  // outside the level gets weight 0, as in the scalar kernel, whatever texel it read (the
-  // array has a guard texel at each end, so the pair never leaves it).
-  const __m512i xp = _mm512_min_epi32(_mm512_max_epi32(x0, mone), wm1);
   const __m512i even = _mm512_set_epi32(30, 28, 26, 24, 22, 20, 18, 16, 14, 12, 10, 8, 6, 4, 2, 0);
   const __m512i odd = _mm512_add_epi32(even, ione);
   const long long* base = reinterpret_cast<const long long*>(p.texels);
   Acc16 acc{_mm512_setzero_ps(), _mm512_setzero_ps(), _mm512_setzero_ps(), _mm512_setzero_ps()};
+  auto add_tap = [&](__m512 wk, __m512i t) {
+    const __m512 wa = _mm512_mul_ps(wk, _mm512_cvtepi32_ps(_mm512_srli_epi32(t, 24)));
+    acc.r = _mm512_add_ps(acc.r, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(t, mask8))));
+    acc.g = _mm512_add_ps(acc.g, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(t, 8), mask8))));
+    acc.b = _mm512_add_ps(acc.b, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(t, 16), mask8))));
+    acc.a = _mm512_add_ps(acc.a, wa);
+  };
+  // Each row's two taps are neighbours in memory: one 64-bit gather fetches both (half the
+  // elements of two 32-bit gathers), split into the left and the right tap.
+  auto row_pair = [&](__m512i at, __m512i pair[2]) {
+    const __m512i q0 = _mm512_i32gather_epi64(_mm512_castsi512_si256(at), base, 4);
+    const __m512i q1 = _mm512_i32gather_epi64(_mm512_extracti64x4_epi64(at, 1), base, 4);
+    pair[0] = _mm512_permutex2var_epi32(q0, even, q1);
+    pair[1] = _mm512_permutex2var_epi32(q0, odd, q1);
+  };
+  const __mmask16 interior = _mm512_cmpge_epi32_mask(x0, zero) & _mm512_cmplt_epi32_mask(x0, wm1) &
+                             _mm512_cmpge_epi32_mask(y0, zero) & _mm512_cmplt_epi32_mask(y0, hm1);
+  if (interior == 0xFFFF) {
+    // Every lane's four taps inside the level (most vectors): the masks below would all be
+    // set and the clamps change nothing, so they are skipped; the same operations otherwise.
+    for (int row = 0; row < 2; ++row) {
+      const __m512i y = _mm512_add_epi32(y0, _mm512_set1_epi32(row));
+      __m512i pair[2];
+      row_pair(_mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(y, wid), x0)), pair);
+      add_tap(w[2 * row], pair[0]);
+      add_tap(w[2 * row + 1], pair[1]);
+    }
+    return acc;
+  }
+  // The pair starts at x0 clamped to [-1, width - 1]; a tap outside the level gets weight 0,
+  // as in the scalar kernel, whatever texel it read (the array has a guard texel at each end,
+  // so the pair never leaves it).
+  const __m512i xp = _mm512_min_epi32(_mm512_max_epi32(x0, mone), wm1);
   for (int row = 0; row < 2; ++row) {
     const __m512i y = _mm512_add_epi32(y0, _mm512_set1_epi32(row));
     const __mmask16 yin = _mm512_cmpge_epi32_mask(y, zero) & _mm512_cmplt_epi32_mask(y, hei);
     const __m512i yc = _mm512_min_epi32(_mm512_max_epi32(y, zero), hm1);
-    const __m512i at = _mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(yc, wid), xp));
-    const __m512i q0 = _mm512_i32gather_epi64(_mm512_castsi512_si256(at), base, 4);
-    const __m512i q1 = _mm512_i32gather_epi64(_mm512_extracti64x4_epi64(at, 1), base, 4);
-    const __m512i pair[2] = {_mm512_permutex2var_epi32(q0, even, q1), _mm512_permutex2var_epi32(q0, odd, q1)};
+    __m512i pair[2];
+    row_pair(_mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(yc, wid), xp)), pair);
     for (int dx = 0; dx < 2; ++dx) {
-      const int k = 2 * row + dx;
       const __m512i x = _mm512_add_epi32(x0, _mm512_set1_epi32(dx));
       const __mmask16 inside = yin & _mm512_cmpge_epi32_mask(x, zero) & _mm512_cmplt_epi32_mask(x, wid);
-      const __m512i t = pair[dx];
-      const __m512 wk = _mm512_maskz_mov_ps(inside, w[k]);
-      const __m512 wa = _mm512_mul_ps(wk, _mm512_cvtepi32_ps(_mm512_srli_epi32(t, 24)));
-      acc.r = _mm512_add_ps(acc.r, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(t, mask8))));
-      acc.g = _mm512_add_ps(acc.g, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(t, 8), mask8))));
-      acc.b = _mm512_add_ps(acc.b, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(t, 16), mask8))));
-      acc.a = _mm512_add_ps(acc.a, wa);
+      add_tap(_mm512_maskz_mov_ps(inside, w[2 * row + dx]), pair[dx]);
     }
   }
   return acc;
