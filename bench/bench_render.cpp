@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -204,23 +205,38 @@ int main(int argc, char** argv) {
     double f[2][2] = {}, setup[2] = {};
     int tris[2][2] = {};
     long valid[2][2] = {};
+    // Both renderers at once, timed in alternation (small, large, small, ...) so that a change
+    // in this VM's speed during the run falls on both alike.
+    const geo::Map maps[2] = {world_crop(2000, 400), world_crop(20000, 4096)};
+    std::unique_ptr<raster::Renderer> r[2];
+    raster::RenderOutput out[2];
     for (int size = 0; size < 2; ++size) {
-      const geo::Map m = size ? world_crop(20000, 4096) : world_crop(2000, 400);
       raster::RenderOptions opt;
       opt.threads = 2;
       const auto t0 = std::chrono::steady_clock::now();
-      auto r = raster::Renderer::create(m, cam, opt);
+      auto made = raster::Renderer::create(maps[size], cam, opt);
       setup[size] = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-      if (!r.ok()) return 1;
-      auto out = r.value()->make_output({"tex"});
-      if (!out.ok()) return 1;
-      for (int v = 0; v < 2; ++v) {
+      if (!made.ok()) return 1;
+      r[size] = std::move(made.value());
+      auto o = r[size]->make_output({"tex"});
+      if (!o.ok()) return 1;
+      out[size] = std::move(o.value());
+    }
+    for (int v = 0; v < 2; ++v) {
+      std::vector<double> per[2];
+      for (int size = 0; size < 2; ++size) {
         raster::RenderStats st;
-        if (!r.value()->render(views[v], out.value(), &st).ok()) return 1;
+        if (!r[size]->render(views[v], out[size], &st).ok()) return 1;
         tris[v][size] = st.triangles;
-        for (std::uint8_t b : out.value().valid[0].pixels()) valid[v][size] += b != 0;
-        f[v][size] = fps(*r.value(), out.value(), views[v], 40);
+        for (std::uint8_t b : out[size].valid[0].pixels()) valid[v][size] += b != 0;
       }
+      for (int batch = 0; batch < 7; ++batch)
+        for (int size = 0; size < 2; ++size) {
+          const auto t0 = std::chrono::steady_clock::now();
+          for (int i = 0; i < 40; ++i) (void)r[size]->render(views[v], out[size]);
+          per[size].push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() / 40);
+        }
+      for (int size = 0; size < 2; ++size) f[v][size] = 1.0 / median(per[size]);
     }
     for (int v = 0; v < 2; ++v)
       std::printf("| %s | %.0f | %.0f | %.2f | %d / %d | %ld / %ld | %.1f / %.1f |\n", v ? "tilted 20 deg" : "nadir", f[v][0],
