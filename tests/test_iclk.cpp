@@ -202,6 +202,33 @@ TEST_CASE("a rendered same-layer pair with a known small relative pose converges
   CHECK(converge_same_layer(naip.value(), "2016") < 0.05);
 }
 
+TEST_CASE("the coarse search starts the coarsest level nearer a prior that is a few coarse pixels off") {
+  auto naip = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(naip.ok());
+  const geo::CameraModel cam = test::paper_camera();
+  // The prior looks 2 degrees away: about 23 pixels at 752 x 480, 2.9 at the coarsest of 4 levels.
+  const geo::Pose truth = geo::pose_from_ypr({487450, 5207437, 570 + 800}, 30, 2, -3);
+  const geo::Pose prior = geo::pose_from_ypr({487450, 5207437, 570 + 800}, 30, 4, -3);
+  const Pair p = render_pair(naip.value(), cam, prior, truth, "2016", "2016");
+  const double e0 = epe_px(p, SE3<double>::identity());
+  CHECK(e0 > 15);
+  TrackerOptions opt;
+  for (int k : {0, 3}) {
+    opt.coarse_search_px = k;
+    Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, opt);
+    const auto& res = tracker.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), p.K, SE3<double>::identity());
+    const double e_start = epe_px(p, res.coarse_start);
+    MESSAGE("coarse search " << k << " px: the coarsest level starts " << e_start << " px off (prior " << e0 << ")");
+    if (k == 0) {
+      CHECK(e_start == doctest::Approx(e0));  // no search: the prior itself
+    } else {
+      CHECK(e_start < 0.5 * e0);  // 2.9 coarse pixels off: the search's grid has a point within 0.7 of the truth
+      CHECK(res.converged);
+      CHECK(epe_px(p, res.params) < 0.1);
+    }
+  }
+}
+
 TEST_CASE("a pair with no texture reports failure instead of a pose") {
   const geo::Map map = test::flat_map(0.0, test::make_layer("grey", 400, 400, 0, 2000, 5.0, [](int, int, std::uint8_t* p) {
     p[0] = p[1] = p[2] = 120;

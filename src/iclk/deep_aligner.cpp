@@ -4,7 +4,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
-#include <cstdlib>
 #include <sstream>
 
 
@@ -139,6 +138,8 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   o.block.fill(1);
   o.robust = iclk::Robust::None;
   if (o.probe_px == 0) o.probe_px = kProbePx;
+  if (o.coarse_search_px == 0) o.coarse_search_px = kCoarseSearchPx;
+  if (o.coarse_search_px < 0) o.coarse_search_px = 0;
   if (o.min_sharpness == 0) {
     TERRALIGN_TRY_ASSIGN(o.min_sharpness, DeepAligner::min_sharpness(weights));
   }

@@ -499,6 +499,37 @@ double Tracker<S, Warp, C>::mean_square_residual(int n) const {
 }
 
 template <class S, class Warp, int C>
+typename Tracker<S, Warp, C>::Params Tracker<S, Warp, C>::coarse_search(int n, const Params& p, const Pinhole<S>& K) {
+  Eigen::Matrix<double, DoF, 1> g;
+  Eigen::Matrix<double, DoF, DoF> Hout;
+  double cost = 0, wsum = 0;
+  std::fill(w_.begin(), w_.begin() + n, S(1));  // evaluate() reads w_; the residuals are unweighted
+  const int inside0 = evaluate(n, p, K, g, Hout, cost, wsum);
+  Params best = p;
+  double best_r = inside0 > 0 ? mean_square_residual(n) : INFINITY;
+  const int k = opt_.coarse_search_px;
+  for (int dv = -k; dv <= k; ++dv)
+    for (int du = -k; du <= k; ++du) {
+      if (du == 0 && dv == 0) continue;
+      // Rotations about the camera's y and x axes move the image by about f * angle pixels
+      // (the sharpness probe's nudge).
+      Eigen::Matrix<S, DoF, 1> nudge = Eigen::Matrix<S, DoF, 1>::Zero();
+      nudge[1] = static_cast<S>(du / static_cast<double>(K.fx));
+      nudge[0] = static_cast<S>(dv / static_cast<double>(K.fy));
+      Params q = p;
+      Warp::update(q, nudge);
+      const int inside = evaluate(n, q, K, g, Hout, cost, wsum);
+      if (2 * inside < inside0) continue;  // compare over most of the same ground only
+      const double r = mean_square_residual(n);
+      if (r < best_r) {
+        best_r = r;
+        best = q;
+      }
+    }
+  return best;
+}
+
+template <class S, class Warp, int C>
 const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const Params& init,
                                                      const ImageView<const float>* weights, LevelWeights* level_weights) {
   TrackResult<Warp>& R = result_;
@@ -520,6 +551,8 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
     cur_level_ = &levels_[static_cast<std::size_t>(level)];
     const auto tj = Clock::now();
     const int n = select_pixels(level, K[level]);
+    if (Warp::kNeedsDepth && level == opt_.levels - 1 && opt_.coarse_search_px > 0 && n > 0) p = coarse_search(n, p, K[level]);
+    if (level == opt_.levels - 1) R.coarse_start = p;
     robust_weights(n, weights, level);
     if (level_weights && n > 0) learned_weights(n, level, p, K[level], *level_weights);
     if (!weights && !level_weights && opt_.robust != Robust::None && n > 0) {

@@ -81,6 +81,11 @@ struct TrackerOptions {
   // tracker; the learned one sets them (DeepAligner).
   double probe_px = 0;
   double min_sharpness = 0;
+  // Before the coarsest level's first step (6-DoF warp): the start is moved to the best of
+  // the (2 k + 1)^2 rotations that shift the image by up to k coarsest-level pixels in u and
+  // v, by the unweighted residual there (0: no search). Widens the basin for a prior a few
+  // coarsest pixels off, which the steps alone can miss.
+  int coarse_search_px = 0;
   int threads = 1;                   // residuals in fixed chunks: same result on any count
   // The vector (AVX2) residual kernel where the CPU has it; false: its scalar twin. Both give
   // the same bits (evaluate_kernels.hpp); tests compare them.
@@ -114,6 +119,9 @@ struct TrackResult {
   // residual_final. A right answer sits in a narrow valley of the image agreement; a wrong
   // one, where the features do not agree anyway, in a flat one.
   double sharpness = 0;
+  // The pose the coarsest level started from: the initial one, or the coarse search's pick
+  // (TrackerOptions::coarse_search_px).
+  Params coarse_start = Warp::identity();
   // Covariance of the last step's parameters dxi (the solver's tangent at the estimate,
   // reference side): f sigma^2 (J^T W J)^-1 at the finest level, sigma^2 = sum w r^2 /
   // (sum w - DoF). Neighbouring residuals are not independent (interpolation, blur, and the
@@ -183,7 +191,8 @@ class Tracker {
                                  LevelWeights* level_weights);
   void learned_weights(int n, int level, const Params& p, const Pinhole<S>& K, LevelWeights& lw);
   double residual_correlation(int n) const;
-  double mean_square_residual(int n) const;  // unweighted, of the last evaluate()  // of the residuals of the last evaluate() at the finest level
+  double mean_square_residual(int n) const;  // unweighted, of the residuals of the last evaluate()
+  Params coarse_search(int n, const Params& p, const Pinhole<S>& K);
   int select_pixels(int level, const Pinhole<S>& K);
   void robust_weights(int n, const ImageView<const float>* weights, int level);
   // Residuals and J^T W r at `p`; returns the valid count, fills cost (sum w r^2), sum of w
