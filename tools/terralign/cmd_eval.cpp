@@ -110,7 +110,7 @@ ImageU8 overlay(const ImageF& ref_grey, const ImageF& depth, const ImageF& query
 int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
-                                 "min-sharpness"}, {});
+                                 "min-sharpness", "coarse-search"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -136,6 +136,8 @@ int run_eval(const std::vector<std::string>& argv) {
   auto min_sharpness = args->get_double("min-sharpness", 0.0);
   if (!min_sharpness.ok() || !(std::abs(min_sharpness.value()) <= 10))
     return usage_error("eval", Error{"--min-sharpness must be in [-10, 10] (negative: no sharpness test)"});
+  auto coarse_search = args->get_int("coarse-search", 0, -1, 16);
+  if (!coarse_search.ok()) return usage_error("eval", coarse_search.error());
   std::vector<Method> methods;
   {
     for (const std::string& m : split_commas(args->get("methods", "init,classic:20,classic:50"))) {
@@ -188,6 +190,7 @@ int run_eval(const std::vector<std::string>& argv) {
   opt.robust = robust.value();
   opt.levels = levels.value();
   opt.min_sharpness = min_sharpness.value();
+  opt.coarse_search_px = coarse_search.value();
   auto loc = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value());
   if (!loc.ok()) return fail(loc.error());
   std::unique_ptr<Localizer> learned;

@@ -37,7 +37,7 @@ const std::vector<Command>& commands() {
        "                      --seed S --altitude LO:HI [--tilt DEG] [--methods init,classic:20,classic:50]\n"
        "                      [--robust none|huber|tukey] [--levels L] [--json OUT] [--overlays DIR]\n"
        "                      [--threads N] [--weights FILE] [--area MINX,MINY,MAXX,MAXY]\n"
-       "                      [--min-sharpness S]\n\n"
+       "                      [--min-sharpness S] [--coarse-search PX]\n\n"
        "Samples N true poses with the whole footprint on the map (altitude above ground in\n"
        "[LO, HI] m, tilt off nadir up to DEG, any heading), perturbs each for the prior (rotation\n"
        "about a random axis by U[0, 6] deg, translation by U[0, 0.13 x altitude] m in a random\n"
@@ -50,7 +50,9 @@ const std::vector<Command>& commands() {
        "of the map (e.g. ground the learned tracker was not trained on). --min-sharpness sets the\n"
        "learned tracker's sharpness test (default: the weight file's '# min-sharpness'; negative:\n"
        "none): an answer whose feature agreement is within that factor as good 2 px away is\n"
-       "reported as failed (the prior).\n",
+       "reported as failed (the prior). --coarse-search sets both trackers' search before the\n"
+       "coarsest level (PX coarsest-level pixels each way; default: 4 classic, 2 learned; negative:\n"
+       "none).\n",
        run_eval},
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
        "usage: terralign flight --map MAP.json --camera CAMERA.json --layer NAME --path lawnmower|circle|FILE\n"

@@ -44,6 +44,8 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   // hand-off; bench_align).
   iclk::TrackerOptions topt = options;
   topt.threads = 1;
+  if (topt.coarse_search_px == 0) topt.coarse_search_px = kClassicCoarseSearchPx;
+  if (topt.coarse_search_px < 0) topt.coarse_search_px = 0;
   L->tracker_ = std::make_unique<iclk::Tracker<float, iclk::SE3DepthWarp<float>, 1>>(camera.width, camera.height, topt);
   return L;
 }
