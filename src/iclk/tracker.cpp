@@ -499,6 +499,17 @@ double Tracker<S, Warp, C>::mean_square_residual(int n) const {
 }
 
 template <class S, class Warp, int C>
+typename Tracker<S, Warp, C>::Params Tracker<S, Warp, C>::shifted(const Params& p, double du, double dv, const Pinhole<S>& K) {
+  // Rotations about the camera's y and x axes move the image by about f * angle pixels.
+  Eigen::Matrix<S, DoF, 1> nudge = Eigen::Matrix<S, DoF, 1>::Zero();
+  nudge[1] = static_cast<S>(du / static_cast<double>(K.fx));
+  nudge[0] = static_cast<S>(dv / static_cast<double>(K.fy));
+  Params q = p;
+  Warp::update(q, nudge);
+  return q;
+}
+
+template <class S, class Warp, int C>
 typename Tracker<S, Warp, C>::Params Tracker<S, Warp, C>::coarse_search(int n, const Params& p, const Pinhole<S>& K) {
   Eigen::Matrix<double, DoF, 1> g;
   Eigen::Matrix<double, DoF, DoF> Hout;
@@ -511,13 +522,7 @@ typename Tracker<S, Warp, C>::Params Tracker<S, Warp, C>::coarse_search(int n, c
   for (int dv = -k; dv <= k; ++dv)
     for (int du = -k; du <= k; ++du) {
       if (du == 0 && dv == 0) continue;
-      // Rotations about the camera's y and x axes move the image by about f * angle pixels
-      // (the sharpness probe's nudge).
-      Eigen::Matrix<S, DoF, 1> nudge = Eigen::Matrix<S, DoF, 1>::Zero();
-      nudge[1] = static_cast<S>(du / static_cast<double>(K.fx));
-      nudge[0] = static_cast<S>(dv / static_cast<double>(K.fy));
-      Params q = p;
-      Warp::update(q, nudge);
+      const Params q = shifted(p, du, dv, K);
       const int inside = evaluate(n, q, K, g, Hout, cost, wsum);
       if (2 * inside < inside0) continue;  // compare over most of the same ground only
       const double r = mean_square_residual(n);
@@ -688,12 +693,8 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       if (Warp::kNeedsDepth && opt_.probe_px > 0) {
         double least = INFINITY;
         for (int k = 0; k < 4; ++k) {
-          Eigen::Matrix<S, DoF, 1> nudge = Eigen::Matrix<S, DoF, 1>::Zero();
           const double px = (k & 1 ? -1.0 : 1.0) * opt_.probe_px;
-          nudge[k < 2 ? 1 : 0] = static_cast<S>(k < 2 ? px / static_cast<double>(K[0].fx) : px / static_cast<double>(K[0].fy));
-          Params q = p;
-          Warp::update(q, nudge);
-          evaluate(n, q, K[0], g, Hout, cost, wsum);
+          evaluate(n, shifted(p, k < 2 ? px : 0.0, k < 2 ? 0.0 : px, K[0]), K[0], g, Hout, cost, wsum);
           least = std::min(least, mean_square_residual(n));
         }
         R.sharpness = R.residual_final > 0 ? least / R.residual_final : 0.0;

@@ -193,6 +193,9 @@ class Tracker {
   double residual_correlation(int n) const;
   double mean_square_residual(int n) const;  // unweighted, of the residuals of the last evaluate()
   Params coarse_search(int n, const Params& p, const Pinhole<S>& K);
+  // p with the camera turned so the image moves by about (du, dv) pixels of K's level (6-DoF
+  // warp): the sharpness probe's nudge and the coarse search's grid.
+  static Params shifted(const Params& p, double du, double dv, const Pinhole<S>& K);
   int select_pixels(int level, const Pinhole<S>& K);
   void robust_weights(int n, const ImageView<const float>* weights, int level);
   // Residuals and J^T W r at `p`; returns the valid count, fills cost (sum w r^2), sum of w
