@@ -271,12 +271,17 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
   for (int i = 32; i < 48; ++i) ids[static_cast<std::size_t>(i)] = -1;  // and no terrain over one
   std::vector<float> a(4 * m);
   resolve_row_scalar(m, ids.data(), coef.data(), 5.0f, 7.0f, a.data(), a.data() + m, a.data() + 2 * m, a.data() + 3 * m);
-  for (const Kernels& k : vector_kernels) {
+  // Each vector kernel's shading of the current inputs against the scalar one's.
+  auto compare_shading = [&](const Kernels& k) {
     CAPTURE(std::string(k.name));
     std::vector<std::uint8_t> rgb_v(3 * n), val_v(n);
     k.shade(n, wx.data(), wy.data(), lf.data(), rgb_v.data(), val_v.data(), p);
     CHECK(rgb_s == rgb_v);
     CHECK(val_s == val_v);
+  };
+  for (const Kernels& k : vector_kernels) {
+    compare_shading(k);
+    CAPTURE(std::string(k.name));
     std::vector<float> b(4 * m);
     k.resolve(m, ids.data(), coef.data(), 5.0f, 7.0f, b.data(), b.data() + m, b.data() + 2 * m, b.data() + 3 * m);
     CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0);
@@ -290,13 +295,7 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
     lf[i] = inner_fp(rng);
   }
   shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_s.data(), val_s.data(), p);
-  for (const Kernels& k : vector_kernels) {
-    CAPTURE(std::string(k.name));
-    std::vector<std::uint8_t> rgb_v(3 * n), val_v(n);
-    k.shade(n, wx.data(), wy.data(), lf.data(), rgb_v.data(), val_v.data(), p);
-    CHECK(rgb_s == rgb_v);
-    CHECK(val_s == val_v);
-  }
+  for (const Kernels& k : vector_kernels) compare_shading(k);
   // The depth kernel: blocks of every width 1..8 and height 1..8 written into a 12 x 10
   // buffer holding other triangles' depths (some nearer, some farther), with a row stride.
   const int stride = 12;

@@ -87,6 +87,15 @@ inline Acc8 sample8(const ShadeParams& p, __m256i level, __m256 u, __m256 v) {
   return acc;
 }
 
+// The depth test of one row of a block where `in` (all-ones lanes) marks the covered pixels:
+// where the triangle's 1/z `iz` is larger (nearer), it replaces z and id becomes `ve`.
+inline void depth_row(__m256i in, __m256 iz, float* z, int* id, __m256i ve) {
+  const __m256 old = _mm256_maskload_ps(z, in);
+  const __m256i nearer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(iz, old, _CMP_GT_OQ)), in);
+  _mm256_maskstore_ps(z, nearer, iz);
+  _mm256_maskstore_epi32(id, nearer, ve);
+}
+
 }  // namespace
 
 void shade_row_avx2(int n, const float* wx, const float* wy, const float* log2fp,
@@ -265,11 +274,7 @@ long edge_block_avx2(int w, int h, const std::int64_t* E, const std::int64_t* dE
     const int bits = _mm256_movemask_ps(_mm256_castsi256_ps(in));
     if (bits == 0) continue;
     covered += __builtin_popcount(static_cast<unsigned>(bits));
-    const __m256 iz = _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax);
-    const __m256 old = _mm256_maskload_ps(z, in);
-    const __m256i nearer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(iz, old, _CMP_GT_OQ)), in);
-    _mm256_maskstore_ps(z, nearer, iz);
-    _mm256_maskstore_epi32(id, nearer, ve);
+    depth_row(in, _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax), z, id, ve);
   }
   return covered;
 }
@@ -295,11 +300,7 @@ long edge_block32_avx2(int w, int h, const std::int32_t* E, const std::int32_t* 
     const int bits = _mm256_movemask_ps(_mm256_castsi256_ps(in));
     if (bits == 0) continue;
     covered += __builtin_popcount(static_cast<unsigned>(bits));
-    const __m256 iz = _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax);
-    const __m256 old = _mm256_maskload_ps(z, in);
-    const __m256i nearer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(iz, old, _CMP_GT_OQ)), in);
-    _mm256_maskstore_ps(z, nearer, iz);
-    _mm256_maskstore_epi32(id, nearer, ve);
+    depth_row(in, _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax), z, id, ve);
   }
   return covered;
 }
