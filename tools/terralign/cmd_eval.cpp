@@ -110,7 +110,7 @@ ImageU8 overlay(const ImageF& ref_grey, const ImageF& depth, const ImageF& query
 int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
-                                 "min-sharpness", "coarse-search"}, {});
+                                 "min-sharpness", "coarse-search", "input-scale", "nn-levels"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -138,6 +138,16 @@ int run_eval(const std::vector<std::string>& argv) {
     return usage_error("eval", Error{"--min-sharpness must be in [-10, 10] (negative: no sharpness test)"});
   auto coarse_search = args->get_int("coarse-search", 0, -1, 16);
   if (!coarse_search.ok()) return usage_error("eval", coarse_search.error());
+  // The learned tracker's working size and levels (as the firmware sets them): 0 keeps the
+  // weight file's.
+  LocalizerSizes sizes;
+  auto input_scale = args->get_double("input-scale", 0.0);
+  if (!input_scale.ok() || !(input_scale.value() >= 0 && input_scale.value() <= 1))
+    return usage_error("eval", Error{"--input-scale must be in (0, 1] (0: the weight file's)"});
+  sizes.input_scale = input_scale.value();
+  auto nn_levels = args->get_int("nn-levels", 0, 0, 6);
+  if (!nn_levels.ok()) return usage_error("eval", nn_levels.error());
+  sizes.levels = nn_levels.value();
   std::vector<Method> methods;
   {
     for (const std::string& m : split_commas(args->get("methods", "init,classic:20,classic:50"))) {
@@ -197,7 +207,7 @@ int run_eval(const std::vector<std::string>& argv) {
   if (std::any_of(methods.begin(), methods.end(), [](const Method& m) { return m.learned; })) {
     auto w = learned_weights(args.value());
     if (!w.ok()) return fail(w.error());
-    auto l = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value(), &w.value());
+    auto l = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value(), &w.value(), sizes);
     if (!l.ok()) return fail(l.error());
     learned = std::move(l.value());
   }

@@ -37,7 +37,7 @@ const std::vector<Command>& commands() {
        "                      --seed S --altitude LO:HI [--tilt DEG] [--methods init,classic:20,classic:50]\n"
        "                      [--robust none|huber|tukey] [--levels L] [--json OUT] [--overlays DIR]\n"
        "                      [--threads N] [--weights FILE] [--area MINX,MINY,MAXX,MAXY]\n"
-       "                      [--min-sharpness S] [--coarse-search PX]\n\n"
+       "                      [--min-sharpness S] [--coarse-search PX] [--input-scale S] [--nn-levels L]\n\n"
        "Samples N true poses with the whole footprint on the map (altitude above ground in\n"
        "[LO, HI] m, tilt off nadir up to DEG, any heading), perturbs each for the prior (rotation\n"
        "about a random axis by U[0, 6] deg, translation by U[0, 0.13 x altitude] m in a random\n"
@@ -52,7 +52,8 @@ const std::vector<Command>& commands() {
        "none): an answer whose feature agreement is within that factor as good 2 px away is\n"
        "reported as failed (the prior). --coarse-search sets both trackers' search before the\n"
        "coarsest level (PX coarsest-level pixels each way; default: 4 classic, 2 learned; negative:\n"
-       "none).\n",
+       "none). --input-scale and --nn-levels run the learned tracker at another working size and\n"
+       "number of levels than the weight file's (as the firmware does: 1 and 4 at 188 x 120).\n",
        run_eval},
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
        "usage: terralign flight --map MAP.json --camera CAMERA.json --layer NAME --path lawnmower|circle|FILE\n"
