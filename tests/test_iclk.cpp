@@ -227,6 +227,23 @@ TEST_CASE("the coarse search starts the coarsest level nearer a prior that is a 
       CHECK(epe_px(p, res.params) < 0.1);
     }
   }
+  // A prior turned 4 degrees about the optical axis (heading 34 against 30): the turns of the
+  // search (2-degree steps) find it, the shifts alone cannot.
+  const geo::Pose turned = geo::pose_from_ypr({487450, 5207437, 570 + 800}, 34, 2, -3);
+  const Pair q = render_pair(naip.value(), cam, turned, truth, "2016", "2016");
+  const double t0 = epe_px(q, SE3<double>::identity());
+  double start[2] = {0, 0};
+  for (int with_turns = 0; with_turns < 2; ++with_turns) {
+    opt.coarse_search_px = 1;
+    opt.coarse_search_yaw_deg = with_turns ? 4.0 : 0.0;
+    Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, opt);
+    const auto& res = tracker.align(q.ref_grey.view(), q.depth.view(), q.live_grey.view(), q.K, SE3<double>::identity());
+    start[with_turns] = epe_px(q, res.coarse_start);
+  }
+  MESSAGE("turned prior " << t0 << " px off: the coarsest level starts " << start[0] << " px off without turns, "
+                          << start[1] << " with");
+  CHECK(start[1] < 0.25 * t0);
+  CHECK(start[1] < 0.5 * start[0]);
 }
 
 TEST_CASE("a pair with no texture reports failure instead of a pose") {

@@ -140,7 +140,8 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   o.robust = iclk::Robust::None;
   if (o.probe_px == 0) o.probe_px = kProbePx;
   if (o.coarse_search_px == 0) o.coarse_search_px = kCoarseSearchPx;
-  if (o.coarse_search_px < 0) o.coarse_search_px = 0;
+  if (o.coarse_search_yaw_deg == 0) o.coarse_search_yaw_deg = kCoarseSearchYawDeg;
+  if (o.coarse_search_px < 0) o.coarse_search_px = 0;  // no search at all
   if (o.min_sharpness == 0) {
     TERRALIGN_TRY_ASSIGN(o.min_sharpness, DeepAligner::min_sharpness(weights));
   }

@@ -519,18 +519,25 @@ typename Tracker<S, Warp, C>::Params Tracker<S, Warp, C>::coarse_search(int n, c
   Params best = p;
   double best_r = inside0 > 0 ? mean_square_residual(n) : INFINITY;
   const int k = opt_.coarse_search_px;
-  for (int dv = -k; dv <= k; ++dv)
-    for (int du = -k; du <= k; ++du) {
-      if (du == 0 && dv == 0) continue;
-      const Params q = shifted(p, du, dv, K);
-      const int inside = evaluate(n, q, K, g, Hout, cost, wsum);
-      if (2 * inside < inside0) continue;  // compare over most of the same ground only
-      const double r = mean_square_residual(n);
-      if (r < best_r) {
-        best_r = r;
-        best = q;
+  const int turns = static_cast<int>(std::floor(opt_.coarse_search_yaw_deg / kCoarseYawStepDeg + 1e-9));
+  for (int t = -turns; t <= turns; ++t)
+    for (int dv = -k; dv <= k; ++dv)
+      for (int du = -k; du <= k; ++du) {
+        if (du == 0 && dv == 0 && t == 0) continue;
+        Params q = shifted(p, du, dv, K);
+        if (t != 0) {  // about the optical axis
+          Eigen::Matrix<S, DoF, 1> turn = Eigen::Matrix<S, DoF, 1>::Zero();
+          turn[2] = static_cast<S>(t * kCoarseYawStepDeg * EIGEN_PI / 180.0);
+          Warp::update(q, turn);
+        }
+        const int inside = evaluate(n, q, K, g, Hout, cost, wsum);
+        if (2 * inside < inside0) continue;  // compare over most of the same ground only
+        const double r = mean_square_residual(n);
+        if (r < best_r) {
+          best_r = r;
+          best = q;
+        }
       }
-    }
   return best;
 }
 

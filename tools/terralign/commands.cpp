@@ -51,8 +51,8 @@ const std::vector<Command>& commands() {
        "learned tracker's sharpness test (default: the weight file's '# min-sharpness'; negative:\n"
        "none): an answer whose feature agreement is within that factor as good 2 px away is\n"
        "reported as failed (the prior). --coarse-search sets both trackers' search before the\n"
-       "coarsest level (PX coarsest-level pixels each way; default: 4 classic, 2 learned; negative:\n"
-       "none). --input-scale and --nn-levels run the learned tracker at another working size and\n"
+       "coarsest level (PX coarsest-level pixels each way; default: 4 classic, 2 learned, which also\n"
+       "turns up to 4 degrees about the optical axis; negative: none). --input-scale and --nn-levels run the learned tracker at another working size and\n"
        "number of levels than the weight file's (as the firmware does: 1 and 4 at 188 x 120).\n",
        run_eval},
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",

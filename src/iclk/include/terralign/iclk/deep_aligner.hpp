@@ -36,11 +36,13 @@ class DeepAligner : public iclk::LevelWeights {
   // unless the options set one (a negative min_sharpness turns it off); weights without the
   // line have no test.
   static constexpr double kProbePx = 2.0;
-  // The coarse search before the first step (TrackerOptions::coarse_search_px), in
-  // coarsest-level pixels, unless the options set it (negative: none). On the calibration
-  // seed (11) it took success within 5 px from 89.5 to 91 % (2016 -> 2017) and the mean 3-D
-  // error down on every year pair; 3 and 4 px did no better (README).
+  // The coarse search before the first step (TrackerOptions::coarse_search_px and _yaw_deg),
+  // unless the options set it (coarse_search_px negative: none): shifts of up to 2
+  // coarsest-level pixels, turns of up to 4 degrees. On the calibration seed (11) the shifts
+  // took success within 5 px from 89.5 to 91 % (2016 -> 2017; 3 and 4 px did no better) and
+  // the turns to 92.5 % (README).
   static constexpr int kCoarseSearchPx = 2;
+  static constexpr double kCoarseSearchYawDeg = 4.0;
 
   // width x height: the working size (the images align() takes). `options`: the tracker's;
   // levels, block and normalize are set here (the weights' levels, every pixel, normalised

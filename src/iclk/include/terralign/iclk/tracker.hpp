@@ -49,6 +49,9 @@ using Se3EvalFn = void (*)(const Se3EvalInput& in, int i0, int i1, float* r, uns
 
 enum class Robust { None, Huber, Tukey };
 
+// The step of the coarse search's turns about the optical axis (TrackerOptions).
+constexpr double kCoarseYawStepDeg = 2.0;
+
 struct TrackerOptions {
   int levels = 4;                    // 1..6
   int iterations = 20;               // per level
@@ -82,10 +85,12 @@ struct TrackerOptions {
   double probe_px = 0;
   double min_sharpness = 0;
   // Before the coarsest level's first step (6-DoF warp): the start is moved to the best of
-  // the (2 k + 1)^2 rotations that shift the image by up to k coarsest-level pixels in u and
-  // v, by the unweighted residual there (0: no search). Widens the basin for a prior a few
-  // coarsest pixels off, which the steps alone can miss.
+  // the rotations that shift the image by up to k coarsest-level pixels in u and v (whole
+  // pixels), each also turned about the optical axis in steps of kCoarseYawStepDeg up to
+  // coarse_search_yaw_deg each way, by the unweighted residual there (k = 0: no search).
+  // Widens the basin for a prior a few coarsest pixels off, which the steps alone can miss.
   int coarse_search_px = 0;
+  double coarse_search_yaw_deg = 0;
   int threads = 1;                   // residuals in fixed chunks: same result on any count
   // The vector (AVX2) residual kernel where the CPU has it; false: its scalar twin. Both give
   // the same bits (evaluate_kernels.hpp); tests compare them.
