@@ -715,6 +715,7 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     // edge (clockwise on screen with y down: top = horizontal going right, left = going up).
     // The bias folds the rule into one test, E >= 0.
     std::int64_t E[3], dEx[3], dEy[3];
+    std::int32_t dx32[3], dy32[3];
     const std::int64_t px = static_cast<std::int64_t>(bx0) << kSubBits, py = static_cast<std::int64_t>(by0) << kSubBits;
     for (int k = 0; k < 3; ++k) {
       const int k1 = (k + 1) % 3;
@@ -723,6 +724,10 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
       E[k] = ex * (py - t.Y[k]) - ey * (px - t.X[k]) - (top_left ? 0 : 1);
       dEx[k] = -ey * (std::int64_t{1} << kSubBits);
       dEy[k] = ex * (std::int64_t{1} << kSubBits);
+      // For the 32-bit kernel: narrowing is modular, so the slopes may wrap while every
+      // pixel's value in a block whose corners fit is exact.
+      dx32[k] = static_cast<std::int32_t>(dEx[k]);
+      dy32[k] = static_cast<std::int32_t>(dEy[k]);
     }
     // 1/z relative to the box corner, in float (exact enough for the depth test only).
     const float A = static_cast<float>(t.A[0]), B = static_cast<float>(t.B[0]);
@@ -753,13 +758,8 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
           depth_block(ex1 - bx + 1, ey1 - by + 1, base, A, B, bx - bx0, by - by0, zbuf.data() + at, idbuf.data() + at, vw, e);
           frags += static_cast<long>(ex1 - bx + 1) * (ey1 - by + 1);
         } else if (fits32 && edge_block32) {
-          // Narrowing is modular: the slopes may wrap, every pixel's value is exact.
           const std::int32_t c32[3] = {static_cast<std::int32_t>(corner[0]), static_cast<std::int32_t>(corner[1]),
                                        static_cast<std::int32_t>(corner[2])};
-          const std::int32_t dx32[3] = {static_cast<std::int32_t>(dEx[0]), static_cast<std::int32_t>(dEx[1]),
-                                        static_cast<std::int32_t>(dEx[2])};
-          const std::int32_t dy32[3] = {static_cast<std::int32_t>(dEy[0]), static_cast<std::int32_t>(dEy[1]),
-                                        static_cast<std::int32_t>(dEy[2])};
           frags += edge_block32(ex1 - bx + 1, ey1 - by + 1, c32, dx32, dy32, base, A, B, bx - bx0, by - by0, zbuf.data() + at,
                                 idbuf.data() + at, vw, e);
         } else {
