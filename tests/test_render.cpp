@@ -94,6 +94,55 @@ TEST_CASE("no cracks and no double coverage: a flat view covers every pixel exac
   }
 }
 
+TEST_CASE("terrain level of detail: skirts only between chunks drawn at different levels, and no crack") {
+  // 256 x 256 quads of 10 m: one root chunk (level 4) over 2.56 km, rolling with 6 m bumps.
+  const geo::Map map = test::dem_map(257, 257, 0, 2560, 10.0, [](double x, double y) {
+    return 50 * std::sin(x / 150) * std::cos(y / 170) + 6 * std::sin(x * 0.09 + y * 0.07);
+  }, smooth_layer());
+  const geo::CameraModel cam = camera(320, 240, 300);
+  {
+    // A bound no chunk exceeds: the root alone, whole in view, and nothing across its
+    // borders to leave a crack against: its 16 x 16 quads and no skirt.
+    RenderOptions opt;
+    opt.lod_error_px = 1e6;
+    auto r = make(map, cam, opt);
+    auto out = r->make_output({"smooth"});
+    REQUIRE(out.ok());
+    RenderStats stats;
+    REQUIRE(r->render(look_down(1280, 1280, 6000), out.value(), &stats).ok());
+    CHECK(stats.chunks == 1);
+    CHECK(stats.triangles == 2 * 16 * 16);
+  }
+  // Oblique views over chunks of several levels, the map's edge out of view: a pixel with no
+  // terrain between two with terrain at about one depth would be a crack. A bound of 4 px
+  // (not the default 0.5) makes the gaps the skirts must close several pixels wide: without
+  // skirts this counts 48.
+  RenderOptions opt;
+  opt.lod_error_px = 4;
+  auto r = make(map, cam, opt);
+  auto out = r->make_output({"smooth"});
+  REQUIRE(out.ok());
+  int cracks = 0, several_chunks = 0;
+  for (int k = 0; k < 24; ++k) {
+    RenderStats stats;
+    const double yaw = 15.0 * k, tilt = 15 + 5 * (k % 6);
+    REQUIRE(r->render(look_down(1280 + 200 * std::cos(k), 1280 + 200 * std::sin(k), 300, tilt, yaw), out.value(), &stats).ok());
+    several_chunks += stats.chunks > 1;
+    const auto& d = out.value().depth;
+    for (int y = 1; y + 1 < cam.height; ++y)
+      for (int x = 1; x + 1 < cam.width; ++x) {
+        if (std::isfinite(d.at(x, y))) continue;
+        // Terrain on both sides, left and right or above and below, at about one depth.
+        const auto across = [](float a, float b) {
+          return std::isfinite(a) && std::isfinite(b) && std::max(a, b) < 1.1f * std::min(a, b);
+        };
+        cracks += across(d.at(x - 1, y), d.at(x + 1, y)) || across(d.at(x, y - 1), d.at(x, y + 1));
+      }
+  }
+  CHECK(several_chunks == 24);
+  CHECK(cracks == 0);
+}
+
 TEST_CASE("one ortho texel east moves a nadir image by exactly f * texel / height pixels") {
   // 1 m texels seen from 250 m with f = 500 px: 1 m = 2 px.
   const geo::Map map = test::flat_map(0.0, make_layer("t", 600, 600, 0, 600, 1.0, [](int x, int y, std::uint8_t* p) {

@@ -102,6 +102,7 @@ struct Renderer::Impl {
   std::unique_ptr<Tri[]> tris;
   std::vector<GeomPart> parts;            // per thread
   std::vector<int> draw_list;             // the chunks a frame draws, in traversal order
+  std::vector<std::uint8_t> drawn;        // per chunk: 1 while it is in the draw list
   std::vector<int> tile_count, tile_start;  // per tile: bin entries, first entry
   std::vector<long> tile_fragments;
   std::vector<std::vector<float>> tile_coef;  // per thread: 9 floats per bin entry of a tile
@@ -128,6 +129,7 @@ struct Renderer::Impl {
   float clip_dist(int plane, const ClipVert& v) const;
   void clip_and_emit(GeomPart& g, const ClipVert* v, int n) const;
   void draw_chunk(GeomPart& g, const TerrainChunk& c) const;
+  float skirt_drop(const TerrainChunk& c, int side) const;
   void draw_chunks(int part);
   void bin_part(int part);
   // Calls f(tile index) for every screen tile t's bounding box touches.
@@ -344,6 +346,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
                               static_cast<float>(T.b0), static_cast<float>(T.b1), static_cast<float>(T.b2), T.lod_bias});
   m.chunk_stack.reserve(m.terrain.chunks().size() + 8);
   m.draw_list.reserve(m.terrain.chunks().size());
+  m.drawn.assign(m.terrain.chunks().size(), 0);
 
   const bool avx2 = cpu_has_avx2();
   if (options.simd == RenderOptions::Simd::Avx2 && !avx2)
@@ -615,10 +618,11 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
       clip_and_emit(g, t2, 3);
     }
   }
-  // Skirts along the four borders hide cracks against coarser neighbours.
-  if (c.error > 0) {
-    const float drop = c.error + 0.01f;
-    auto skirt = [&](int ka, int kb) {
+  // Skirts hang from the borders where the neighbour is drawn at another level (see
+  // skirt_drop()), so the two surfaces leave no crack between them.
+  const float drops[4] = {skirt_drop(c, 0), skirt_drop(c, 1), skirt_drop(c, 2), skirt_drop(c, 3)};
+  if (drops[0] > 0 || drops[1] > 0 || drops[2] > 0 || drops[3] > 0) {
+    auto skirt = [&](int ka, int kb, float drop) {
       if (nan_post[ka] || nan_post[kb]) return;
       const ClipVert& a = chunk_verts[static_cast<std::size_t>(ka)];
       const ClipVert& b = chunk_verts[static_cast<std::size_t>(kb)];
@@ -632,13 +636,43 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
       clip_and_emit(g, s2, 3);
     };
     for (int k = 0; k < kChunkQuads; ++k) {
-      skirt(k, k + 1);                                  // top row
-      skirt(kChunkQuads * n + k, kChunkQuads * n + k + 1);  // bottom row
-      skirt(k * n, (k + 1) * n);                        // left column
-      skirt(k * n + kChunkQuads, (k + 1) * n + kChunkQuads);  // right column
+      if (drops[0] > 0) skirt(k, k + 1, drops[0]);                                              // top row
+      if (drops[1] > 0) skirt(kChunkQuads * n + k, kChunkQuads * n + k + 1, drops[1]);          // bottom row
+      if (drops[2] > 0) skirt(k * n, (k + 1) * n, drops[2]);                                    // left column
+      if (drops[3] > 0) skirt(k * n + kChunkQuads, (k + 1) * n + kChunkQuads, drops[3]);        // right column
     }
   }
   ++g.chunks_drawn;
+}
+
+// How far the skirt on one side of a drawn chunk hangs (metres; 0: none). Sides: 0 top (first
+// post row), 1 bottom, 2 left (first post column), 3 right. Two chunks of one level share
+// their border posts: no crack, no skirt. Between a coarse chunk C and a finer neighbour F
+// the coarse border's posts are some of the fine border's, and the two borders are linear
+// between the fine posts, so they are at most C's error apart (C's error bounds its surface
+// against every post it covers, those of the border too). Where F's border runs below C's,
+// C's skirt covers the gap; where above, F's: so each side hangs by the error of the
+// coarser of the two (and a centimetre). Where no chunk of this level or coarser is drawn
+// across the side, the neighbour is finer or not drawn: the chunk's own error. Off the map
+// (no posts across the side): none.
+float Renderer::Impl::skirt_drop(const TerrainChunk& c, int side) const {
+  // The level-0 chunk cell just across the side, at the side's first post.
+  const int cx = c.i0 / kChunkQuads, cy = c.j0 / kChunkQuads, cells = c.span / kChunkQuads;
+  const int x = side == 2 ? cx - 1 : side == 3 ? cx + cells : cx;
+  const int y = side == 0 ? cy - 1 : side == 1 ? cy + cells : cy;
+  const auto& chunks = terrain.chunks();
+  for (int k = c.level; k <= chunks[static_cast<std::size_t>(terrain.root())].level; ++k) {
+    const int id = terrain.chunk_at(k, x >= 0 ? x >> k : -1, y >= 0 ? y >> k : -1);
+    if (id < 0) {
+      if (k == c.level) return 0.0f;  // no posts across the side
+      break;
+    }
+    if (drawn[static_cast<std::size_t>(id)]) {
+      if (k == c.level) return 0.0f;
+      return std::max(c.error, chunks[static_cast<std::size_t>(id)].error) + 0.01f;
+    }
+  }
+  return c.error > 0 ? c.error + 0.01f : 0.0f;
 }
 
 // Part j of the frame's geometry: the j-th of `threads` equal runs of the draw list. The
@@ -889,7 +923,9 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
       m.draw_list.push_back(index);
     }
   }
+  for (int index : m.draw_list) m.drawn[static_cast<std::size_t>(index)] = 1;
   m.pool->run(m.pool->threads(), [](void* c, int j) { static_cast<Impl*>(c)->draw_chunks(j); }, &m);
+  for (int index : m.draw_list) m.drawn[static_cast<std::size_t>(index)] = 0;
   int n_tris = 0, chunks_drawn = 0;
   bool overflow = false;
   for (const GeomPart& g : m.parts) {

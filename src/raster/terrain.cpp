@@ -58,6 +58,14 @@ Terrain Terrain::build(const geo::Map& map, double ox, double oy, double oz) {
   int level = 0;
   while ((kChunkQuads << level) < quads) ++level;
   t.chunks_.reserve(static_cast<std::size_t>(4) << (2 * std::min(level, 10)));
+  t.grid_.resize(static_cast<std::size_t>(level) + 1);
+  for (int k = 0; k <= level; ++k) {
+    const int span = kChunkQuads << k;
+    Grid& g = t.grid_[static_cast<std::size_t>(k)];
+    g.w = std::max((t.nx_ - 1 + span - 1) / span, 1);
+    g.h = std::max((t.ny_ - 1 + span - 1) / span, 1);
+    g.index.assign(static_cast<std::size_t>(g.w) * static_cast<std::size_t>(g.h), -1);
+  }
   t.root_ = t.build_chunk(level, 0, 0);
   return t;
 }
@@ -107,6 +115,8 @@ int Terrain::build_chunk(int level, int i0, int j0) {
   c.max_z = std::isfinite(bz1) ? bz1 : 0.0f;
   const int index = static_cast<int>(chunks_.size());
   chunks_.push_back(c);
+  Grid& g = grid_[static_cast<std::size_t>(level)];
+  g.index[static_cast<std::size_t>(j0 / span) * static_cast<std::size_t>(g.w) + static_cast<std::size_t>(i0 / span)] = index;
   if (level > 0) {
     const int half = span / 2;
     int k = 0;

@@ -40,6 +40,14 @@ class Terrain {
     z = heights_[static_cast<std::size_t>(j) * static_cast<std::size_t>(nx_) + static_cast<std::size_t>(i)];
   }
   const std::vector<TerrainChunk>& chunks() const { return chunks_; }
+  // The chunk of `level` whose first post is (ci, cj) x its span; -1 where there is none
+  // (off the map, or no posts there).
+  int chunk_at(int level, int ci, int cj) const {
+    if (level < 0 || level >= static_cast<int>(grid_.size())) return -1;
+    const Grid& g = grid_[static_cast<std::size_t>(level)];
+    if (ci < 0 || cj < 0 || ci >= g.w || cj >= g.h) return -1;
+    return g.index[static_cast<std::size_t>(cj) * static_cast<std::size_t>(g.w) + static_cast<std::size_t>(ci)];
+  }
   int root() const { return root_; }
   float min_z() const { return min_z_; }
   float max_z() const { return max_z_; }
@@ -50,6 +58,11 @@ class Terrain {
   double px0_ = 0, pxi_ = 1, pxj_ = 0, py0_ = 0, pyi_ = 0, pyj_ = -1;
   std::vector<float> heights_;
   std::vector<TerrainChunk> chunks_;
+  struct Grid {
+    int w = 0, h = 0;
+    std::vector<int> index;
+  };
+  std::vector<Grid> grid_;  // per level: chunk indices by chunk column and row
   int root_ = -1;
   float min_z_ = 0, max_z_ = 0;
 };
