@@ -74,6 +74,7 @@ struct Method {
   std::vector<double> epe_m, angle, trans, epe_px, ms;
   std::vector<char> ok;  // reported converged
   std::vector<double> cost_init, cost_final, residual_init, residual_final, sharpness;
+  std::vector<int> iterations_used;  // LM iterations over all levels
   std::vector<const char*> reason;
   int converged = 0;
 };
@@ -252,6 +253,7 @@ int run_eval(const std::vector<std::string>& argv) {
         m.residual_init.push_back(out->residual_init);
         m.residual_final.push_back(out->residual_final);
         m.sharpness.push_back(out->sharpness);
+        m.iterations_used.push_back(out->iterations);
         m.reason.push_back(out->reason);
       } else {
         m.converged += 1;
@@ -329,6 +331,7 @@ int run_eval(const std::vector<std::string>& argv) {
         sj["residual_init"] = m.residual_init[k];
         sj["residual_final"] = m.residual_final[k];
         sj["sharpness"] = m.sharpness[k];
+        sj["iterations"] = m.iterations_used[k];
         sj["reason"] = m.reason[k];
       }
       mj["samples"].push_back(sj);
