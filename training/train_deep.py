@@ -91,6 +91,39 @@ class PairSet:
         return ref, depth, qry, K, (D.quat_to_R(T[:, 3:]), T[:, :3])
 
 
+def augment(x, gen, p=0.8):
+    """Photometric augmentation of a batch of images (B x 3 x H x W, 0..255), each image on
+    its own with probability p: exposure gain (x0.7-1.4, log-uniform), white balance (each
+    channel x0.85-1.15), saturation (x0.6-1.4), gamma (0.75-1.33, log-uniform), Gaussian blur
+    (sigma 0.3-1.2 px, a third of the images) and sensor noise (sigma 0-4). Years differ in
+    sensor, sun and season; these cover the first two, not the changes on the ground. Draws
+    only from `gen`."""
+    B = x.shape[0]
+    u = lambda *shape: torch.rand(*shape, generator=gen, dtype=x.dtype)  # noqa: E731
+    on = (u(B) < p).to(x.dtype).view(B, 1, 1, 1)
+    gain = torch.exp(np.log(0.7) + u(B) * np.log(2.0)).view(B, 1, 1, 1)
+    wb = (0.85 + 0.3 * u(B, 3)).view(B, 3, 1, 1)
+    gamma = torch.exp((u(B) * 2 - 1) * np.log(1.33)).view(B, 1, 1, 1)
+    sat = (0.6 + 0.8 * u(B)).view(B, 1, 1, 1)
+    y = (x / 255.0).clamp(min=0).pow(gamma) * gain * wb * 255.0
+    grey = y.mean(1, keepdim=True)
+    y = grey + sat * (y - grey)
+    blur = u(B) < 1.0 / 3
+    sigma = 0.3 + 0.9 * u(B)
+    if blur.any():
+        k = torch.arange(-2, 3, dtype=x.dtype)
+        for b in torch.nonzero(blur).flatten().tolist():
+            g = torch.exp(-0.5 * (k / sigma[b]) ** 2)
+            g = g / g.sum()
+            img = y[b:b + 1].reshape(3, 1, *y.shape[2:])
+            img = torch.nn.functional.conv2d(torch.nn.functional.pad(img, (2, 2, 0, 0), mode="replicate"), g.view(1, 1, 1, 5))
+            img = torch.nn.functional.conv2d(torch.nn.functional.pad(img, (0, 0, 2, 2), mode="replicate"), g.view(1, 1, 5, 1))
+            y[b] = img.reshape(3, *y.shape[2:])
+    y = y + torch.randn(y.shape, generator=gen, dtype=x.dtype) * (4.0 * u(B)).view(B, 1, 1, 1)
+    y = y.clamp(0, 255)
+    return on * y + (1 - on) * x
+
+
 def sample_items(rng, n, L, count, cross=0.8):
     out = []
     for _ in range(count):
@@ -161,6 +194,9 @@ def main():
     p.add_argument("--val-every", type=int, default=250)
     p.add_argument("--val-count", type=int, default=64)
     p.add_argument("--resume", action="store_true")
+    p.add_argument("--augment", type=float, default=0.0,
+                   help="probability that each training image (reference and query, independently) is "
+                        "augmented photometrically (augment(): exposure, white balance, gamma, blur, noise); 0: none")
     p.add_argument("--init", help="start from this checkpoint's (.pt) or weight file's (.tlw) weights where the shapes match (warm start)")
     a = p.parse_args()
     torch.set_num_threads(a.threads)
@@ -174,6 +210,7 @@ def main():
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=a.steps, eta_min=a.lr * 0.05)
     step, best = 0, float("inf")
     rng = random.Random(a.seed)
+    gen = torch.Generator().manual_seed(a.seed)
     log_path = os.path.join(a.out, "log.csv")
     if a.resume and os.path.exists(os.path.join(a.out, "last.pt")):
         ck = torch.load(os.path.join(a.out, "last.pt"))
@@ -183,6 +220,8 @@ def main():
         step, best = ck["step"], ck["best"]
         rng.setstate(ck["rng"])
         torch.set_rng_state(ck["torch_rng"])
+        if "aug_rng" in ck:
+            gen.set_state(ck["aug_rng"])
         print(f"resumed at step {step}", flush=True)
     else:
         if a.init:
@@ -201,6 +240,8 @@ def main():
     t0, acc, nacc = time.time(), 0.0, 0
     while step < a.steps:
         ref, depth, qry, K, truth = train.batch(sample_items(rng, len(train.ids), len(train.layers), a.batch))
+        if a.augment > 0:
+            ref, qry = augment(ref, gen, a.augment), augment(qry, gen, a.augment)
         _, _, losses, _ = model(ref, depth, qry, K, truth=truth)
         per = torch.stack(losses).sum(0)
         ok = torch.isfinite(per)
@@ -228,7 +269,8 @@ def main():
             print(f"val {step}: init EPE mean {im:.2f} median {imed:.2f} m -> NN(20) mean {fm:.2f} median {fmed:.2f} m",
                   flush=True)
             state = {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "step": step,
-                     "best": min(best, fmed), "rng": rng.getstate(), "torch_rng": torch.get_rng_state(), "size": a.size}
+                     "best": min(best, fmed), "rng": rng.getstate(), "torch_rng": torch.get_rng_state(), "size": a.size,
+                     "aug_rng": gen.get_state()}
             if fmed < best:
                 best = fmed
                 torch.save(state, os.path.join(a.out, "best.pt.tmp"))
