@@ -60,6 +60,14 @@ iclk::TrackerOptions options() {
   return o;
 }
 
+// PyTorch's model has no coarse search (DeepAligner::kCoarseSearchPx): parity is between the
+// same mathematics, so the C++ side starts from the identity too.
+iclk::TrackerOptions parity_options() {
+  iclk::TrackerOptions o = options();
+  o.coarse_search_px = -1;
+  return o;
+}
+
 }  // namespace
 
 TEST_CASE("learned tracker: the C++ pipeline ends where PyTorch ends on the committed validation pairs") {
@@ -70,7 +78,7 @@ TEST_CASE("learned tracker: the C++ pipeline ends where PyTorch ends on the comm
   REQUIRE(pairs >= 2);
   for (int k = 0; k < pairs; ++k) {
     const Pair p = pair_of(vectors, k);
-    auto D = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 2);
+    auto D = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), parity_options(), 2);
     REQUIRE_MESSAGE(D.ok(), (D.ok() ? "" : D.error().message));
     const auto& r = D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
     CAPTURE(k);
@@ -128,11 +136,11 @@ TEST_CASE("learned tracker: the sharpness test reads its threshold from the weig
   const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
   auto threshold = iclk::DeepAligner::min_sharpness(weights);
   REQUIRE(threshold.ok());
-  CHECK(threshold.value() == doctest::Approx(1.010));  // written by training/calibrate_sharpness.py
+  CHECK(threshold.value() == doctest::Approx(1.025));  // written by training/calibrate_sharpness.py
   const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
   const Pair p = pair_of(vectors, 0);
   auto run = [&](double min_sharpness) {
-    iclk::TrackerOptions o = options();
+    iclk::TrackerOptions o = parity_options();  // the answer PyTorch also reaches
     o.min_sharpness = min_sharpness;
     auto D = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), o, 1);
     REQUIRE(D.ok());
