@@ -196,7 +196,8 @@ def main():
     p.add_argument("--resume", action="store_true")
     p.add_argument("--augment", type=float, default=0.0,
                    help="probability that each training image (reference and query, independently) is "
-                        "augmented photometrically (augment(): exposure, white balance, gamma, blur, noise); 0: none")
+                        "augmented photometrically (augment(): exposure, white balance, saturation, gamma, blur, "
+                        "noise); 0: none")
     p.add_argument("--init", help="start from this checkpoint's (.pt) or weight file's (.tlw) weights where the shapes match (warm start)")
     a = p.parse_args()
     torch.set_num_threads(a.threads)

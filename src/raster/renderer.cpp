@@ -660,8 +660,8 @@ float Renderer::Impl::skirt_drop(const TerrainChunk& c, int side) const {
   const int cx = c.i0 / kChunkQuads, cy = c.j0 / kChunkQuads, cells = c.span / kChunkQuads;
   const int x = side == 2 ? cx - 1 : side == 3 ? cx + cells : cx;
   const int y = side == 0 ? cy - 1 : side == 1 ? cy + cells : cy;
-  const auto& chunks = terrain.chunks();
-  for (int k = c.level; k <= chunks[static_cast<std::size_t>(terrain.root())].level; ++k) {
+  // Up the levels (chunk_at() is -1 above the root): the first chunk drawn across the side.
+  for (int k = c.level;; ++k) {
     const int id = terrain.chunk_at(k, x >= 0 ? x >> k : -1, y >= 0 ? y >> k : -1);
     if (id < 0) {
       if (k == c.level) return 0.0f;  // no posts across the side
@@ -669,7 +669,7 @@ float Renderer::Impl::skirt_drop(const TerrainChunk& c, int side) const {
     }
     if (drawn[static_cast<std::size_t>(id)]) {
       if (k == c.level) return 0.0f;
-      return std::max(c.error, chunks[static_cast<std::size_t>(id)].error) + 0.01f;
+      return std::max(c.error, terrain.chunks()[static_cast<std::size_t>(id)].error) + 0.01f;
     }
   }
   return c.error > 0 ? c.error + 0.01f : 0.0f;
