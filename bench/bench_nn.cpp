@@ -2,14 +2,19 @@
 // achieved GFLOP/s as a fraction of this CPU's FMA peak (measured by an FMA loop in the same
 // run), at 752x480 and 160x120, 1 and 2 threads; beside PyTorch on the CPU with two threads
 // (training/bench_torch_encoder.py, where /usr/bin/python3 has torch), with the speed ratio.
-//   build/release/bench/bench_nn
+// Then the shipped learned tracker's M-estimator per layer, and its one-output-channel last
+// layer with the one-channel kernel against the block kernel in the same run.
+//   build/release/bench/bench_nn [--mestimator]   (--mestimator: only the second part)
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <random>
 #include <thread>
 #include <vector>
 
+#include <terralign/nn/kernels.hpp>
 #include <terralign/nn/network.hpp>
 
 #if defined(TERRALIGN_NN_AVX2)
@@ -85,9 +90,46 @@ double torch_ms(int w, int h, int threads) {
   return ms;
 }
 
+// The one-output-channel kernel (vectors along the input channels) against the block kernel
+// (vectors along the output channels, 1 of 8 or 16 lanes useful) on the same layer in the
+// same run: the learned tracker's last M-estimator layer, 16 -> 1 channels, at 376 x 240.
+void one_channel_layer(nn::ConvRowsFn fn, int block, const char* simd) {
+  const int w = 376, h = 240, cin = 16;
+  nn::Tensor in, out;
+  in.allocate(h, w, cin);
+  out.allocate(h, w, 1);
+  std::mt19937 rng(5);
+  std::normal_distribution<float> n01(0, 1);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      for (int c = 0; c < cin; ++c) in.at(y, x)[c] = n01(rng);
+  std::vector<float> wt(9 * cin), bias{0.1f};
+  for (auto& v : wt) v = n01(rng) * 0.2f;
+  nn::ConvWeights one = nn::pack_conv(wt.data(), bias.data(), cin, 1, 1, nn::Act::None, block);
+  nn::ConvWeights blk = one;
+  blk.taps.clear();  // the block kernel
+  auto best = [&](const nn::ConvWeights& cw) {
+    double b = 1e9;
+    for (int rep = 0; rep < 30; ++rep) {
+      const auto t0 = std::chrono::steady_clock::now();
+      fn(in, cw, out, 0, h);
+      b = std::min(b, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    }
+    return b;
+  };
+  double a = 0, b = 0;
+  for (int round = 0; round < 3; ++round) {  // alternated, best of all
+    a = round ? std::min(a, best(one)) : best(one);
+    b = round ? std::min(b, best(blk)) : best(blk);
+  }
+  std::printf("16 -> 1 conv at %dx%d, 1 thread, %s: one-channel kernel %.3f ms, block kernel %.3f ms: %.1fx\n", w, h, simd, a,
+              b, b / a);
+}
+
 }  // namespace
 
-int main() {
+int main(int argc, char** argv) {
+  const bool mest_only = argc > 1 && std::strcmp(argv[1], "--mestimator") == 0;
   auto weights = nn::read_weights(TERRALIGN_SOURCE_DIR "/weights/lv19_tum_abc.tlw");
   if (!weights.ok()) {
     std::fprintf(stderr, "%s\n", weights.error().message.c_str());
@@ -97,6 +139,7 @@ int main() {
   const double peak1 = peak_gflops(1, wide), peak2 = peak_gflops(2, wide);
   std::printf("FMA peak (%s, measured): %.1f GFLOP/s on 1 thread, %.1f on 2\n\n", wide ? "AVX-512" : "AVX2", peak1, peak2);
   for (auto [w, h] : {std::pair<int, int>{752, 480}, {160, 120}}) {
+    if (mest_only) break;
     for (int threads : {1, 2}) {
       auto net = nn::Network::plan(weights.value(), "encoder", w, h, threads);
       if (!net.ok()) return 1;
@@ -130,5 +173,38 @@ int main() {
       }
     }
   }
+  // The shipped learned tracker's M-estimator at its working size (376 x 240), per layer.
+  auto s16 = nn::read_weights(TERRALIGN_SOURCE_DIR "/weights/deep_iclk_s16.tlw");
+  if (!s16.ok()) {
+    std::fprintf(stderr, "%s\n", s16.error().message.c_str());
+    return 1;
+  }
+  auto mest = nn::Network::plan(s16.value(), "mestimator", 376, 240, 2);
+  if (!mest.ok()) return 1;
+  mest.value()->forward();
+  mest.value()->set_profiling(true);
+  std::vector<std::vector<double>> per;
+  for (int rep = 0; rep < 15; ++rep) {
+    mest.value()->forward();
+    const auto st = mest.value()->step_times();
+    per.resize(st.size());
+    for (std::size_t i = 0; i < st.size(); ++i) per[i].push_back(st[i].ms);
+  }
+  std::printf("learned tracker's M-estimator (deep_iclk_s16.tlw) at 376x240, 2 threads, %s, median of 15:\n\n"
+              "| layer | op | ms |\n|---|---|---|\n", mest.value()->simd_name());
+  const auto st = mest.value()->step_times();
+  for (std::size_t i = 0; i < st.size(); ++i) {
+    std::sort(per[i].begin(), per[i].end());
+    std::printf("| %s | %s | %.3f |\n", st[i].name.c_str(), st[i].op.c_str(), per[i][per[i].size() / 2]);
+  }
+  std::printf("\n");
+  one_channel_layer(nn::conv3x3_rows_scalar, 8, "scalar");
+#if defined(TERRALIGN_NN_AVX2)
+  if (nn::nn_cpu_has_avx2()) one_channel_layer(nn::conv3x3_rows_avx2, 8, "avx2");
+  if (nn::nn_cpu_has_avx512()) one_channel_layer(nn::conv3x3_rows_avx512, 16, "avx512");
+#endif
+#if defined(TERRALIGN_NN_NEON)
+  one_channel_layer(nn::conv3x3_rows_neon, 8, "neon");
+#endif
   return 0;
 }

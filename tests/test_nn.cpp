@@ -187,6 +187,18 @@ void check_against_scalar(const std::vector<std::tuple<const char*, ConvRowsFn, 
       for (auto& v : wt) v = n01(rng) * 0.2f;
       for (auto& v : bias) v = n01(rng);
       conv3x3_rows_scalar(in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu), a, 0, 13);
+      if (cout == 1) {  // the one-channel kernel (vectors along the input) against the block kernel
+        ConvWeights blk = pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu);
+        blk.taps.clear();
+        conv3x3_rows_scalar(in, blk, b, 0, 13);
+        double worst = 0, scale = 0;
+        for (int y = 0; y < 13; ++y)
+          for (int x = 0; x < 29; ++x) {
+            worst = std::max(worst, double(std::abs(a.at(y, x)[0] - b.at(y, x)[0])));
+            scale = std::max(scale, double(std::abs(a.at(y, x)[0])));
+          }
+        CHECK(worst <= 1e-5 * std::max(scale, 1.0));  // the same sum in another order
+      }
       for (const auto& [name, fn, block] : kernels) {
         CAPTURE(name);
         fn(in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu, block), b, 0, 13);

@@ -51,10 +51,55 @@ inline void conv_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int y
   }
 }
 
+// One output channel (the M-estimator's last layer): the vectors run along the input
+// channels, so no lane computes a padded output channel (a block of 8 or 16 would be 1/8 or
+// 1/16 useful). Reads only the input's `cin` channels: groups of V::kWidth, then the rest
+// one by one; NP pixels at a time for independent chains. The lanes are summed in a fixed
+// order (each wrapper's hsum), so the result depends on the kernel, not on the row split.
+template <class V, int NP>
+inline void conv1_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int y, int x) {
+  constexpr int W = V::kWidth;
+  const int d = w.dilation, cin = w.cin, cp = in.cp, groups = cin / W;
+  V acc[NP];
+  float rest[NP];
+  for (int p = 0; p < NP; ++p) {
+    acc[p] = V::set1(0.0f);
+    rest[p] = 0.0f;
+  }
+  for (int ky = 0; ky < 3; ++ky)
+    for (int kx = 0; kx < 3; ++kx) {
+      const float* ip = in.at(y + (ky - 1) * d, x + (kx - 1) * d);
+      const float* wp = w.taps.data() + static_cast<std::size_t>(ky * 3 + kx) * static_cast<std::size_t>(cin);
+      for (int g = 0; g < groups; ++g) {
+        const V wv = V::load(wp + g * W);
+        for (int p = 0; p < NP; ++p) acc[p] = fmadd(V::load(ip + p * cp + g * W), wv, acc[p]);
+      }
+      for (int ci = groups * W; ci < cin; ++ci)
+        for (int p = 0; p < NP; ++p) rest[p] += ip[p * cp + ci] * wp[ci];
+    }
+  for (int p = 0; p < NP; ++p) {
+    V v = V::set1(w.bias[0] + (hsum(acc[p]) + rest[p]));
+    if (w.act == Act::Elu) v = elu(v);
+    else if (w.act == Act::Relu) v = relu(v);
+    float* op = out.at(y, x + p);
+    // The padded channels the block kernel would have written: zeros (see below).
+    for (int k = 0; k < V::kBlock; k += W) V::set1(0.0f).store(op + k);
+    op[0] = lane0(v);
+  }
+}
+
 template <class V>
 inline void conv3x3_rows(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1) {
   constexpr int NP = V::kTilePixels;
   TERRALIGN_DEBUG_ASSERT(w.block == V::kBlock, "conv3x3_rows: weights packed for another kernel");
+  if (w.cout == 1 && w.taps.size() == 9 * static_cast<std::size_t>(w.cin)) {  // (bench_nn clears taps for the peer)
+    for (int y = y0; y < y1; ++y) {
+      int x = 0;
+      for (; x + 4 <= out.w; x += 4) conv1_tile<V, 4>(in, w, out, y, x);
+      for (; x < out.w; ++x) conv1_tile<V, 1>(in, w, out, y, x);
+    }
+    return;
+  }
   const int blocks = (w.cout + V::kBlock - 1) / V::kBlock;
   constexpr int NB = V::kTileBlocks;
   for (int y = y0; y < y1; ++y) {

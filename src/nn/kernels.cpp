@@ -49,6 +49,12 @@ ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, i
         w.packed[((static_cast<std::size_t>(co / block) * 9 + static_cast<std::size_t>(k)) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * B + static_cast<std::size_t>(co % block)] =
             oihw[(static_cast<std::size_t>(co) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * 9 + static_cast<std::size_t>(k)];
   }
+  if (cout == 1) {
+    w.taps.resize(9 * static_cast<std::size_t>(cin));
+    for (int ci = 0; ci < cin; ++ci)
+      for (int k = 0; k < 9; ++k)
+        w.taps[static_cast<std::size_t>(k) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)] = oihw[static_cast<std::size_t>(ci) * 9 + static_cast<std::size_t>(k)];
+  }
   return w;
 }
 

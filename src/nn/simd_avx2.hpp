@@ -48,6 +48,12 @@ struct VecAvx2 {
     return {_mm256_blendv_ps(neg, a.v, _mm256_cmp_ps(a.v, _mm256_setzero_ps(), _CMP_GT_OQ))};
   }
   friend VecAvx2 relu(VecAvx2 a) { return {_mm256_max_ps(a.v, _mm256_setzero_ps())}; }
+  friend float lane0(VecAvx2 a) { return _mm256_cvtss_f32(a.v); }
+  friend float hsum(VecAvx2 a) {  // ((0+4)+(2+6)) + ((1+5)+(3+7))
+    __m128 s = _mm_add_ps(_mm256_castps256_ps128(a.v), _mm256_extractf128_ps(a.v, 1));
+    s = _mm_add_ps(s, _mm_movehl_ps(s, s));
+    return _mm_cvtss_f32(_mm_add_ss(s, _mm_movehdup_ps(s)));
+  }
 };
 
 }  // namespace terralign::nn

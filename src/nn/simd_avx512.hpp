@@ -44,6 +44,13 @@ struct VecAvx512 {
     return {_mm512_mask_blend_ps(_mm512_cmp_ps_mask(a.v, _mm512_setzero_ps(), _CMP_GT_OQ), neg, a.v)};
   }
   friend VecAvx512 relu(VecAvx512 a) { return {_mm512_max_ps(a.v, _mm512_setzero_ps())}; }
+  friend float lane0(VecAvx512 a) { return _mm512_cvtss_f32(a.v); }
+  friend float hsum(VecAvx512 a) {  // halves added down to one lane, in a fixed order
+    __m256 h = _mm256_add_ps(_mm512_castps512_ps256(a.v), _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(a.v), 1)));
+    __m128 s = _mm_add_ps(_mm256_castps256_ps128(h), _mm256_extractf128_ps(h, 1));
+    s = _mm_add_ps(s, _mm_movehl_ps(s, s));
+    return _mm_cvtss_f32(_mm_add_ss(s, _mm_movehdup_ps(s)));
+  }
 };
 
 }  // namespace terralign::nn

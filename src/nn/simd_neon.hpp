@@ -45,6 +45,11 @@ struct VecNeon {
     return {vbslq_f32(vcgtq_f32(a.v, zero), a.v, neg)};
   }
   friend VecNeon relu(VecNeon a) { return {vmaxq_f32(a.v, vdupq_n_f32(0.0f))}; }
+  friend float lane0(VecNeon a) { return vgetq_lane_f32(a.v, 0); }
+  friend float hsum(VecNeon a) {  // (0+2) + (1+3)
+    const float32x2_t s = vadd_f32(vget_low_f32(a.v), vget_high_f32(a.v));
+    return vget_lane_f32(vpadd_f32(s, s), 0);
+  }
 };
 
 }  // namespace terralign::nn

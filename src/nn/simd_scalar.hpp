@@ -17,6 +17,8 @@ struct VecScalar {
   friend VecScalar fmadd(VecScalar a, VecScalar b, VecScalar c) { return {a.v * b.v + c.v}; }
   friend VecScalar elu(VecScalar a) { return {a.v > 0.0f ? a.v : std::expm1(a.v)}; }
   friend VecScalar relu(VecScalar a) { return {a.v > 0.0f ? a.v : 0.0f}; }
+  friend float lane0(VecScalar a) { return a.v; }
+  friend float hsum(VecScalar a) { return a.v; }
 };
 
 }  // namespace terralign::nn

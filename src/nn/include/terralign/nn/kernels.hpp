@@ -20,6 +20,8 @@ struct ConvWeights {
   Act act = Act::None;
   std::vector<float> packed;  // (cout / block rounded up) x 9 x cin x block
   std::vector<float> bias;    // cout rounded up to block
+  std::vector<float> taps;    // one output channel only: 9 x cin (tap-major), for the kernel
+                              // whose vectors run along the input channels
 };
 
 // From PyTorch's OIHW layout (cout x cin x 3 x 3) and a bias of cout.
