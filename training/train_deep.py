@@ -171,6 +171,10 @@ def plot(out):
     ax[0].set_yscale("log")
     for key, lab in (("init_median", "init median"), ("final_median", "NN (20) median"), ("final_mean", "NN (20) mean")):
         ax[1].plot([int(r["step"]) for r in va], [float(r[key]) for r in va], marker="o", label=lab)
+    vx = [r for r in rows if r["kind"] == "val_extra"]
+    for key, lab in (("init_median", "extra set: init median"), ("final_median", "extra set: NN (20) median")):
+        if vx:
+            ax[1].plot([int(r["step"]) for r in vx], [float(r[key]) for r in vx], marker="s", ls="--", label=lab)
     ax[1].set_xlabel("step")
     ax[1].set_ylabel("validation cross-year 3-D EPE (m)")
     ax[1].set_yscale("log")
@@ -198,6 +202,11 @@ def main():
                    help="probability that each training image (reference and query, independently) is "
                         "augmented photometrically (augment(): exposure, white balance, saturation, gamma, blur, "
                         "noise); 0: none")
+    p.add_argument("--extra", help="a second dataset (terralign dataset's output) whose training pairs make a "
+                        "whole batch with probability --extra-p; its loss is scaled by the ratio of the two sets' mean "
+                        "altitudes, so a pixel of error weighs the same in both; its validation pairs are logged as "
+                        "'val_extra' rows")
+    p.add_argument("--extra-p", type=float, default=0.3)
     p.add_argument("--init", help="start from this checkpoint's (.pt) or weight file's (.tlw) weights where the shapes match (warm start)")
     a = p.parse_args()
     torch.set_num_threads(a.threads)
@@ -206,6 +215,12 @@ def main():
     train, val = PairSet(a.data, "train"), PairSet(a.data, "val")
     vrng = random.Random(12345)
     val_items = sample_items(vrng, len(val.ids), len(val.layers), a.val_count, cross=1.0)
+    extra = extra_val = extra_items = None
+    if a.extra:
+        extra, extra_val = PairSet(a.extra, "train"), PairSet(a.extra, "val")
+        extra_items = sample_items(random.Random(12345), len(extra_val.ids), len(extra_val.layers), a.val_count, cross=1.0)
+        extra_weight = float(train.altitude.mean() / extra.altitude.mean())
+        print(f"extra set {a.extra}: batches with p = {a.extra_p}, loss x {extra_weight:.2f}", flush=True)
     model = D.DeepICLK(a.size, iterations=a.iterations)
     opt = torch.optim.Adam(model.parameters(), lr=a.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=a.steps, eta_min=a.lr * 0.05)
@@ -240,14 +255,17 @@ def main():
             f.write(" ".join(sys.argv) + "\n")
     t0, acc, nacc = time.time(), 0.0, 0
     while step < a.steps:
-        ref, depth, qry, K, truth = train.batch(sample_items(rng, len(train.ids), len(train.layers), a.batch))
+        src, weight = train, 1.0
+        if extra is not None and rng.random() < a.extra_p:
+            src, weight = extra, extra_weight
+        ref, depth, qry, K, truth = src.batch(sample_items(rng, len(src.ids), len(src.layers), a.batch))
         if a.augment > 0:
             ref, qry = augment(ref, gen, a.augment), augment(qry, gen, a.augment)
         _, _, losses, _ = model(ref, depth, qry, K, truth=truth)
         per = torch.stack(losses).sum(0)
         ok = torch.isfinite(per)
         if ok.any():
-            loss = per[ok].mean()
+            loss = per[ok].mean() * weight
             opt.zero_grad()
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
@@ -269,6 +287,14 @@ def main():
                 f.write(f"val,{step},,{im:.3f},{imed:.3f},{fm:.3f},{fmed:.3f},{time.time() - t0:.0f}\n")
             print(f"val {step}: init EPE mean {im:.2f} median {imed:.2f} m -> NN(20) mean {fm:.2f} median {fmed:.2f} m",
                   flush=True)
+            if extra is not None:
+                model.iterations = 20
+                xm, xmed, xfm, xfmed = validate(model, extra_val, extra_items)
+                model.iterations = a.iterations
+                with open(log_path, "a") as f:
+                    f.write(f"val_extra,{step},,{xm:.3f},{xmed:.3f},{xfm:.3f},{xfmed:.3f},{time.time() - t0:.0f}\n")
+                print(f"val_extra {step}: init EPE mean {xm:.2f} median {xmed:.2f} m -> NN(20) mean {xfm:.2f} "
+                      f"median {xfmed:.2f} m", flush=True)
             state = {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "step": step,
                      "best": min(best, fmed), "rng": rng.getstate(), "torch_rng": torch.get_rng_state(), "size": a.size,
                      "aug_rng": gen.get_state()}
