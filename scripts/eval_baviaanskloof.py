@@ -10,6 +10,7 @@ Rz(kappa) for camera axes x right, y up, z back; ours look along +z with y down,
 R_W_C(ours) = R_PATB diag(1, -1, -1) (geo::pose_from_opk does the same).
 
 usage: scripts/eval_baviaanskloof.py [--terralign BIN] [--shared DIR] [--priors N] [--seed S]
+                                      [--weights FILE] [--json OUT]
 Python standard library only."""
 import argparse
 import json
@@ -87,6 +88,7 @@ def main():
     ap.add_argument('--priors', type=int, default=8, help='priors per frame (default 8)')
     ap.add_argument('--seed', type=int, default=5)
     ap.add_argument('--json', help='write every result here')
+    ap.add_argument('--weights', help="the learned tracker's weight file (default: the shipped one)")
     args = ap.parse_args()
     S = os.path.join(args.shared, 'ngi_baviaanskloof_2015')
     if not os.path.isdir(S):
@@ -131,6 +133,8 @@ def main():
                 for method in ('classic', 'nn'):
                     cmd = [args.terralign, 'align', '--map', mpath, '--camera', os.path.join(work, 'camera.json'),
                            '--image', image, '--prior', prior, '--layer', layer, '--method', method]
+                    if method == 'nn' and args.weights:
+                        cmd += ['--weights', args.weights]
                     p = subprocess.run(cmd, capture_output=True, text=True)
                     if p.returncode not in (0, 3):
                         sys.exit(f'eval_baviaanskloof: {" ".join(cmd)}: exit {p.returncode}: {p.stderr.strip()}')
