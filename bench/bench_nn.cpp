@@ -117,10 +117,10 @@ void one_channel_layer(nn::ConvRowsFn fn, int block, const char* simd) {
     }
     return b;
   };
-  double a = 0, b = 0;
+  double a = 1e9, b = 1e9;
   for (int round = 0; round < 3; ++round) {  // alternated, best of all
-    a = round ? std::min(a, best(one)) : best(one);
-    b = round ? std::min(b, best(blk)) : best(blk);
+    a = std::min(a, best(one));
+    b = std::min(b, best(blk));
   }
   std::printf("16 -> 1 conv at %dx%d, 1 thread, %s: one-channel kernel %.3f ms, block kernel %.3f ms: %.1fx\n", w, h, simd, a,
               b, b / a);

@@ -280,21 +280,19 @@ def main():
             print(f"step {step} loss {acc / nacc:.3f} ({time.time() - t0:.0f} s)", flush=True)
             acc, nacc = 0.0, 0
         if step % a.val_every == 0 or step == a.steps:
-            model.iterations = 20
-            im, imed, fm, fmed = validate(model, val, val_items)
-            model.iterations = a.iterations
-            with open(log_path, "a") as f:
-                f.write(f"val,{step},,{im:.3f},{imed:.3f},{fm:.3f},{fmed:.3f},{time.time() - t0:.0f}\n")
-            print(f"val {step}: init EPE mean {im:.2f} median {imed:.2f} m -> NN(20) mean {fm:.2f} median {fmed:.2f} m",
-                  flush=True)
-            if extra is not None:
+            def validation(kind, pairs, items):  # 20 iterations, as at test time; logged and printed
                 model.iterations = 20
-                xm, xmed, xfm, xfmed = validate(model, extra_val, extra_items)
+                im, imed, fm, fmed = validate(model, pairs, items)
                 model.iterations = a.iterations
                 with open(log_path, "a") as f:
-                    f.write(f"val_extra,{step},,{xm:.3f},{xmed:.3f},{xfm:.3f},{xfmed:.3f},{time.time() - t0:.0f}\n")
-                print(f"val_extra {step}: init EPE mean {xm:.2f} median {xmed:.2f} m -> NN(20) mean {xfm:.2f} "
-                      f"median {xfmed:.2f} m", flush=True)
+                    f.write(f"{kind},{step},,{im:.3f},{imed:.3f},{fm:.3f},{fmed:.3f},{time.time() - t0:.0f}\n")
+                print(f"{kind} {step}: init EPE mean {im:.2f} median {imed:.2f} m -> NN(20) mean {fm:.2f} "
+                      f"median {fmed:.2f} m", flush=True)
+                return fmed
+
+            fmed = validation("val", val, val_items)
+            if extra is not None:
+                validation("val_extra", extra_val, extra_items)
             state = {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "step": step,
                      "best": min(best, fmed), "rng": rng.getstate(), "torch_rng": torch.get_rng_state(), "size": a.size,
                      "aug_rng": gen.get_state()}
