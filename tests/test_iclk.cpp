@@ -262,21 +262,22 @@ TEST_CASE("a pair with no texture reports failure instead of a pose") {
   CHECK(res.params.R == Mat3<double>::Identity());  // the initial pose, never NaN
 }
 
-TEST_CASE("1 and 2 threads, and the scalar and AVX2 residual kernels, give the same pose, bit for bit") {
+TEST_CASE("1, 2 and 3 threads, and the scalar and AVX2 residual kernels, give the same pose, bit for bit") {
   auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
   REQUIRE(map.ok());
   const geo::CameraModel cam = test::paper_camera();
   const Pair p = render_pair(map.value(), cam, geo::pose_from_ypr({487450, 5207437, 1370}, 10, 1, 0),
                              geo::pose_from_ypr({487458, 5207431, 1374}, 11, 0, 1), "2012", "2012");
   const Pinhole<float> K{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
-  TrackerOptions o1, o2, o3;
+  TrackerOptions o1, o2, o3, o4;
   o1.threads = 1;
   o2.threads = 2;
   o3.simd = false;
+  o4.threads = 3;  // the pixel selection's bands and the sums' chunks do not follow the threads
   Tracker<float, SE3DepthWarp<float>, 1> t1(cam.width, cam.height, o1), t2(cam.width, cam.height, o2),
-      t3(cam.width, cam.height, o3);
+      t3(cam.width, cam.height, o3), t4(cam.width, cam.height, o4);
   const auto& r1 = t1.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());
-  for (auto* t : {&t2, &t3}) {
+  for (auto* t : {&t2, &t3, &t4}) {
     const auto& r2 = t->align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());
     CHECK(r1.converged);
     CHECK(r1.iterations == r2.iterations);

@@ -83,6 +83,8 @@ Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& option
   jac_stride_ = n;
   abs_.resize(n);
   partials_.resize(n / kChunk + 1);
+  bands_.resize(kBands);
+  pick_.resize(n);  // blocks of one pixel at the finest level at most
   pool_ = std::make_unique<ThreadPool>(std::max(1, opt_.threads));
   ok_.resize(n);
   pick_kernel();
@@ -173,29 +175,61 @@ void Tracker<S, Warp, C>::build_depth_pyramid() {
 template <class S, class Warp, int C>
 int Tracker<S, Warp, C>::select_pixels(int level, const Pinhole<S>& K) {
   const Level& L = levels_[static_cast<std::size_t>(level)];
-  // Sobel / 8 of channel c at (x, y): the intensity gradient per pixel.
-  auto sobel = [&](int x, int y, int c, S& gx, S& gy) {
-    auto I = [&](int xx, int yy) { return static_cast<S>(L.ref.at(xx, yy, c)); };
-    gx = (I(x + 1, y - 1) + S(2) * I(x + 1, y) + I(x + 1, y + 1) - I(x - 1, y - 1) - S(2) * I(x - 1, y) -
-          I(x - 1, y + 1)) / S(8);
-    gy = (I(x - 1, y + 1) + S(2) * I(x, y + 1) + I(x + 1, y + 1) - I(x - 1, y - 1) - S(2) * I(x, y - 1) -
-          I(x + 1, y - 1)) / S(8);
-  };
+  pick_block_ = level < static_cast<int>(opt_.block.size()) ? std::max(1, opt_.block[static_cast<std::size_t>(level)]) : 1;
+  // Blocks start at pixel 1 and leave the image's outer ring out (the Sobel needs it).
+  const int rows = L.h > 2 ? (L.h - 2 + pick_block_ - 1) / pick_block_ : 0;
+  pick_cols_ = L.w > 2 ? (L.w - 2 + pick_block_ - 1) / pick_block_ : 0;
+  for (int b = 0; b < kBands; ++b) {
+    Band& B = bands_[static_cast<std::size_t>(b)];
+    B.row0 = rows * b / kBands;
+    B.row1 = rows * (b + 1) / kBands;
+  }
+  struct Ctx {
+    Tracker* t;
+    int level;
+    const Pinhole<S>* K;
+  } ctx{this, level, &K};
+  pool_->run(kBands, [](void* c, int b) {
+    auto* x = static_cast<Ctx*>(c);
+    x->t->pick_band(x->level, x->t->bands_[static_cast<std::size_t>(b)]);
+  }, &ctx);
+  int n = 0;
+  for (auto& B : bands_) {
+    B.offset = n;
+    n += B.count;
+  }
+  pool_->run(kBands, [](void* c, int b) {
+    auto* x = static_cast<Ctx*>(c);
+    x->t->write_band(x->level, *x->K, x->t->bands_[static_cast<std::size_t>(b)]);
+  }, &ctx);
+  if (level == 0) {
+    motion0_.setZero();
+    floor0_.setZero();
+    radius2_sum_ = 0;
+    for (const auto& B : bands_) {
+      motion0_ += B.motion;
+      floor0_ += B.floor;
+      radius2_sum_ += B.radius2;
+    }
+  }
+  return n;
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::pick_band(int level, Band& band) {
+  const Level& L = levels_[static_cast<std::size_t>(level)];
+  const int block = pick_block_;
   auto usable = [&](int x, int y) {
     for (int dy = -1; dy <= 1; ++dy)
       for (int dx = -1; dx <= 1; ++dx)
         if (!std::isfinite(L.depth.at(x + dx, y + dy))) return false;
     return true;
   };
-  const int block = level < static_cast<int>(opt_.block.size()) ? std::max(1, opt_.block[static_cast<std::size_t>(level)]) : 1;
-  int n = 0;
-  if (level == 0) {
-    motion0_.setZero();
-    floor0_.setZero();
-    radius2_sum_ = 0;
-  }
-  for (int by = 1; by + 1 < L.h; by += block)
-    for (int bx = 1; bx + 1 < L.w; bx += block) {
+  band.count = 0;
+  for (int row = band.row0; row < band.row1; ++row) {
+    const int by = 1 + row * block;
+    for (int col = 0; col < pick_cols_; ++col) {
+      const int bx = 1 + col * block;
       // The pixel of the block with the strongest gradient (every pixel when block == 1).
       int best_x = -1, best_y = -1;
       S best = S(-1);
@@ -219,38 +253,81 @@ int Tracker<S, Warp, C>::select_pixels(int level, const Pinhole<S>& K) {
             best_y = y;
           }
         }
-      if (best_x < 0 || (block > 1 && !usable(best_x, best_y))) continue;
-      const int x = best_x, y = best_y;
-      const S d = static_cast<S>(L.depth.at(x, y));
-      const S u = static_cast<S>(x), v = static_cast<S>(y);
-      const Vec3<S> X(d * (u - K.cx) / K.fx, d * (v - K.cy) / K.fy, d);
-      const typename Warp::Jac dW = Warp::d_warp_d_xi(X, u, v, K);
-      if (level == 0) {
-        // motion0_ += dW^T dW (lower half) and floor0_ += dW^T modes, written out: Eigen's
-        // general products cost more per pixel than the arithmetic.
-        const double du = static_cast<double>(u - K.cx), dv = static_cast<double>(v - K.cy);
-        const double modes[2][4] = {{1, 0, -dv, du}, {0, 1, du, dv}};
-        for (int a = 0; a < DoF; ++a) {
-          const double wu = static_cast<double>(dW(0, a)), wv = static_cast<double>(dW(1, a));
-          for (int b = 0; b <= a; ++b) motion0_(a, b) += wu * static_cast<double>(dW(0, b)) + wv * static_cast<double>(dW(1, b));
-          for (int m = 0; m < 4; ++m) floor0_(a, m) += wu * modes[0][m] + wv * modes[1][m];
-        }
-        radius2_sum_ += du * du + dv * dv;
-      }
-      for (int c = 0; c < C; ++c) {
-        S gx, gy;
-        sobel(x, y, c, gx, gy);
-        for (int k = 0; k < DoF; ++k) jac(n, c, k) = gx * dW(0, k) + gy * dW(1, k);
-        val_[static_cast<std::size_t>(n) * C + static_cast<std::size_t>(c)] = static_cast<S>(L.ref.at(x, y, c));
-      }
-      pu_[static_cast<std::size_t>(n)] = u;
-      pv_[static_cast<std::size_t>(n)] = v;
-      px_[static_cast<std::size_t>(n)] = X.x();
-      py_[static_cast<std::size_t>(n)] = X.y();
-      pz_[static_cast<std::size_t>(n)] = X.z();
-      ++n;
+      const bool ok = best_x >= 0 && (block == 1 || usable(best_x, best_y));
+      pick_[static_cast<std::size_t>(row) * static_cast<std::size_t>(pick_cols_) + static_cast<std::size_t>(col)] =
+          ok ? best_y * L.w + best_x : -1;
+      band.count += ok;
     }
-  return n;
+  }
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::write_band(int level, const Pinhole<S>& K, Band& band) {
+  const Level& L = levels_[static_cast<std::size_t>(level)];
+  // Sobel / 8 of channel c at (x, y): the intensity gradient per pixel.
+  auto sobel = [&](int x, int y, int c, S& gx, S& gy) {
+    auto I = [&](int xx, int yy) { return static_cast<S>(L.ref.at(xx, yy, c)); };
+    gx = (I(x + 1, y - 1) + S(2) * I(x + 1, y) + I(x + 1, y + 1) - I(x - 1, y - 1) - S(2) * I(x - 1, y) -
+          I(x - 1, y + 1)) / S(8);
+    gy = (I(x - 1, y + 1) + S(2) * I(x, y + 1) + I(x + 1, y + 1) - I(x - 1, y - 1) - S(2) * I(x, y - 1) -
+          I(x + 1, y - 1)) / S(8);
+  };
+  band.motion.setZero();
+  band.floor.setZero();
+  band.radius2 = 0;
+  int n = band.offset;
+  const int* pick = pick_.data() + static_cast<std::size_t>(band.row0) * static_cast<std::size_t>(pick_cols_);
+  const int blocks = (band.row1 - band.row0) * pick_cols_;
+  for (int k = 0; k < blocks; ++k) {
+    if (pick[k] < 0) continue;
+    const int x = pick[k] % L.w, y = pick[k] / L.w;
+    const S d = static_cast<S>(L.depth.at(x, y));
+    const S u = static_cast<S>(x), v = static_cast<S>(y);
+    const Vec3<S> X(d * (u - K.cx) / K.fx, d * (v - K.cy) / K.fy, d);
+    const typename Warp::Jac dW = Warp::d_warp_d_xi(X, u, v, K);
+    if (level == 0) {
+      // motion0_ += dW^T dW (lower half) and floor0_ += dW^T modes, written out: Eigen's
+      // general products cost more per pixel than the arithmetic.
+      const double du = static_cast<double>(u - K.cx), dv = static_cast<double>(v - K.cy);
+      const double modes[2][4] = {{1, 0, -dv, du}, {0, 1, du, dv}};
+      for (int a = 0; a < DoF; ++a) {
+        const double wu = static_cast<double>(dW(0, a)), wv = static_cast<double>(dW(1, a));
+        for (int b = 0; b <= a; ++b) band.motion(a, b) += wu * static_cast<double>(dW(0, b)) + wv * static_cast<double>(dW(1, b));
+        for (int m = 0; m < 4; ++m) band.floor(a, m) += wu * modes[0][m] + wv * modes[1][m];
+      }
+      band.radius2 += du * du + dv * dv;
+    }
+    for (int c = 0; c < C; ++c) {
+      S gx, gy;
+      sobel(x, y, c, gx, gy);
+      for (int a = 0; a < DoF; ++a) jac(n, c, a) = gx * dW(0, a) + gy * dW(1, a);
+      val_[static_cast<std::size_t>(n) * C + static_cast<std::size_t>(c)] = static_cast<S>(L.ref.at(x, y, c));
+    }
+    pu_[static_cast<std::size_t>(n)] = u;
+    pv_[static_cast<std::size_t>(n)] = v;
+    px_[static_cast<std::size_t>(n)] = X.x();
+    py_[static_cast<std::size_t>(n)] = X.y();
+    pz_[static_cast<std::size_t>(n)] = X.z();
+    ++n;
+  }
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::hessian(int n, Eigen::Matrix<double, DoF, DoF>& H) {
+  const int chunks = (n + kChunk - 1) / kChunk;
+  struct Ctx {
+    Tracker* t;
+    int n;
+  } ctx{this, n};
+  pool_->run(chunks, [](void* c, int chunk) {
+    auto* x = static_cast<Ctx*>(c);
+    Partial& P = x->t->partials_[static_cast<std::size_t>(chunk)];
+    P.H_out.setZero();
+    for (int i = chunk * kChunk; i < std::min(x->n, (chunk + 1) * kChunk); ++i) x->t->add_left(P, i);
+  }, &ctx);
+  H.setZero();
+  for (int i = 0; i < chunks; ++i) H += partials_[static_cast<std::size_t>(i)].H_out;
+  H = H.template selfadjointView<Eigen::Lower>();
 }
 
 template <class S, class Warp, int C>
@@ -600,17 +677,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
         }
       }
     }
-    H.setZero();
-    for (int i = 0; i < n; ++i) {
-      const double w = static_cast<double>(w_[static_cast<std::size_t>(i)]);
-      if (w == 0) continue;
-      for (int c = 0; c < C; ++c)
-        for (int a = 0; a < DoF; ++a) {
-          const double wa = w * static_cast<double>(jac(i, c, a));
-          for (int b = 0; b <= a; ++b) H(a, b) += wa * static_cast<double>(jac(i, c, b));
-        }
-    }
-    H = H.template selfadjointView<Eigen::Lower>();
+    hessian(n, H);
     R.ms_jacobian += ms(tj, Clock::now());
     const auto ti = Clock::now();
     if (n < std::max(DoF * 4, level == 0 ? opt_.min_valid_pixels : 0)) {

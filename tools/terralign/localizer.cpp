@@ -29,6 +29,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
     TERRALIGN_TRY_ASSIGN(L->deep_, iclk::DeepAligner::create(*weights, w, h, dopt, threads, sizes.levels));
     L->ref_rgb_.resize(w, h, 3);
     L->live_rgb_.resize(w, h, 3);
+    L->sum_row_.resize(static_cast<std::size_t>(3 * w));
   }
   raster::RenderOptions ro;
   ro.threads = threads;
@@ -93,14 +94,17 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     for (std::size_t k = 0; k < ref_rgb_.size(); ++k) ref_rgb_.data()[k] = ref_.rgb[0].data()[k];
     const int f = camera_.width / work_.width;
     const float inv = 1.0f / static_cast<float>(f * f);
-    for (int y = 0; y < work_.height; ++y)
-      for (int x = 0; x < work_.width; ++x)
-        for (int c = 0; c < 3; ++c) {
-          int sum = 0;
-          for (int dy = 0; dy < f; ++dy)
-            for (int dx = 0; dx < f; ++dx) sum += live.at(x * f + dx, y * f + dy, c);
-          live_rgb_.at(x, y, c) = static_cast<float>(sum) * inv;
-        }
+    for (int y = 0; y < work_.height; ++y) {
+      float* out_row = &live_rgb_.at(0, y, 0);
+      for (int k = 0; k < 3 * work_.width; ++k) sum_row_[static_cast<std::size_t>(k)] = 0;
+      for (int dy = 0; dy < f; ++dy) {
+        const std::uint8_t* in = live.row(y * f + dy);
+        for (int x = 0; x < work_.width; ++x, in += 3 * f)
+          for (int dx = 0; dx < f; ++dx)
+            for (int c = 0; c < 3; ++c) sum_row_[static_cast<std::size_t>(3 * x + c)] += in[3 * dx + c];
+      }
+      for (int k = 0; k < 3 * work_.width; ++k) out_row[k] = static_cast<float>(sum_row_[static_cast<std::size_t>(k)]) * inv;
+    }
     rp = &deep_->align(ref_rgb_.view(), depth_.view(), live_rgb_.view(), K, iclk::SE3<float>::identity());
   } else {
     iclk::rgb_to_grey(ref_.rgb[0].view(), ref_grey_);

@@ -6,6 +6,7 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <Eigen/Core>
 
@@ -76,6 +77,7 @@ class Localizer {
   geo::CameraModel camera_, work_;
   std::unique_ptr<iclk::DeepAligner> deep_;
   ImageF ref_rgb_, live_rgb_;  // learned: float RGB at the working size
+  std::vector<int> sum_row_;   // learned: one row of the live image's box sums
   std::unique_ptr<raster::Renderer> renderer_;
   raster::RenderOutput ref_;
   ImageF ref_grey_, live_grey_, depth_;

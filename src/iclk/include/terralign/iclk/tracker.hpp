@@ -201,7 +201,23 @@ class Tracker {
   // p with the camera turned so the image moves by about (du, dv) pixels of K's level (6-DoF
   // warp): the sharpness probe's nudge and the coarse search's grid.
   static Params shifted(const Params& p, double du, double dv, const Pinhole<S>& K);
+  // The reference pixels a level uses (every pixel with depth around it, or the strongest
+  // gradient of each block), with their 3-D points, values and Jacobians; returns how many.
+  // Runs on the pool in fixed bands of block rows, so the result does not depend on the
+  // thread count: each band picks its pixels, then writes them after the earlier bands'.
   int select_pixels(int level, const Pinhole<S>& K);
+  struct Band {
+    int row0 = 0, row1 = 0;  // block rows [row0, row1)
+    int count = 0, offset = 0;
+    Eigen::Matrix<double, DoF, DoF> motion;  // the band's shares of motion0_, floor0_, radius2_sum_
+    Eigen::Matrix<double, DoF, 4> floor;
+    double radius2 = 0;
+  };
+  static constexpr int kBands = 16;
+  void pick_band(int level, Band& b);
+  void write_band(int level, const Pinhole<S>& K, Band& b);
+  // H = J^T W J over the selected pixels, in chunks of kChunk pixels summed in chunk order.
+  void hessian(int n, Eigen::Matrix<double, DoF, DoF>& H);
   void robust_weights(int n, const ImageView<const float>* weights, int level);
   // Residuals and J^T W r at `p`; returns the valid count, fills cost (sum w r^2), sum of w
   // and H_out (J^T W J over the pixels that left the image).
@@ -238,6 +254,9 @@ class Tracker {
     int valid;
   };
   std::vector<Partial, Eigen::aligned_allocator<Partial>> partials_;
+  std::vector<Band, Eigen::aligned_allocator<Band>> bands_;
+  std::vector<int> pick_;  // per block of the level: its chosen pixel (y * w + x), or -1
+  int pick_cols_ = 0, pick_block_ = 1;
   std::unique_ptr<ThreadPool> pool_;
   void evaluate_chunk(int chunk, int n, const Params& p, const Pinhole<S>& K);
   void add_left(Partial& P, int i);  // pixel i left the image: its share of H into H_out
