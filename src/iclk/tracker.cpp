@@ -321,9 +321,9 @@ void Tracker<S, Warp, C>::hessian(int n, Eigen::Matrix<double, DoF, DoF>& H) {
   } ctx{this, n};
   pool_->run(chunks, [](void* c, int chunk) {
     auto* x = static_cast<Ctx*>(c);
-    Partial& P = x->t->partials_[static_cast<std::size_t>(chunk)];
+    Partial& P = x->t->partials_[static_cast<std::size_t>(chunk)];  // its H_out as the chunk's sum
     P.H_out.setZero();
-    for (int i = chunk * kChunk; i < std::min(x->n, (chunk + 1) * kChunk); ++i) x->t->add_left(P, i);
+    for (int i = chunk * kChunk; i < std::min(x->n, (chunk + 1) * kChunk); ++i) x->t->add_outer(P, i);
   }, &ctx);
   H.setZero();
   for (int i = 0; i < chunks; ++i) H += partials_[static_cast<std::size_t>(i)].H_out;
@@ -371,7 +371,7 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
     P.valid = sums.valid;
     if (sums.valid == i1 - i0) return;  // every pixel landed: nothing leaves H
     for (int i = i0; i < i1; ++i)
-      if (!ok_[static_cast<std::size_t>(i)]) add_left(P, i);
+      if (!ok_[static_cast<std::size_t>(i)]) add_outer(P, i);
     return;
   }
   // Within a chunk the sums run in S (float: vectorisable, and 2048 terms lose less than the
@@ -387,7 +387,7 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
     inside = inside && u >= S(0) && v >= S(0) && u <= S(Lv.w - 1) && v <= S(Lv.h - 1);
     ok_[k] = inside;
     if (!inside) {
-      add_left(P, i);
+      add_outer(P, i);
       continue;
     }
     const int x0 = std::min(static_cast<int>(u), Lv.w - 2), y0 = std::min(static_cast<int>(v), Lv.h - 2);
@@ -412,7 +412,7 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
 }
 
 template <class S, class Warp, int C>
-void Tracker<S, Warp, C>::add_left(Partial& P, int i) {
+void Tracker<S, Warp, C>::add_outer(Partial& P, int i) {
   const double w = static_cast<double>(w_[static_cast<std::size_t>(i)]);
   if (!(w > 0)) return;
   for (int c = 0; c < C; ++c)

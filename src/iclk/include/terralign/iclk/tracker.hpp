@@ -259,7 +259,7 @@ class Tracker {
   int pick_cols_ = 0, pick_block_ = 1;
   std::unique_ptr<ThreadPool> pool_;
   void evaluate_chunk(int chunk, int n, const Params& p, const Pinhole<S>& K);
-  void add_left(Partial& P, int i);  // pixel i left the image: its share of H into H_out
+  void add_outer(Partial& P, int i);  // pixel i's share of J^T W J into P.H_out (a pixel that left; hessian())
   // The 6-DoF warp on one float channel has a vector kernel (evaluate_kernels.hpp).
   static constexpr bool kSe3Kernel = std::is_same_v<S, float> && std::is_same_v<Warp, SE3DepthWarp<float>> && C == 1;
   detail::Se3EvalFn se3_kernel_ = nullptr;
