@@ -246,6 +246,73 @@ TEST_CASE("the coarse search starts the coarsest level nearer a prior that is a 
   CHECK(start[1] < 0.5 * start[0]);
 }
 
+TEST_CASE("the tilt prior holds the answer's roll and pitch to the prior's and leaves heading and position free") {
+  auto naip = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(naip.ok());
+  const geo::CameraModel cam = test::paper_camera();
+  const geo::Pose truth = geo::pose_from_ypr({487450, 5207437, 570 + 800}, 30, 2, -3);
+  constexpr double kDeg = 3.14159265358979323846 / 180;
+  // The tilt of `prior` relative to it: the rotation log(R_init^T R) of T_live_ref about the
+  // axes orthogonal to the world's up in the reference camera, in degrees.
+  auto tilt_deg = [](const geo::Pose& prior, const SE3<double>& T_live_ref) {
+    const Vec3<double> u = prior.R().transpose() * Vec3<double>::UnitZ();
+    const Vec3<double> e = SE3<double>{T_live_ref.R, Vec3<double>::Zero()}.log().head<3>();
+    return (e - u * u.dot(e)).norm() / kDeg;
+  };
+  TrackerOptions opt;
+  opt.iterations = 50;
+  opt.coarse_search_px = 3;
+  // 1. The prior's roll and pitch are the truth's; heading 1.5 degrees and the position 16 m
+  //    off. A tight prior (0.05 deg) still finds heading and position: the EPE the solver
+  //    reaches without it (below 0.1 px, the coarse-search test's bound).
+  const geo::Pose level = geo::pose_from_ypr({487450 + 12, 5207437 - 9, 570 + 806}, 31.5, 2, -3);
+  const Pair p = render_pair(naip.value(), cam, level, truth, "2016", "2016");
+  CHECK(epe_px(p, SE3<double>::identity()) > 10);
+  opt.tilt_prior_rad = 0.05 * kDeg;
+  {
+    Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, opt);
+    tracker.set_up(level.R().transpose() * Vec3<double>::UnitZ());
+    const auto& res = tracker.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), p.K, SE3<double>::identity());
+    REQUIRE(res.converged);
+    MESSAGE("right tilt, 0.05 deg prior: EPE " << epe_px(p, res.params) << " px, tilt moved " << tilt_deg(level, res.params)
+                                               << " deg");
+    CHECK(epe_px(p, res.params) < 0.1);
+    CHECK(tilt_deg(level, res.params) < 0.05);
+  }
+  // 2. The prior's pitch 1 degree off the truth's. Without the prior (or without an up
+  //    vector) the answer's tilt moves the whole degree to the truth's. With a prior it is
+  //    the weighted mean of the two (MAP): this same-year pair alone pins the tilt to about
+  //    0.02 degree (its covariance), so a 0.001-degree prior keeps it within 0.05 degree of
+  //    the prior's, the image shift made up by the position.
+  const geo::Pose pitched = geo::pose_from_ypr({487450 + 12, 5207437 - 9, 570 + 806}, 31.5, 3, -3);
+  const Pair q = render_pair(naip.value(), cam, pitched, truth, "2016", "2016");
+  const double want = tilt_deg(pitched, q.T_live_ref_true);
+  CHECK(want == doctest::Approx(1.0).epsilon(0.02));
+  double moved[3] = {0, 0, 0};
+  Eigen::Matrix3d cov_rot = Eigen::Matrix3d::Zero();
+  for (int k = 0; k < 3; ++k) {  // no prior; a prior without an up vector; the prior
+    opt.tilt_prior_rad = k == 0 ? 0.0 : 0.001 * kDeg;
+    opt.registration_floor_px = 0;  // the covariance of the image term and the prior alone
+    Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, opt);
+    if (k == 2) tracker.set_up(pitched.R().transpose() * Vec3<double>::UnitZ());
+    const auto& res = tracker.align(q.ref_grey.view(), q.depth.view(), q.live_grey.view(), q.K, SE3<double>::identity());
+    REQUIRE(res.converged);
+    moved[k] = tilt_deg(pitched, res.params);
+    if (k == 2) cov_rot = res.covariance.topLeftCorner<3, 3>();
+  }
+  MESSAGE("pitch 1 deg off (truth " << want << "): tilt moved " << moved[0] << " deg without the prior, " << moved[1]
+                                    << " without an up vector, " << moved[2] << " with a 0.001 deg prior");
+  CHECK(moved[0] == doctest::Approx(want).epsilon(0.02));
+  CHECK(moved[1] == moved[0]);
+  CHECK(moved[2] < 0.05);
+  // The posterior's tilt variance is at most the prior's (about each horizontal axis).
+  const Vec3<double> u = pitched.R().transpose() * Vec3<double>::UnitZ();
+  const Vec3<double> a = u.unitOrthogonal(), b = u.cross(a);
+  const double s2 = std::pow(0.001 * kDeg, 2);
+  CHECK(a.dot(cov_rot * a) <= s2 * (1 + 1e-9));
+  CHECK(b.dot(cov_rot * b) <= s2 * (1 + 1e-9));
+}
+
 TEST_CASE("a pair with no texture reports failure instead of a pose") {
   const geo::Map map = test::flat_map(0.0, test::make_layer("grey", 400, 400, 0, 2000, 5.0, [](int, int, std::uint8_t* p) {
     p[0] = p[1] = p[2] = 120;

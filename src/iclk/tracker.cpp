@@ -636,6 +636,20 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
   Eigen::Matrix<double, DoF, DoF> H, Hout, Hv;
   Eigen::Matrix<double, DoF, 1> g;
   double cost = 0, wsum = 0;
+  // The tilt prior's information, (I - u u^T) / sigma^2 on the rotation, and the image
+  // term's noise sigma^2 f that scales it into the units of H (set when a level starts).
+  const bool tilt = Warp::kNeedsDepth && opt_.tilt_prior_rad > 0 && std::isfinite(opt_.tilt_prior_rad) &&
+                    up_.allFinite() && up_.norm() > 0;
+  Eigen::Matrix3d tilt_info = Eigen::Matrix3d::Zero();
+  if (tilt) {
+    const Eigen::Vector3d u = up_.normalized();
+    tilt_info = (Eigen::Matrix3d::Identity() - u * u.transpose()) / (opt_.tilt_prior_rad * opt_.tilt_prior_rad);
+  }
+  auto image_noise = [&](int n) {  // sigma^2 f of the last evaluate()
+    const double rho = std::min(std::max(residual_correlation(n), 0.0), 0.9);
+    return ((1 + rho) / (1 - rho)) * ((1 + rho) / (1 - rho)) * cost / std::max(wsum - DoF, 1.0);
+  };
+  double noise = 0;
   for (int level = opt_.levels - 1; level >= 0; --level) {
     cur_level_ = &levels_[static_cast<std::size_t>(level)];
     const auto tj = Clock::now();
@@ -706,7 +720,18 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       Hv = H - Hout;
       Eigen::Matrix<double, DoF, DoF> A = Hv;
       A.diagonal() *= 1.0 + opt_.lambda;
-      const Eigen::Matrix<double, DoF, 1> delta = A.ldlt().solve(g);
+      Eigen::Matrix<double, DoF, 1> rhs = g;
+      if (tilt) {
+        // Prior 1/2 e'^T P e' on the rotation e' = log(R_init^T R') after the step: the
+        // update R' = R exp(-delta) gives e' = e - delta (first order), so P joins H and
+        // P e joins g.
+        if (it == 0) noise = image_noise(n);
+        const Eigen::Matrix3d P = noise * tilt_info;
+        const Eigen::Vector3d e = SE3Log<Params>::of(init, p).template head<3>();
+        A.template topLeftCorner<3, 3>() += P;
+        rhs.template head<3>() += P * e;
+      }
+      const Eigen::Matrix<double, DoF, 1> delta = A.ldlt().solve(rhs);
       if (!delta.allFinite()) return fail("numerical failure: the step is not finite");
       if (Warp::kNeedsDepth) {
         if (delta.template head<3>().norm() > opt_.max_step_rotation ||
@@ -755,7 +780,9 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       R.residual_correlation = residual_correlation(n);
       const double rho = std::min(std::max(R.residual_correlation, 0.0), 0.9);
       R.covariance_inflation = ((1 + rho) / (1 - rho)) * ((1 + rho) / (1 - rho));
-      R.covariance = R.covariance_inflation * sigma2 * Hv.inverse();
+      Eigen::Matrix<double, DoF, DoF> Hp = Hv;  // with the tilt prior's information
+      if (tilt) Hp.template topLeftCorner<3, 3>() += R.covariance_inflation * sigma2 * tilt_info;
+      R.covariance = R.covariance_inflation * sigma2 * Hp.inverse();
       if (opt_.registration_floor_px > 0) {
         const Eigen::Matrix<double, DoF, DoF> M = motion0_.template selfadjointView<Eigen::Lower>();
         const Eigen::Matrix<double, DoF, DoF> Mi = M.inverse();

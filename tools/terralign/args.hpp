@@ -37,4 +37,9 @@ Status ensure_dir(const std::string& dir);
 // (weights/deep_iclk_s16.tlw in the source tree the program was built from).
 Result<nn::WeightFile> learned_weights(const Args& args);
 
+// --tilt-prior DEG: the standard deviation of the prior's tilt (roll and pitch, from an
+// attitude reference; iclk::TrackerOptions::tilt_prior_rad), in [0, 10] degrees; 0 (the
+// default): none.
+Result<double> parse_tilt_prior(const Args& args);
+
 }  // namespace terralign::cli

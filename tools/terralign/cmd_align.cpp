@@ -42,7 +42,8 @@ nlohmann::json pose_json(const geo::Pose& p) {
 }
 
 int run_align(const std::vector<std::string>& argv) {
-  auto args = Args::parse(argv, {"map", "camera", "image", "prior", "layer", "method", "iterations", "robust", "threads", "weights"}, {});
+  auto args = Args::parse(argv, {"map", "camera", "image", "prior", "layer", "method", "iterations", "robust", "threads", "weights",
+                                 "tilt-prior"}, {});
   if (!args.ok()) return usage_error("align", args.error());
   for (const char* k : {"map", "camera", "image", "prior", "layer"})
     if (!args->has(k)) return usage_error("align", Error{std::string("missing required option --") + k});
@@ -56,6 +57,8 @@ int run_align(const std::vector<std::string>& argv) {
   if (!robust.ok()) return usage_error("align", robust.error());
   auto prior = geo::parse_pose(args->get("prior"));
   if (!prior.ok()) return fail(prior.error());
+  auto tilt_prior = parse_tilt_prior(args.value());
+  if (!tilt_prior.ok()) return usage_error("align", tilt_prior.error());
 
   const auto t0 = std::chrono::steady_clock::now();
   auto map = geo::load_map(args->get("map"));
@@ -74,6 +77,7 @@ int run_align(const std::vector<std::string>& argv) {
   iclk::TrackerOptions opt;
   opt.iterations = iters.value();
   opt.robust = robust.value();
+  opt.tilt_prior_rad = tilt_prior.value() * 3.14159265358979323846 / 180;
   std::optional<nn::WeightFile> weights;
   if (method == "nn") {
     auto w = learned_weights(args.value());

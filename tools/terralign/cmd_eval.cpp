@@ -111,7 +111,7 @@ ImageU8 overlay(const ImageF& ref_grey, const ImageF& depth, const ImageF& query
 int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
-                                 "min-sharpness", "coarse-search", "input-scale", "nn-levels"}, {});
+                                 "min-sharpness", "coarse-search", "input-scale", "nn-levels", "imu-tilt", "tilt-prior"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -139,6 +139,11 @@ int run_eval(const std::vector<std::string>& argv) {
     return usage_error("eval", Error{"--min-sharpness must be in [-10, 10] (negative: no sharpness test)"});
   auto coarse_search = args->get_int("coarse-search", 0, -1, 16);
   if (!coarse_search.ok()) return usage_error("eval", coarse_search.error());
+  auto imu_tilt = args->get_double("imu-tilt", 0.0);
+  if (!imu_tilt.ok() || !(imu_tilt.value() >= 0 && imu_tilt.value() <= 10))
+    return usage_error("eval", Error{"--imu-tilt must be in [0, 10] degrees (0: the protocol's prior rotation)"});
+  auto tilt_prior = parse_tilt_prior(args.value());
+  if (!tilt_prior.ok()) return usage_error("eval", tilt_prior.error());
   // The learned tracker's working size and levels (as the firmware sets them): 0 keeps the
   // weight file's.
   LocalizerSizes sizes;
@@ -194,10 +199,11 @@ int run_eval(const std::vector<std::string>& argv) {
     area = area.intersect(a);
     if (area.empty()) return fail(Error{"--area '" + args->get("area") + "' does not overlap the map"});
   }
-  auto samples = sample_poses(map.value(), cam, area, count.value(), seed, lo, hi, tilt.value());
+  auto samples = sample_poses(map.value(), cam, area, count.value(), seed, lo, hi, tilt.value(), imu_tilt.value());
   if (!samples.ok()) return fail(samples.error());
 
   iclk::TrackerOptions opt;
+  opt.tilt_prior_rad = tilt_prior.value() * kPi / 180;
   opt.robust = robust.value();
   opt.levels = levels.value();
   opt.min_sharpness = min_sharpness.value();

@@ -21,7 +21,7 @@ const std::vector<Command>& commands() {
       {"align", "align one camera image to the map from a prior pose; prints the pose as JSON",
        "usage: terralign align --map MAP.json --camera CAMERA.json --image IMG --prior \"x y z qw qx qy qz\"\n"
        "                       --layer NAME [--method classic|nn] [--iterations N] [--robust none|huber|tukey]\n"
-       "                       [--threads N] [--weights FILE]\n\n"
+       "                       [--threads N] [--weights FILE] [--tilt-prior DEG]\n\n"
        "Renders LAYER at the prior, aligns the image to it (inverse-compositional LM on SE(3),\n"
        "4 levels, N iterations per level, default 20) and prints {\"pose\", \"covariance\",\n"
        "\"converged\", \"reason\", \"iterations\", \"ms\"}. The covariance is 6x6 over\n"
@@ -30,14 +30,18 @@ const std::vector<Command>& commands() {
        "pose printed is then the prior).\n"
        "--method nn: the learned tracker (encoder features, learned M-estimator, the same LM) at\n"
        "the weights' working size (half the camera's for the shipped weights); --weights FILE\n"
-       "for weights other than the shipped weights/deep_iclk_s16.tlw.\n",
+       "for weights other than the shipped weights/deep_iclk_s16.tlw.\n"
+       "--tilt-prior DEG: the prior's roll and pitch come from an attitude reference (an IMU) good\n"
+       "to DEG degrees (1 sigma per axis); the answer's tilt is held to them with that weight while\n"
+       "its heading and position stay free (default 0: no tilt prior).\n",
        run_align},
       {"eval", "the paper's evaluation: sampled poses, rendered pairs, error tables per method",
        "usage: terralign eval --map MAP.json --camera CAMERA.json --ref-layer A --query-layer B --count N\n"
        "                      --seed S --altitude LO:HI [--tilt DEG] [--methods init,classic:20,classic:50]\n"
        "                      [--robust none|huber|tukey] [--levels L] [--json OUT] [--overlays DIR]\n"
        "                      [--threads N] [--weights FILE] [--area MINX,MINY,MAXX,MAXY]\n"
-       "                      [--min-sharpness S] [--coarse-search PX] [--input-scale S] [--nn-levels L]\n\n"
+       "                      [--min-sharpness S] [--coarse-search PX] [--input-scale S] [--nn-levels L]\n"
+       "                      [--imu-tilt DEG] [--tilt-prior DEG]\n\n"
        "Samples N true poses with the whole footprint on the map (altitude above ground in\n"
        "[LO, HI] m, tilt off nadir up to DEG, any heading), perturbs each for the prior (rotation\n"
        "about a random axis by U[0, 6] deg, translation by U[0, 0.13 x altitude] m in a random\n"
@@ -53,7 +57,11 @@ const std::vector<Command>& commands() {
        "reported as failed (the prior). --coarse-search sets both trackers' search before the\n"
        "coarsest level (PX coarsest-level pixels each way; default: 4 classic, 2 learned, which also\n"
        "turns up to 4 degrees about the optical axis; negative: none). --input-scale and --nn-levels run the learned tracker at another working size and\n"
-       "number of levels than the weight file's (as the firmware does: 1 and 4 at 188 x 120).\n",
+       "number of levels than the weight file's (as the firmware does: 1 and 4 at 188 x 120).\n"
+       "--imu-tilt DEG: the priors' tilt error is an attitude reference's, N(0, DEG^2) about each\n"
+       "horizontal axis, instead of the protocol's (their heading error, the true poses and the\n"
+       "priors' positions stay the protocol's); --tilt-prior DEG: both trackers hold the answer's\n"
+       "tilt to the prior's with that sigma (as align's --tilt-prior).\n",
        run_eval},
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
        "usage: terralign flight --map MAP.json --camera CAMERA.json --layer NAME --path lawnmower|circle|FILE\n"

@@ -89,6 +89,10 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   const iclk::Pinhole<float> K{static_cast<float>(work_.fx), static_cast<float>(work_.fy), static_cast<float>(work_.cx),
                                static_cast<float>(work_.cy)};
   const iclk::TrackResult<iclk::SE3DepthWarp<float>>* rp = nullptr;
+  // The reference camera is the prior's: the world's up seen from it (the tilt prior's axis).
+  const Eigen::Vector3d up = prior.R().transpose() * Eigen::Vector3d::UnitZ();
+  if (deep_) deep_->set_up(up);
+  else tracker_->set_up(up);
   if (deep_) {
     // The reference as float RGB; the live image box-averaged down to the working size.
     for (std::size_t k = 0; k < ref_rgb_.size(); ++k) ref_rgb_.data()[k] = ref_.rgb[0].data()[k];

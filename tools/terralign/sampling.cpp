@@ -41,8 +41,10 @@ bool ground_hit(const geo::Pose& T, const geo::CameraModel& cam, double u, doubl
 }  // namespace
 
 Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, const geo::Extent& e, int count,
-                                         std::uint64_t seed, double lo, double hi, double tilt_deg) {
+                                         std::uint64_t seed, double lo, double hi, double tilt_deg,
+                                         double imu_tilt_deg) {
   Rng rng{seed};
+  Rng imu{seed ^ 0x1e5a7c3b9d2f4601ULL};
   std::vector<Sample> out;
   for (int i = 0; i < count; ++i) {
     bool placed = false;
@@ -78,6 +80,16 @@ Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraM
       const Eigen::Vector3d dir = rng.unit();
       s.prior.q_W_C = (T.q_W_C * Eigen::Quaterniond(Eigen::AngleAxisd(angle, raxis))).normalized();
       s.prior.t_W_C = T.t_W_C + len * dir;
+      if (imu_tilt_deg > 0) {
+        // The error as a rotation vector in world axes: keep its vertical part (heading),
+        // draw the horizontal ones (tilt) as the IMU's.
+        Eigen::Vector3d phi = T.R() * (angle * raxis);
+        phi.x() = imu.normal() * imu_tilt_deg * kPi / 180;
+        phi.y() = imu.normal() * imu_tilt_deg * kPi / 180;
+        const double a = phi.norm();
+        const Eigen::Quaterniond err = a > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(a, phi / a)) : Eigen::Quaterniond::Identity();
+        s.prior.q_W_C = (err * T.q_W_C).normalized();
+      }
       out.push_back(s);
       placed = true;
     }

@@ -30,7 +30,12 @@ struct Sample {
 // `area`: altitude above ground in [lo, hi], tilt off nadir up to tilt_deg in a random
 // direction, any heading; each prior rotated about a random axis by U[0, 6] deg and moved by
 // U[0, 0.13 x altitude] m in a random direction.
+// imu_tilt_deg > 0 models an attitude reference that survives the GPS failure: the prior's
+// rotation error about the world's two horizontal axes is replaced by N(0, imu_tilt_deg^2)
+// each (its heading error, about the vertical, stays the protocol's). Those draws come from a
+// second stream, so the true poses and the priors' positions are the protocol's.
 Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, const geo::Extent& area, int count,
-                                         std::uint64_t seed, double lo, double hi, double tilt_deg);
+                                         std::uint64_t seed, double lo, double hi, double tilt_deg,
+                                         double imu_tilt_deg = 0);
 
 }  // namespace terralign::cli

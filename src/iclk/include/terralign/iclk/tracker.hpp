@@ -91,6 +91,15 @@ struct TrackerOptions {
   // Widens the basin for a prior a few coarsest pixels off, which the steps alone can miss.
   int coarse_search_px = 0;
   double coarse_search_yaw_deg = 0;
+  // An attitude reference, as an aircraft's IMU still gives while GPS fails (6-DoF warp):
+  // the answer's tilt, its rotation relative to the initial parameters about the two axes
+  // orthogonal to the world's up (Tracker::set_up), is held to a Gaussian prior of this
+  // standard deviation per axis, in rad (0: none). The heading and the position stay free.
+  // Weighed against the image term at its noise (sigma^2 f, TrackResult::covariance, f
+  // measured when each level starts) in every step, and part of the covariance. Images of
+  // distant years agree on where things are better than on the perspective: without it the
+  // learned tracker trades a tilt error for a shift (README).
+  double tilt_prior_rad = 0;
   int threads = 1;                   // residuals in fixed chunks: same result on any count
   // The vector (AVX2) residual kernel where the CPU has it; false: its scalar twin. Both give
   // the same bits (evaluate_kernels.hpp); tests compare them.
@@ -183,6 +192,11 @@ class Tracker {
 
   const TrackResult<Warp>& result() const { return result_; }
 
+  // The world's up direction in the reference camera's frame, for the tilt prior
+  // (TrackerOptions::tilt_prior_rad); kept for the next align() calls. Zero, or not finite:
+  // no prior.
+  void set_up(const Eigen::Vector3d& up_in_reference) { up_ = up_in_reference; }
+
  private:
   struct Level {
     int w = 0, h = 0;
@@ -245,6 +259,7 @@ class Tracker {
   Eigen::Matrix<double, DoF, 4> floor0_;
   double radius2_sum_ = 0;
   const Level* cur_level_ = nullptr;
+  Eigen::Vector3d up_ = Eigen::Vector3d::Zero();
   // Per chunk of kChunk pixels: partial sums, combined in chunk order.
   static constexpr int kChunk = 2048;
   struct Partial {
