@@ -37,6 +37,13 @@ void normalize(ImageF& img, const ImageF* mask) {
     img.data()[k] = static_cast<float>((img.data()[k] - mean) * inv);
 }
 
+// The covariance inflation f = ((1 + rho) / (1 - rho))^2 of a residual field whose
+// neighbours correlate by rho, clamped to [0, 0.9] (TrackResult::covariance).
+double inflation_of(double rho) {
+  rho = std::min(std::max(rho, 0.0), 0.9);
+  return ((1 + rho) / (1 - rho)) * ((1 + rho) / (1 - rho));
+}
+
 }  // namespace
 
 void rgb_to_grey(ImageView<const std::uint8_t> rgb, ImageF& grey) {
@@ -646,8 +653,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
     tilt_info = (Eigen::Matrix3d::Identity() - u * u.transpose()) / (opt_.tilt_prior_rad * opt_.tilt_prior_rad);
   }
   auto image_noise = [&](int n) {  // sigma^2 f of the last evaluate()
-    const double rho = std::min(std::max(residual_correlation(n), 0.0), 0.9);
-    return ((1 + rho) / (1 - rho)) * ((1 + rho) / (1 - rho)) * cost / std::max(wsum - DoF, 1.0);
+    return inflation_of(residual_correlation(n)) * cost / std::max(wsum - DoF, 1.0);
   };
   double noise = 0;
   for (int level = opt_.levels - 1; level >= 0; --level) {
@@ -778,8 +784,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       }
       const double sigma2 = cost / std::max(wsum - DoF, 1.0);
       R.residual_correlation = residual_correlation(n);
-      const double rho = std::min(std::max(R.residual_correlation, 0.0), 0.9);
-      R.covariance_inflation = ((1 + rho) / (1 - rho)) * ((1 + rho) / (1 - rho));
+      R.covariance_inflation = inflation_of(R.residual_correlation);
       Eigen::Matrix<double, DoF, DoF> Hp = Hv;  // with the tilt prior's information
       if (tilt) Hp.template topLeftCorner<3, 3>() += R.covariance_inflation * sigma2 * tilt_info;
       R.covariance = R.covariance_inflation * sigma2 * Hp.inverse();
