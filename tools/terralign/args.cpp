@@ -90,7 +90,7 @@ Result<double> parse_tilt_prior(const Args& args) {
   auto v = args.get_double("tilt-prior", 0.0);
   if (!v.ok() || !(v.value() >= 0 && v.value() <= 10))
     return Error{"--tilt-prior '" + args.get("tilt-prior") + "' must be in [0, 10] degrees (0: no tilt prior)"};
-  return v.value();
+  return v.value() * 3.14159265358979323846 / 180;
 }
 
 }  // namespace terralign::cli

@@ -38,8 +38,8 @@ Status ensure_dir(const std::string& dir);
 Result<nn::WeightFile> learned_weights(const Args& args);
 
 // --tilt-prior DEG: the standard deviation of the prior's tilt (roll and pitch, from an
-// attitude reference; iclk::TrackerOptions::tilt_prior_rad), in [0, 10] degrees; 0 (the
-// default): none.
+// attitude reference), in [0, 10] degrees; 0 (the default): none. Returned in radians, for
+// iclk::TrackerOptions::tilt_prior_rad.
 Result<double> parse_tilt_prior(const Args& args);
 
 }  // namespace terralign::cli

@@ -77,7 +77,7 @@ int run_align(const std::vector<std::string>& argv) {
   iclk::TrackerOptions opt;
   opt.iterations = iters.value();
   opt.robust = robust.value();
-  opt.tilt_prior_rad = tilt_prior.value() * 3.14159265358979323846 / 180;
+  opt.tilt_prior_rad = tilt_prior.value();
   std::optional<nn::WeightFile> weights;
   if (method == "nn") {
     auto w = learned_weights(args.value());

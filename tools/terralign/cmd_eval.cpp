@@ -203,7 +203,7 @@ int run_eval(const std::vector<std::string>& argv) {
   if (!samples.ok()) return fail(samples.error());
 
   iclk::TrackerOptions opt;
-  opt.tilt_prior_rad = tilt_prior.value() * kPi / 180;
+  opt.tilt_prior_rad = tilt_prior.value();
   opt.robust = robust.value();
   opt.levels = levels.value();
   opt.min_sharpness = min_sharpness.value();

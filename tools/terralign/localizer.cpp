@@ -91,9 +91,8 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   const iclk::TrackResult<iclk::SE3DepthWarp<float>>* rp = nullptr;
   // The reference camera is the prior's: the world's up seen from it (the tilt prior's axis).
   const Eigen::Vector3d up = prior.R().transpose() * Eigen::Vector3d::UnitZ();
-  if (deep_) deep_->set_up(up);
-  else tracker_->set_up(up);
   if (deep_) {
+    deep_->set_up(up);
     // The reference as float RGB; the live image box-averaged down to the working size.
     for (std::size_t k = 0; k < ref_rgb_.size(); ++k) ref_rgb_.data()[k] = ref_.rgb[0].data()[k];
     const int f = camera_.width / work_.width;
@@ -111,6 +110,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     }
     rp = &deep_->align(ref_rgb_.view(), depth_.view(), live_rgb_.view(), K, iclk::SE3<float>::identity());
   } else {
+    tracker_->set_up(up);
     iclk::rgb_to_grey(ref_.rgb[0].view(), ref_grey_);
     iclk::rgb_to_grey(live, live_grey_);
     rp = &tracker_->align(ref_grey_.view(), depth_.view(), live_grey_.view(), K, iclk::SE3<float>::identity());
