@@ -646,7 +646,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
   // The tilt prior's information, (I - u u^T) / sigma^2 on the rotation, and the image
   // term's noise sigma^2 f that scales it into the units of H (set when a level starts).
   const bool tilt = Warp::kNeedsDepth && opt_.tilt_prior_rad > 0 && std::isfinite(opt_.tilt_prior_rad) &&
-                    up_.allFinite() && up_.norm() > 0;
+                    up_.allFinite() && up_.norm() > 0 && tilt_.allFinite();
   Eigen::Matrix3d tilt_info = Eigen::Matrix3d::Zero();
   if (tilt) {
     const Eigen::Vector3d u = up_.normalized();
@@ -728,12 +728,12 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       A.diagonal() *= 1.0 + opt_.lambda;
       Eigen::Matrix<double, DoF, 1> rhs = g;
       if (tilt) {
-        // Prior 1/2 e'^T P e' on the rotation e' = log(R_init^T R') after the step: the
-        // update R' = R exp(-delta) gives e' = e - delta (first order), so P joins H and
+        // Prior 1/2 e'^T P e' on the rotation e' = log(R_init^T R') - tilt_ after the step:
+        // the update R' = R exp(-delta) gives e' = e - delta (first order), so P joins H and
         // P e joins g.
         if (it == 0) noise = image_noise(n);
         const Eigen::Matrix3d P = noise * tilt_info;
-        const Eigen::Vector3d e = SE3Log<Params>::of(init, p).template head<3>();
+        const Eigen::Vector3d e = SE3Log<Params>::of(init, p).template head<3>() - tilt_;
         A.template topLeftCorner<3, 3>() += P;
         rhs.template head<3>() += P * e;
       }

@@ -72,7 +72,8 @@ Eigen::Matrix<double, 6, 6> covariance_in_world(const Eigen::Matrix<double, 6, 6
   return J * cov_ref * J.transpose();
 }
 
-Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, const geo::Pose& prior) {
+Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, const geo::Pose& prior,
+                                           const Eigen::Quaterniond* attitude) {
   if (live.width != camera_.width || live.height != camera_.height || live.channels != 3)
     return Error{"live image is " + std::to_string(live.width) + " x " + std::to_string(live.height) + " x " +
                  std::to_string(live.channels) + ", the camera is " + std::to_string(camera_.width) + " x " +
@@ -89,10 +90,17 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   const iclk::Pinhole<float> K{static_cast<float>(work_.fx), static_cast<float>(work_.fy), static_cast<float>(work_.cx),
                                static_cast<float>(work_.cy)};
   const iclk::TrackResult<iclk::SE3DepthWarp<float>>* rp = nullptr;
-  // The reference camera is the prior's: the world's up seen from it (the tilt prior's axis).
+  // The reference camera is the prior's: the world's up seen from it (the tilt prior's axis),
+  // and the attitude's rotation of the live camera relative to it, log(R_live^T R_ref), the
+  // rotation of T_live_ref that the prior holds (the tracker starts from the identity).
   const Eigen::Vector3d up = prior.R().transpose() * Eigen::Vector3d::UnitZ();
+  Eigen::Vector3d tilt = Eigen::Vector3d::Zero();
+  if (attitude) {
+    const Eigen::AngleAxisd a(attitude->conjugate() * prior.q_W_C);
+    tilt = a.angle() * a.axis();
+  }
   if (deep_) {
-    deep_->set_up(up);
+    deep_->set_up(up, tilt);
     // The reference as float RGB; the live image box-averaged down to the working size.
     for (std::size_t k = 0; k < ref_rgb_.size(); ++k) ref_rgb_.data()[k] = ref_.rgb[0].data()[k];
     const int f = camera_.width / work_.width;
@@ -110,7 +118,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     }
     rp = &deep_->align(ref_rgb_.view(), depth_.view(), live_rgb_.view(), K, iclk::SE3<float>::identity());
   } else {
-    tracker_->set_up(up);
+    tracker_->set_up(up, tilt);
     iclk::rgb_to_grey(ref_.rgb[0].view(), ref_grey_);
     iclk::rgb_to_grey(live, live_grey_);
     rp = &tracker_->align(ref_grey_.view(), depth_.view(), live_grey_.view(), K, iclk::SE3<float>::identity());

@@ -63,8 +63,11 @@ class Localizer {
                                                    const std::string& layer, const iclk::TrackerOptions& options,
                                                    int threads, const nn::WeightFile* weights = nullptr,
                                                    const LocalizerSizes& sizes = {});
-  // live: the camera image, 3-channel RGB of the camera's size.
-  Result<LocalizeOutput> localize(ImageView<const std::uint8_t> live, const geo::Pose& prior);
+  // live: the camera image, 3-channel RGB of the camera's size. attitude: an attitude
+  // reference's R_W_C for this image (an IMU's); with TrackerOptions::tilt_prior_rad the
+  // answer's tilt is held to its roll and pitch (none: to the prior's).
+  Result<LocalizeOutput> localize(ImageView<const std::uint8_t> live, const geo::Pose& prior,
+                                  const Eigen::Quaterniond* attitude = nullptr);
   void set_iterations(int n);
   const raster::RenderOutput& reference() const { return ref_; }
   const ImageF& reference_depth() const { return depth_; }

@@ -64,7 +64,9 @@ class DeepAligner : public iclk::LevelWeights {
                                        const iclk::SE3<float>& init);
   void set_iterations(int n);
   // The world's up in the reference camera (iclk::Tracker::set_up), for the tilt prior.
-  void set_up(const Eigen::Vector3d& up_in_reference) { tracker_->set_up(up_in_reference); }
+  void set_up(const Eigen::Vector3d& up_in_reference, const Eigen::Vector3d& tilt = Eigen::Vector3d::Zero()) {
+    tracker_->set_up(up_in_reference, tilt);
+  }
   int level_count() const { return levels_; }
   // The weights of each level from the last align() (level 0 finest), for figures and tests.
   const ImageF& weights_of(int level) const { return w_[static_cast<std::size_t>(level)]; }

@@ -194,8 +194,14 @@ class Tracker {
 
   // The world's up direction in the reference camera's frame, for the tilt prior
   // (TrackerOptions::tilt_prior_rad); kept for the next align() calls. Zero, or not finite:
-  // no prior.
-  void set_up(const Eigen::Vector3d& up_in_reference) { up_ = up_in_reference; }
+  // no prior. `tilt`: the attitude reference's rotation of the answer relative to the initial
+  // parameters, log(R_init^T R) (rad, the rotation part of the parameters' log), where the
+  // reference's tilt is not the initial parameters' (zero: it is); only its part about the
+  // two axes orthogonal to up counts.
+  void set_up(const Eigen::Vector3d& up_in_reference, const Eigen::Vector3d& tilt = Eigen::Vector3d::Zero()) {
+    up_ = up_in_reference;
+    tilt_ = tilt;
+  }
 
  private:
   struct Level {
@@ -259,7 +265,7 @@ class Tracker {
   Eigen::Matrix<double, DoF, 4> floor0_;
   double radius2_sum_ = 0;
   const Level* cur_level_ = nullptr;
-  Eigen::Vector3d up_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d up_ = Eigen::Vector3d::Zero(), tilt_ = Eigen::Vector3d::Zero();
   // Per chunk of kChunk pixels: partial sums, combined in chunk order.
   static constexpr int kChunk = 2048;
   struct Partial {
