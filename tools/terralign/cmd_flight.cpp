@@ -81,7 +81,7 @@ void box_blur(ImageU8& img, int r) {
 
 int run_flight(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "path", "speed", "rate", "out", "altitude", "duration", "noise",
-                                 "blur", "exposure", "seed", "tilt"}, {});
+                                 "blur", "exposure", "seed", "tilt", "imu-tilt"}, {});
   if (!args.ok()) return usage_error("flight", args.error());
   for (const char* k : {"map", "camera", "layer", "path", "speed", "rate", "out"})
     if (!args->has(k)) return usage_error("flight", Error{std::string("missing required option --") + k});
@@ -92,15 +92,18 @@ int run_flight(const std::vector<std::string>& argv) {
   auto noise = args->get_double("noise", 0);
   auto exposure = args->get_double("exposure", 0);
   auto tilt = args->get_double("tilt", 0);
+  auto imu_tilt = args->get_double("imu-tilt", 0);
   auto blur = args->get_int("blur", 0, 0, 10);
   auto seed = args->get_int("seed", 1, 0, 1 << 30);
-  for (auto* r : {&speed, &rate, &altitude, &duration, &noise, &exposure, &tilt})
+  for (auto* r : {&speed, &rate, &altitude, &duration, &noise, &exposure, &tilt, &imu_tilt})
     if (!r->ok()) return usage_error("flight", r->error());
   if (!blur.ok()) return usage_error("flight", blur.error());
   if (!seed.ok()) return usage_error("flight", seed.error());
   if (!(speed.value() > 0) || !(rate.value() > 0) || !(altitude.value() > 0) || !(duration.value() > 0) ||
-      noise.value() < 0 || exposure.value() < 0 || exposure.value() >= 1 || tilt.value() < 0 || tilt.value() > 60)
-    return usage_error("flight", Error{"--speed, --rate, --altitude, --duration must be > 0; --noise >= 0; --exposure in [0, 1); --tilt in [0, 60]"});
+      noise.value() < 0 || exposure.value() < 0 || exposure.value() >= 1 || tilt.value() < 0 || tilt.value() > 60 ||
+      !(imu_tilt.value() >= 0 && imu_tilt.value() <= 10))
+    return usage_error("flight", Error{"--speed, --rate, --altitude, --duration must be > 0; --noise >= 0; --exposure in [0, 1); "
+                                       "--tilt in [0, 60]; --imu-tilt in [0, 10]"});
   auto map = geo::load_map(args->get("map"));
   if (!map.ok()) return fail(map.error());
   auto cam_in = geo::load_camera(args->get("camera"));
@@ -120,7 +123,9 @@ int run_flight(const std::vector<std::string>& argv) {
     if (auto st = ensure_dir(d); !st.ok()) return fail(st.error());
 
   Rng rng{static_cast<std::uint64_t>(seed.value())};
-  std::string list, truth;
+  // The attitude reference's errors: a second stream, so the frames do not depend on it.
+  Rng imu{static_cast<std::uint64_t>(seed.value()) ^ 0x1e5a7c3b9d2f4601ULL};
+  std::string list, truth, attitude;
   const int frames = static_cast<int>(duration.value() * rate.value());
   std::size_t leg = 0;
   double along = 0;  // metres along the current leg
@@ -158,12 +163,19 @@ int run_flight(const std::vector<std::string>& argv) {
     std::snprintf(line, sizeof line, "%.6f %s\n", t, name);
     list += line;
     truth += std::to_string(t) + " " + geo::format_pose(T) + "\n";
+    if (imu_tilt.value() > 0) {
+      const Eigen::Quaterniond q = attitude_reading(T.q_W_C, imu, imu_tilt.value());
+      std::snprintf(line, sizeof line, "%.6f %.9f %.9f %.9f %.9f\n", t, q.w(), q.x(), q.y(), q.z());
+      attitude += line;
+    }
     std::fprintf(stderr, "\rframe %d/%d", i + 1, frames);
   }
   std::fprintf(stderr, "\n");
   if (auto s = geo::write_file_atomic(out + "/list.txt", list.data(), list.size()); !s.ok()) return fail(s.error());
   if (auto s = geo::write_file_atomic(out + "/truth.txt", truth.data(), truth.size()); !s.ok()) return fail(s.error());
-  std::printf("%s/list.txt, %s/truth.txt\n", out.c_str(), out.c_str());
+  if (imu_tilt.value() > 0)
+    if (auto s = geo::write_file_atomic(out + "/attitude.txt", attitude.data(), attitude.size()); !s.ok()) return fail(s.error());
+  std::printf("%s/list.txt, %s/truth.txt%s\n", out.c_str(), out.c_str(), imu_tilt.value() > 0 ? ", attitude.txt" : "");
   return 0;
 }
 

@@ -16,6 +16,7 @@
 #include "commands.hpp"
 #include "common.hpp"
 #include "localizer.hpp"
+#include "sampling.hpp"
 
 namespace terralign::cli {
 
@@ -53,6 +54,39 @@ Result<std::vector<Frame>> read_list(const std::string& list) {
   return frames;
 }
 
+// An attitude reference's rotations, one `timestamp qw qx qy qz` a line, one for each frame
+// at the frame's time (within 1 microsecond).
+Result<std::vector<Eigen::Quaterniond>> read_attitude(const std::string& path, const std::vector<Frame>& frames) {
+  std::ifstream in(path);
+  if (!in) return Error{path + ": cannot open the attitude readings"};
+  std::vector<Eigen::Quaterniond> out;
+  std::string line;
+  int n = 0;
+  while (std::getline(in, line)) {
+    ++n;
+    if (line.find_first_not_of(" \t\r") == std::string::npos || line[0] == '#') continue;
+    const std::string where = path + ":" + std::to_string(n) + ": ";
+    std::istringstream s(line);
+    double t, w, x, y, z;
+    if (!(s >> t >> w >> x >> y >> z) || !std::isfinite(t) || !std::isfinite(w) || !std::isfinite(x) || !std::isfinite(y) ||
+        !std::isfinite(z))
+      return Error{where + "expected 'timestamp qw qx qy qz' (finite numbers), got '" + line + "'"};
+    const Eigen::Quaterniond q(w, x, y, z);
+    if (std::abs(q.norm() - 1.0) > 1e-3)
+      return Error{where + "quaternion norm " + std::to_string(q.norm()) + ", must be 1 (within 1e-3)"};
+    if (out.size() >= frames.size())
+      return Error{where + "more attitude readings than the " + std::to_string(frames.size()) + " frames"};
+    const Frame& f = frames[out.size()];
+    if (!(std::abs(t - f.t) <= 1e-6 * std::max(1.0, std::abs(f.t))))
+      return Error{where + "timestamp " + std::to_string(t) + " is not frame " + std::to_string(out.size()) + "'s (" +
+                   std::to_string(f.t) + ")"};
+    out.push_back(q.normalized());
+  }
+  if (out.size() != frames.size())
+    return Error{path + ": " + std::to_string(out.size()) + " attitude readings for " + std::to_string(frames.size()) + " frames"};
+  return out;
+}
+
 // Constant velocity: extrapolate from the last two estimates by dt / dt_prev.
 geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, double t_last, double t) {
   const double s = (t - t_last) / std::max(t_last - t_prev, 1e-9);
@@ -67,7 +101,7 @@ geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, d
 
 int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
-                                 "threads", "weights"}, {});
+                                 "threads", "weights", "attitude", "tilt-prior"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
@@ -86,8 +120,19 @@ int run_track(const std::vector<std::string>& argv) {
   auto cam_in = geo::load_camera(args->get("camera"));
   if (!cam_in.ok()) return fail(cam_in.error());
   const geo::CameraModel cam = pinhole_of(cam_in.value());
+  auto tilt_prior = parse_tilt_prior(args.value());
+  if (!tilt_prior.ok()) return usage_error("track", tilt_prior.error());
+  if (tilt_prior.value() > 0 && !args->has("attitude"))
+    return usage_error("track", Error{"--tilt-prior needs --attitude FILE: the tilt it holds the answer to"});
+  std::vector<Eigen::Quaterniond> attitude;
+  if (args->has("attitude")) {
+    auto a = read_attitude(args->get("attitude"), frames.value());
+    if (!a.ok()) return fail(a.error());
+    attitude = std::move(a.value());
+  }
   iclk::TrackerOptions opt;
   opt.iterations = iters.value();
+  opt.tilt_prior_rad = tilt_prior.value();
   std::optional<nn::WeightFile> weights;
   if (method == "nn") {
     auto w = learned_weights(args.value());
@@ -127,6 +172,11 @@ int run_track(const std::vector<std::string>& argv) {
   for (std::size_t i = 0; i < frames->size(); ++i) {
     const Frame& f = frames.value()[i];
     geo::Pose prior = good_in_a_row >= 2 ? predict(prev, t_prev, last, t_last, f.t) : last;
+    // With an attitude reference the start keeps the prediction's tilt when two converged
+    // frames made it (starting from the IMU's instead: same-year RMSE 0.16 -> 0.31 m, across
+    // a year 7.5 -> 8.1 m, README), else takes the IMU's; the tilt prior holds the answer to
+    // the IMU's either way.
+    if (!attitude.empty() && good_in_a_row < 2) prior.q_W_C = with_tilt_of(prior.q_W_C, attitude[i]);
     geo::Pose estimate = prior;
     bool ok = false;
     std::string reason;
@@ -145,7 +195,7 @@ int run_track(const std::vector<std::string>& argv) {
                  ", the camera " + std::to_string(cam.width) + " x " + std::to_string(cam.height);
       } else {
         ImageU8 live = cam_in->model == geo::DistortionModel::None ? std::move(img.value()) : undistort(img->view(), cam_in.value());
-        auto out = loc.value()->localize(live.view(), prior);
+        auto out = loc.value()->localize(live.view(), prior, attitude.empty() ? nullptr : &attitude[i]);
         if (!out.ok()) {
           reason = out.error().message;
         } else {

@@ -66,17 +66,20 @@ const std::vector<Command>& commands() {
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
        "usage: terralign flight --map MAP.json --camera CAMERA.json --layer NAME --path lawnmower|circle|FILE\n"
        "                        --speed M/S --rate HZ --out DIR [--altitude M] [--duration S] [--tilt DEG]\n"
-       "                        [--noise SIGMA] [--blur R] [--exposure F] [--seed S]\n\n"
+       "                        [--noise SIGMA] [--blur R] [--exposure F] [--seed S] [--imu-tilt DEG]\n\n"
        "Flies the path (FILE: one 'x y' waypoint a line) at ALTITUDE m above the terrain (default\n"
        "800), heading along the path, and writes DIR/frames/NNNNNN.png, DIR/list.txt\n"
        "('timestamp path' a line) and DIR/truth.txt ('timestamp x y z qw qx qy qz'). Per frame:\n"
-       "Gaussian noise of SIGMA grey levels, a box blur of radius R, an exposure gain in 1 +- F.\n",
+       "Gaussian noise of SIGMA grey levels, a box blur of radius R, an exposure gain in 1 +- F.\n"
+       "--imu-tilt DEG also writes DIR/attitude.txt ('timestamp qw qx qy qz'): an attitude\n"
+       "reference's readings, the true rotation with N(0, DEG^2) about each horizontal world axis\n"
+       "(drawn per frame from a second stream; the frames stay the same), for track's --attitude.\n",
        run_flight},
       {"track", "track a flight: each frame's prior from the last estimate (constant velocity)",
        "usage: terralign track --map MAP.json --camera CAMERA.json --layer NAME --images LIST\n"
        "                       --init \"x y z qw qx qy qz\" [--method classic|nn] [--out poses.csv]\n"
        "                       [--truth POSES] [--json SUMMARY] [--iterations N] [--threads N]\n"
-       "                       [--weights FILE]\n\n"
+       "                       [--weights FILE] [--attitude FILE [--tilt-prior DEG]]\n\n"
        "LIST has 'timestamp image-path' lines. Each frame's prior is the last estimate, moved by\n"
        "the velocity of the last two converged frames; a frame that fails (not converged, an\n"
        "unreadable or wrongly sized image, a timestamp going backwards) keeps the prediction and\n"
@@ -84,7 +87,11 @@ const std::vector<Command>& commands() {
        "ms, latitude, longitude, height (where the map has a CRS) and the 6x6 covariance (row-major,\n"
        "[dtheta (rad, world axes); dp (m)]). With --truth, the summary (stderr and --json) has\n"
        "frames, converged_fraction, position_rmse_m, angle_rmse_deg, the maxima and nees_mean.\n"
-       "--method nn tracks with the learned tracker (--weights as for align).\n",
+       "--method nn tracks with the learned tracker (--weights as for align).\n"
+       "--attitude FILE: an attitude reference (an IMU) that outlives the GPS, 'timestamp qw qx qy\n"
+       "qz' a line, one per frame at its timestamp; each prior takes its roll and pitch (the heading\n"
+       "stays the prediction's). --tilt-prior DEG then holds the answer's tilt to it with that\n"
+       "sigma (as align's).\n",
        run_track},
       {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
        "usage: terralign dataset --map MAP.json --camera CAMERA.json --count N --seed S --out DIR\n"

@@ -38,6 +38,12 @@ bool ground_hit(const geo::Pose& T, const geo::CameraModel& cam, double u, doubl
   return true;
 }
 
+// The rotation of rotation vector phi.
+Eigen::Quaterniond exp_so3(const Eigen::Vector3d& phi) {
+  const double a = phi.norm();
+  return a > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(a, phi / a)) : Eigen::Quaterniond::Identity();
+}
+
 }  // namespace
 
 Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, const geo::Extent& e, int count,
@@ -86,9 +92,7 @@ Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraM
         Eigen::Vector3d phi = T.R() * (angle * raxis);
         phi.x() = imu.normal() * imu_tilt_deg * kPi / 180;
         phi.y() = imu.normal() * imu_tilt_deg * kPi / 180;
-        const double a = phi.norm();
-        const Eigen::Quaterniond err = a > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(a, phi / a)) : Eigen::Quaterniond::Identity();
-        s.prior.q_W_C = (err * T.q_W_C).normalized();
+        s.prior.q_W_C = (exp_so3(phi) * T.q_W_C).normalized();
       }
       out.push_back(s);
       placed = true;
@@ -100,5 +104,14 @@ Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraM
   return out;
 }
 
+Eigen::Quaterniond attitude_reading(const Eigen::Quaterniond& q_W_C, Rng& rng, double sigma_deg) {
+  const double sx = rng.normal() * sigma_deg * kPi / 180, sy = rng.normal() * sigma_deg * kPi / 180;
+  return (exp_so3({sx, sy, 0}) * q_W_C).normalized();
+}
+
+Eigen::Quaterniond with_tilt_of(const Eigen::Quaterniond& q, const Eigen::Quaterniond& attitude) {
+  const Eigen::AngleAxisd err(q * attitude.conjugate());  // world axes: attitude -> q
+  return (exp_so3({0, 0, err.angle() * err.axis().z()}) * attitude).normalized();
+}
 
 }  // namespace terralign::cli

@@ -38,4 +38,12 @@ Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraM
                                          std::uint64_t seed, double lo, double hi, double tilt_deg,
                                          double imu_tilt_deg = 0);
 
+// An attitude reference's reading of the camera's rotation q_W_C: rotated about the world's
+// two horizontal axes by N(0, sigma_deg^2) each (its roll and pitch error), heading exact.
+Eigen::Quaterniond attitude_reading(const Eigen::Quaterniond& q_W_C, Rng& rng, double sigma_deg);
+
+// `q`'s heading with `attitude`'s tilt: q's rotation error against the attitude, as a
+// rotation vector in world axes, keeps only its vertical part.
+Eigen::Quaterniond with_tilt_of(const Eigen::Quaterniond& q, const Eigen::Quaterniond& attitude);
+
 }  // namespace terralign::cli
