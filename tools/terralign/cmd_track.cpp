@@ -163,20 +163,21 @@ int run_track(const std::vector<std::string>& argv) {
   for (int r = 0; r < 6; ++r)
     for (int c = 0; c < 6; ++c) csv += ",cov" + std::to_string(r) + std::to_string(c);
   csv += "\n";
+  // The last two converged estimates (`known` of them so far, at most 2): the velocity.
   geo::Pose last = init.value(), prev = init.value();
   double t_last = 0, t_prev = 0;
-  int good_in_a_row = 0, converged = 0;
+  int known = 0, converged = 0;
   std::vector<double> pos_err, ang_err, nees, ms_all;
   double last_t = -INFINITY;
   const auto t_start = std::chrono::steady_clock::now();
   for (std::size_t i = 0; i < frames->size(); ++i) {
     const Frame& f = frames.value()[i];
-    geo::Pose prior = good_in_a_row >= 2 ? predict(prev, t_prev, last, t_last, f.t) : last;
+    geo::Pose prior = known == 2 ? predict(prev, t_prev, last, t_last, f.t) : last;
     // With an attitude reference the start keeps the prediction's tilt when two converged
     // frames made it (starting from the IMU's instead: same-year RMSE 0.16 -> 0.31 m, across
     // a year 7.5 -> 8.1 m, README), else takes the IMU's; the tilt prior holds the answer to
     // the IMU's either way.
-    if (!attitude.empty() && good_in_a_row < 2) prior.q_W_C = with_tilt_of(prior.q_W_C, attitude[i]);
+    if (!attitude.empty() && known < 2) prior.q_W_C = with_tilt_of(prior.q_W_C, attitude[i]);
     geo::Pose estimate = prior;
     bool ok = false;
     std::string reason;
@@ -213,20 +214,19 @@ int run_track(const std::vector<std::string>& argv) {
     ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     ms_all.push_back(ms);
     if (!ok) std::fprintf(stderr, "terralign track: frame %zu (t %.3f): not converged: %s\n", i, f.t, reason.c_str());
-    // The estimate (or, on failure, the prediction) becomes the next prior; velocity only
-    // from two converged frames in a row.
+    // A converged estimate becomes the newest of the two the next prediction extrapolates
+    // from. A failed frame changes neither: the track coasts at the last velocity (dead
+    // reckoning) until a frame converges again, instead of waiting where the aircraft was.
     if (ok) {
       ++converged;
-      if (good_in_a_row > 0) {
+      if (known > 0) {
         prev = last;
         t_prev = t_last;
       }
-      ++good_in_a_row;
-    } else {
-      good_in_a_row = 0;
+      last = estimate;
+      t_last = f.t;
+      known = std::min(known + 1, 2);
     }
-    last = estimate;
-    t_last = f.t;
     if (!truth.empty()) {
       const geo::Pose& T = truth[i];
       const Eigen::Vector3d dp = T.t_W_C - estimate.t_W_C;
