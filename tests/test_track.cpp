@@ -24,6 +24,15 @@ namespace {
 int run(const std::string& cmd) { return std::system((cmd + " 2>/dev/null >/dev/null").c_str()); }
 constexpr double kDeg = 3.14159265358979323846 / 180;
 
+// The first true pose a flight wrote (DIR/truth.txt), as track's --init takes it.
+std::string first_truth_pose(const std::string& dir) {
+  std::ifstream truth(dir + "/truth.txt");
+  std::string first;
+  std::getline(truth, first);
+  REQUIRE(first.find(' ') != std::string::npos);
+  return first.substr(first.find(' ') + 1);
+}
+
 }  // namespace
 
 TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged and the track recovers") {
@@ -38,10 +47,7 @@ TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged an
   ImageU8 noise(752, 480, 3);
   for (auto& v : noise.pixels()) v = static_cast<std::uint8_t>(rng() & 255);
   REQUIRE(geo::save_png(dir + "/frames/000006.png", noise.view()).ok());
-  std::ifstream truth(dir + "/truth.txt");
-  std::string first;
-  REQUIRE(std::getline(truth, first));
-  const std::string init = first.substr(first.find(' ') + 1);
+  const std::string init = first_truth_pose(dir);
   REQUIRE(run(tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir + "/list.txt --init \"" + init +
               "\" --truth " + dir + "/truth.txt --out " + dir + "/poses.csv --json " + dir + "/summary.json") == 0);
   std::ifstream js(dir + "/summary.json");
@@ -87,11 +93,8 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   const std::string cam = test::source_path("data/cameras/uav_752x480.json");
   REQUIRE(run(tl + " flight --map " + map + " --camera " + cam + " --layer 2016 --path lawnmower --speed 25 --rate 1 " +
               "--duration 12 --noise 2 --blur 1 --exposure 0.1 --out " + dir) == 0);
-  std::ifstream truth(dir + "/truth.txt");
-  std::string first;
-  REQUIRE(std::getline(truth, first));
   REQUIRE(run(tl + " track --method nn --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
-              "/list.txt --init \"" + first.substr(first.find(' ') + 1) + "\" --truth " + dir + "/truth.txt --json " + dir +
+              "/list.txt --init \"" + first_truth_pose(dir) + "\" --truth " + dir + "/truth.txt --json " + dir +
               "/s.json") == 0);
   std::ifstream js(dir + "/s.json");
   const nlohmann::json j = nlohmann::json::parse(js);
@@ -111,10 +114,7 @@ TEST_CASE("track reports bad frames by name and goes on: a missing image, a wron
   list << "0 frames/000000.png\n1 frames/000001.png\n2 frames/missing.png\n3 " << test::source_path("tests/data/tiff/no_georef.png")
        << "\n2.5 frames/000003.png\n4 frames/000004.png\n";
   list.close();
-  std::ifstream truth(dir + "/truth.txt");
-  std::string first;
-  REQUIRE(std::getline(truth, first));
-  const std::string init = first.substr(first.find(' ') + 1);
+  const std::string init = first_truth_pose(dir);
   const std::string err = dir + "/stderr.txt";
   std::system((tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir + "/bad.txt --init \"" + init +
                "\" --out " + dir + "/poses.csv 2>" + err + " >/dev/null").c_str());
@@ -176,11 +176,8 @@ TEST_CASE("track holds each answer's tilt to an attitude reference's, frame by f
       out << t << " " << std::setprecision(12) << a.w() << " " << a.x() << " " << a.y() << " " << a.z() << "\n";
     }
   };
-  std::ifstream tr(dir + "/truth.txt");
-  std::string first;
-  REQUIRE(std::getline(tr, first));
   const std::string track = tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
-                            "/list.txt --init \"" + first.substr(first.find(' ') + 1) + "\" --truth " + dir + "/truth.txt";
+                            "/list.txt --init \"" + first_truth_pose(dir) + "\" --truth " + dir + "/truth.txt";
   for (double pitch : {0.0, 1.0}) {
     write_attitude(dir + "/att.txt", pitch);
     REQUIRE(run(track + " --attitude " + dir + "/att.txt --tilt-prior 0.01 --json " + dir + "/s.json") == 0);

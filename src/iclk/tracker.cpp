@@ -774,20 +774,19 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       if (!(emax > 0) || !(emin > opt_.min_information * emax))
         return fail("no texture: the image does not constrain every degree of freedom");
       if (R.cost_final > opt_.max_final_cost) return fail("poor match: the final residual is above max_final_cost");
+      const Vec6<double> moved = SE3Log<Params>::of(init, p);  // the answer against the start (SE(3) only)
       if (R.cost_final > opt_.max_cost_ratio * R.cost_init) {
         // How far the answer lies from the start: the RMS image motion over the used pixels
         // of the parameter change (first order, M = sum dW^T dW). A start already at the
         // cost's minimum (TrackerOptions::still_px) is confirmed, not diverged from.
         double moved_px = INFINITY;
         if constexpr (Warp::kNeedsDepth) {
-          const Vec6<double> d = SE3Log<Params>::of(init, p);
           const Eigen::Matrix<double, DoF, DoF> M = motion0_.template selfadjointView<Eigen::Lower>();
-          moved_px = std::sqrt(std::max(d.dot(M * d), 0.0) / std::max(n, 1));
+          moved_px = std::sqrt(std::max(moved.dot(M * moved), 0.0) / std::max(n, 1));
         }
         if (!(moved_px < opt_.still_px)) return fail("diverged: the final cost is above the cost at the initial pose");
       }
       if (Warp::kNeedsDepth) {
-        const Vec6<double> moved = SE3Log<Params>::of(init, p);
         if (moved.template head<3>().norm() > opt_.max_rotation ||
             moved.template tail<3>().norm() > opt_.max_translation * depth_scale)
           return fail("diverged: the pose moved implausibly far from the initial one");
