@@ -24,6 +24,19 @@ namespace {
 int run(const std::string& cmd) { return std::system((cmd + " 2>/dev/null >/dev/null").c_str()); }
 constexpr double kDeg = 3.14159265358979323846 / 180;
 
+// A lawnmower flight over the NAIP sample, 2016, at 25 m/s and 1 Hz, with `options` (duration,
+// noise, ...) into temp_dir()/name; the program, map and camera it used.
+struct Flight {
+  std::string tl, map, cam, dir;
+};
+Flight fly(const std::string& name, const std::string& options) {
+  Flight f{TERRALIGN_CLI, test::source_path("data/naip_west/map.json"), test::source_path("data/cameras/uav_752x480.json"),
+           test::temp_dir() + "/" + name};
+  REQUIRE(run(f.tl + " flight --map " + f.map + " --camera " + f.cam + " --layer 2016 --path lawnmower --speed 25 --rate 1 " +
+              options + " --out " + f.dir) == 0);
+  return f;
+}
+
 // The first true pose a flight wrote (DIR/truth.txt), as track's --init takes it.
 std::string first_truth_pose(const std::string& dir) {
   std::ifstream truth(dir + "/truth.txt");
@@ -36,12 +49,8 @@ std::string first_truth_pose(const std::string& dir) {
 }  // namespace
 
 TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged and the track recovers") {
-  const std::string tl = TERRALIGN_CLI;
-  const std::string dir = test::temp_dir() + "/flight";
-  const std::string map = test::source_path("data/naip_west/map.json");
-  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
-  REQUIRE(run(tl + " flight --map " + map + " --camera " + cam + " --layer 2016 --path lawnmower --speed 25 --rate 1 " +
-              "--duration 12 --noise 2 --seed 4 --out " + dir) == 0);
+  const Flight flight = fly("flight", "--duration 12 --noise 2 --seed 4");
+  const std::string &tl = flight.tl, &map = flight.map, &cam = flight.cam, &dir = flight.dir;
   // Frame 6 becomes noise.
   std::mt19937 rng(6);
   ImageU8 noise(752, 480, 3);
@@ -87,12 +96,8 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   // cost then equals the start's within noise; iclk::TrackerOptions::still_px confirms such a
   // start (before it, 6 of these 12 frames failed "diverged: the final cost is above the cost
   // at the initial pose", each 0.1-0.4 m from the truth; 35 % of the 40-frame flight's).
-  const std::string tl = TERRALIGN_CLI;
-  const std::string dir = test::temp_dir() + "/nnflight";
-  const std::string map = test::source_path("data/naip_west/map.json");
-  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
-  REQUIRE(run(tl + " flight --map " + map + " --camera " + cam + " --layer 2016 --path lawnmower --speed 25 --rate 1 " +
-              "--duration 12 --noise 2 --blur 1 --exposure 0.1 --out " + dir) == 0);
+  const Flight flight = fly("nnflight", "--duration 12 --noise 2 --blur 1 --exposure 0.1");
+  const std::string &tl = flight.tl, &map = flight.map, &cam = flight.cam, &dir = flight.dir;
   REQUIRE(run(tl + " track --method nn --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
               "/list.txt --init \"" + first_truth_pose(dir) + "\" --truth " + dir + "/truth.txt --json " + dir +
               "/s.json") == 0);
@@ -104,12 +109,8 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
 }
 
 TEST_CASE("track reports bad frames by name and goes on: a missing image, a wrong size, time going backwards") {
-  const std::string tl = TERRALIGN_CLI;
-  const std::string dir = test::temp_dir() + "/badflight";
-  const std::string map = test::source_path("data/naip_west/map.json");
-  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
-  REQUIRE(run(tl + " flight --map " + map + " --camera " + cam + " --layer 2016 --path lawnmower --speed 25 --rate 1 " +
-              "--duration 5 --out " + dir) == 0);
+  const Flight flight = fly("badflight", "--duration 5");
+  const std::string &tl = flight.tl, &map = flight.map, &cam = flight.cam, &dir = flight.dir;
   std::ofstream list(dir + "/bad.txt");
   list << "0 frames/000000.png\n1 frames/000001.png\n2 frames/missing.png\n3 " << test::source_path("tests/data/tiff/no_georef.png")
        << "\n2.5 frames/000003.png\n4 frames/000004.png\n";
@@ -134,12 +135,8 @@ TEST_CASE("track reports bad frames by name and goes on: a missing image, a wron
 }
 
 TEST_CASE("track holds each answer's tilt to an attitude reference's, frame by frame, and refuses a bad attitude file") {
-  const std::string tl = TERRALIGN_CLI;
-  const std::string dir = test::temp_dir() + "/imuflight";
-  const std::string map = test::source_path("data/naip_west/map.json");
-  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
-  REQUIRE(run(tl + " flight --map " + map + " --camera " + cam + " --layer 2016 --path lawnmower --speed 25 --rate 1 " +
-              "--duration 6 --noise 2 --imu-tilt 0.5 --out " + dir) == 0);
+  const Flight flight = fly("imuflight", "--duration 6 --noise 2 --imu-tilt 0.5");
+  const std::string &tl = flight.tl, &map = flight.map, &cam = flight.cam, &dir = flight.dir;
   // flight wrote one reading per frame, at the frames' times.
   std::vector<std::pair<std::string, Eigen::Quaterniond>> truth;
   {
