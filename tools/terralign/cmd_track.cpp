@@ -87,6 +87,16 @@ Result<std::vector<Eigen::Quaterniond>> read_attitude(const std::string& path, c
   return out;
 }
 
+// "vx vy vz" in metres a second along the map's axes, finite.
+Result<Eigen::Vector3d> parse_velocity(const std::string& text) {
+  std::istringstream s(text);
+  Eigen::Vector3d v;
+  std::string rest;
+  if (!(s >> v.x() >> v.y() >> v.z()) || (s >> rest) || !v.allFinite())
+    return Error{"--init-velocity '" + text + "' must be three finite numbers 'vx vy vz' (m/s along the map's axes)"};
+  return v;
+}
+
 // Constant velocity: extrapolate from the last two estimates by dt / dt_prev.
 geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, double t_last, double t) {
   const double s = (t - t_last) / std::max(t_last - t_prev, 1e-9);
@@ -101,7 +111,7 @@ geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, d
 
 int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
-                                 "threads", "weights", "attitude", "tilt-prior"}, {});
+                                 "threads", "weights", "attitude", "tilt-prior", "init-velocity"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
@@ -115,6 +125,12 @@ int run_track(const std::vector<std::string>& argv) {
   if (!init.ok()) return fail(Error{"--init: " + init.error().message});
   auto frames = read_list(args->get("images"));
   if (!frames.ok()) return fail(frames.error());
+  std::optional<Eigen::Vector3d> init_velocity;
+  if (args->has("init-velocity")) {
+    auto v = parse_velocity(args->get("init-velocity"));
+    if (!v.ok()) return usage_error("track", v.error());
+    init_velocity = v.value();
+  }
   auto map = geo::load_map(args->get("map"));
   if (!map.ok()) return fail(map.error());
   auto cam_in = geo::load_camera(args->get("camera"));
@@ -163,10 +179,17 @@ int run_track(const std::vector<std::string>& argv) {
   for (int r = 0; r < 6; ++r)
     for (int c = 0; c < 6; ++c) csv += ",cov" + std::to_string(r) + std::to_string(c);
   csv += "\n";
-  // The last two converged estimates (`known` of them so far, at most 2): the velocity.
+  // The last two converged estimates (`known` of them so far, at most 2): the velocity. With
+  // --init-velocity (a GPS's last fix has one) the start is the newest, at the first frame's
+  // time, and a point one second before it on that velocity the other.
   geo::Pose last = init.value(), prev = init.value();
-  double t_last = 0, t_prev = 0;
+  double t_last = frames->front().t, t_prev = t_last;
   int known = 0, converged = 0;
+  if (init_velocity) {
+    prev.t_W_C -= *init_velocity;
+    t_prev = t_last - 1;
+    known = 2;
+  }
   std::vector<double> pos_err, ang_err, nees, ms_all;
   double last_t = -INFINITY;
   const auto t_start = std::chrono::steady_clock::now();
@@ -217,15 +240,18 @@ int run_track(const std::vector<std::string>& argv) {
     // A converged estimate becomes the newest of the two the next prediction extrapolates
     // from. A failed frame changes neither: the track coasts at the last velocity (dead
     // reckoning) until a frame converges again, instead of waiting where the aircraft was.
+    // (The first frame's estimate replaces a start given at its time, instead of making a
+    // velocity over no time with it.)
     if (ok) {
       ++converged;
-      if (known > 0) {
+      const bool replaces_start = init_velocity && f.t == t_last;
+      if (known > 0 && !replaces_start) {
         prev = last;
         t_prev = t_last;
       }
       last = estimate;
       t_last = f.t;
-      known = std::min(known + 1, 2);
+      if (!replaces_start) known = std::min(known + 1, 2);
     }
     if (!truth.empty()) {
       const geo::Pose& T = truth[i];
