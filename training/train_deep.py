@@ -124,14 +124,32 @@ def augment(x, gen, p=0.8):
     return on * y + (1 - on) * x
 
 
-def sample_items(rng, n, L, count, cross=0.8):
+def year_gaps(layers):
+    """|year_b - year_c| for every pair of layers named by year, or None when a name is not a year."""
+    try:
+        years = [int(n) for n in layers]
+    except ValueError:
+        return None
+    return [[abs(y - z) for z in years] for y in years]
+
+
+def sample_items(rng, n, L, count, cross=0.8, gaps=None, gap_power=0.0, min_gap=0):
+    """count (pose, reference layer, query layer) triples. A cross-year pair (probability
+    cross) draws its query year with weight gap^gap_power among the years at least min_gap
+    from the reference's (uniformly when gaps is None or gap_power is 0)."""
     out = []
-    for _ in range(count):
+    while len(out) < count:
         a = rng.randrange(n)
         b = rng.randrange(L)
         c = b
         if L > 1 and rng.random() < cross:
-            c = rng.choice([k for k in range(L) if k != b])
+            ks = [k for k in range(L) if k != b and (gaps is None or gaps[b][k] >= min_gap)]
+            if not ks:
+                continue
+            if gaps is None or gap_power == 0:
+                c = rng.choice(ks)
+            else:
+                c = rng.choices(ks, weights=[gaps[b][k] ** gap_power for k in ks])[0]
         out.append((a, b, c))
     return out
 
@@ -171,6 +189,10 @@ def plot(out):
     ax[0].set_yscale("log")
     for key, lab in (("init_median", "init median"), ("final_median", "NN (20) median"), ("final_mean", "NN (20) mean")):
         ax[1].plot([int(r["step"]) for r in va], [float(r[key]) for r in va], marker="o", label=lab)
+    vf = [r for r in rows if r["kind"] == "val_far"]
+    if vf:
+        ax[1].plot([int(r["step"]) for r in vf], [float(r["final_median"]) for r in vf], marker="^", ls=":",
+                   label="largest year gaps: NN (20) median")
     vx = [r for r in rows if r["kind"] == "val_extra"]
     for key, lab in (("init_median", "extra set: init median"), ("final_median", "extra set: NN (20) median")):
         if vx:
@@ -207,6 +229,9 @@ def main():
                         "altitudes, so a pixel of error weighs the same in both; its validation pairs are logged as "
                         "'val_extra' rows")
     p.add_argument("--extra-p", type=float, default=0.3)
+    p.add_argument("--gap-power", type=float, default=0.0,
+                   help="draw a cross-year pair's query year with weight (year gap)^P (0: uniformly); with "
+                        "P > 0 the validation also logs 'val_far', pairs of the main set's largest year gaps")
     p.add_argument("--init", help="start from this checkpoint's (.pt) or weight file's (.tlw) weights where the shapes match (warm start)")
     a = p.parse_args()
     torch.set_num_threads(a.threads)
@@ -215,6 +240,14 @@ def main():
     train, val = PairSet(a.data, "train"), PairSet(a.data, "val")
     vrng = random.Random(12345)
     val_items = sample_items(vrng, len(val.ids), len(val.layers), a.val_count, cross=1.0)
+    gaps = year_gaps(train.layers) if a.gap_power > 0 else None
+    far_items = None
+    if gaps is not None:
+        far = max(max(g) for g in gaps) - 1  # the largest gap and the one below it
+        far_items = sample_items(random.Random(54321), len(val.ids), len(val.layers), a.val_count // 2, cross=1.0,
+                                 gaps=gaps, min_gap=far)
+        print(f"gap power {a.gap_power}: cross-year pairs drawn by gap^{a.gap_power}; val_far: gaps >= {far} years",
+              flush=True)
     extra = extra_val = extra_items = None
     if a.extra:
         extra, extra_val = PairSet(a.extra, "train"), PairSet(a.extra, "val")
@@ -258,7 +291,8 @@ def main():
         src, weight = train, 1.0
         if extra is not None and rng.random() < a.extra_p:
             src, weight = extra, extra_weight
-        ref, depth, qry, K, truth = src.batch(sample_items(rng, len(src.ids), len(src.layers), a.batch))
+        ref, depth, qry, K, truth = src.batch(sample_items(rng, len(src.ids), len(src.layers), a.batch,
+                                                           gaps=gaps if src is train else None, gap_power=a.gap_power))
         if a.augment > 0:
             ref, qry = augment(ref, gen, a.augment), augment(qry, gen, a.augment)
         _, _, losses, _ = model(ref, depth, qry, K, truth=truth)
@@ -291,6 +325,8 @@ def main():
                 return fmed
 
             fmed = validation("val", val, val_items)
+            if far_items is not None:
+                validation("val_far", val, far_items)
             if extra is not None:
                 validation("val_extra", extra_val, extra_items)
             state = {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "step": step,
