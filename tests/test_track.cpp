@@ -119,10 +119,7 @@ TEST_CASE("track reports bad frames by name and goes on: a missing image, a wron
   const std::string err = dir + "/stderr.txt";
   std::system((tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir + "/bad.txt --init \"" + init +
                "\" --out " + dir + "/poses.csv 2>" + err + " >/dev/null").c_str());
-  std::ifstream e(err);
-  std::stringstream ss;
-  ss << e.rdbuf();
-  const std::string text = ss.str();
+  const std::string text = test::read_text(err);
   CHECK(text.find("missing.png: cannot open") != std::string::npos);
   CHECK(text.find("image is 40 x 30, the camera 752 x 480") != std::string::npos);
   CHECK(text.find("timestamp 2.500000 does not follow 3.000000") != std::string::npos);
@@ -171,10 +168,7 @@ TEST_CASE("track starts from --init-velocity: the first frames' priors fly on wi
     CAPTURE(bad);
     const std::string err = dir + "/velocity_err.txt";
     CHECK(std::system((base + "/bad.json --init-velocity \"" + bad + "\" 2>" + err + " >/dev/null").c_str()) != 0);
-    std::ifstream e(err);
-    std::stringstream ss;
-    ss << e.rdbuf();
-    CHECK(ss.str().find("--init-velocity '" + std::string(bad) + "' must be three finite numbers") != std::string::npos);
+    CHECK(test::read_text(err).find("--init-velocity '" + std::string(bad) + "' must be three finite numbers") != std::string::npos);
   }
 }
 
@@ -240,13 +234,11 @@ TEST_CASE("track holds each answer's tilt to an attitude reference's, frame by f
   auto refused = [&](const std::string& opts, const std::string& want) {
     const std::string err = dir + "/err.txt";
     const int rc = std::system((track + " " + opts + " >/dev/null 2>" + err).c_str());
-    std::ifstream e(err);
-    std::stringstream ss;
-    ss << e.rdbuf();
+    const std::string text = test::read_text(err);
     CAPTURE(opts);
-    CAPTURE(ss.str());
+    CAPTURE(text);
     CHECK(rc != 0);
-    CHECK(ss.str().find(want) != std::string::npos);
+    CHECK(text.find(want) != std::string::npos);
   };
   refused("--tilt-prior 0.5", "--tilt-prior needs --attitude");
   refused("--attitude " + dir + "/nope.txt", "nope.txt: cannot open the attitude readings");
@@ -271,16 +263,10 @@ TEST_CASE("dataset: the same seed gives the same bytes, and training and validat
   for (const auto& d : {a, b})
     REQUIRE(std::system((tl + " dataset --map " + map + " --camera " + cam + " --count 6 --seed 9 --scale 0.125 " +
                          "--altitude 400:450 --layers 2009,2020 --out " + d + " >/dev/null 2>&1").c_str()) == 0);
-  auto slurp = [](const std::string& p) {
-    std::ifstream f(p, std::ios::binary);
-    std::stringstream s;
-    s << f.rdbuf();
-    return s.str();
-  };
-  const std::string index = slurp(a + "/index.csv");
-  CHECK(index == slurp(b + "/index.csv"));
-  CHECK(slurp(a + "/train/000002/query_2020.png") == slurp(b + "/train/000002/query_2020.png"));
-  CHECK(slurp(a + "/val/000000/ref_depth.pfm") == slurp(b + "/val/000000/ref_depth.pfm"));
+  const std::string index = test::read_text(a + "/index.csv");
+  CHECK(index == test::read_text(b + "/index.csv"));
+  CHECK(test::read_text(a + "/train/000002/query_2020.png") == test::read_text(b + "/train/000002/query_2020.png"));
+  CHECK(test::read_text(a + "/val/000000/ref_depth.pfm") == test::read_text(b + "/val/000000/ref_depth.pfm"));
   // 6 poses x 2 x 2 ordered layer pairs; the NAIP map is taller than wide, so validation is
   // the northern strip: every validation footprint lies north of every training one.
   std::stringstream lines(index);

@@ -240,18 +240,19 @@ int run_track(const std::vector<std::string>& argv) {
     // A converged estimate becomes the newest of the two the next prediction extrapolates
     // from. A failed frame changes neither: the track coasts at the last velocity (dead
     // reckoning) until a frame converges again, instead of waiting where the aircraft was.
-    // (The first frame's estimate replaces a start given at its time, instead of making a
-    // velocity over no time with it.)
+    // An estimate at the newest one's time (the first frame's, over a start given with
+    // --init-velocity) replaces it instead of making a velocity over no time with it.
     if (ok) {
       ++converged;
-      const bool replaces_start = init_velocity && f.t == t_last;
-      if (known > 0 && !replaces_start) {
+      if (known > 0 && f.t > t_last) {
         prev = last;
         t_prev = t_last;
+        known = 2;
+      } else if (known == 0) {
+        known = 1;
       }
       last = estimate;
       t_last = f.t;
-      if (!replaces_start) known = std::min(known + 1, 2);
     }
     if (!truth.empty()) {
       const geo::Pose& T = truth[i];
