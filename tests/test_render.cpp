@@ -345,6 +345,40 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
   }
   shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_s.data(), val_s.data(), p);
   for (const Kernels& k : vector_kernels) compare_shading(k);
+  // Rows of pixels as a render has them: runs of 16 along a line, 0.05-1.4 world units (about
+  // texels) apart in eight directions, at level 0 alone or trilinear between 0 and 1, starting
+  // anywhere up to the level's far edges. Most vectors' taps then lie in a few neighbouring
+  // texels (the AVX2 kernel's row loads instead of gathers: at most 7 columns by 2 rows of
+  // texel pairs), some just too far apart, some across the edges.
+  std::uniform_real_distribution<float> start_x(-1, 38), start_y(-2, 18), step(0.05f, 1.4f);
+  const float angles[8] = {0.0f, 0.03f, 0.1f, 3.1f, 2.9f, 0.5f, 1.6f, -0.05f};  // mostly along texel rows
+  int near_taps = 0, far_taps = 0;
+  for (int i = 0; i < n; i += 16) {
+    const float sx = start_x(rng), sy = start_y(rng), d = step(rng);
+    const float angle = angles[(i / 16) % 8];
+    const float level_lf = (i / 16) % 3 == 2 ? 0.2f : -1.0f;
+    for (int j = i; j < std::min(n, i + 16); ++j) {
+      wx[j] = sx + d * std::cos(angle) * static_cast<float>(j - i);
+      wy[j] = sy + d * std::sin(angle) * static_cast<float>(j - i);
+      lf[j] = level_lf;
+    }
+    // How the 8-lane vectors at level 0 split (u, v are level 0's texel coordinates).
+    for (int j = i; j + 8 <= std::min(n, i + 16); j += 8) {
+      int xlo = 1 << 30, xhi = -xlo, ylo = xlo, yhi = -xlo;
+      bool inside = true;
+      for (int k = j; k < j + 8; ++k) {
+        const int x0 = static_cast<int>(std::floor(p.a0 + p.a1 * wx[k] + p.a2 * wy[k]));
+        const int y0 = static_cast<int>(std::floor(p.b0 + p.b1 * wx[k] + p.b2 * wy[k]));
+        inside = inside && x0 >= 0 && x0 < levels[0].width - 1 && y0 >= 0 && y0 < levels[0].height - 1;
+        xlo = std::min(xlo, x0), xhi = std::max(xhi, x0), ylo = std::min(ylo, y0), yhi = std::max(yhi, y0);
+      }
+      if (inside && yhi - ylo <= 1) (xhi - xlo <= 6 ? near_taps : far_taps) += 1;
+    }
+  }
+  CHECK(near_taps > 30);  // the inputs reach the row loads ...
+  CHECK(far_taps > 10);   // ... and the gathers next to them
+  shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_s.data(), val_s.data(), p);
+  for (const Kernels& k : vector_kernels) compare_shading(k);
   // The depth kernel: blocks of every width 1..8 and height 1..8 written into a 12 x 10
   // buffer holding other triangles' depths (some nearer, some farther), with a row stride.
   const int stride = 12;

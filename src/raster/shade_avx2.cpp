@@ -1,4 +1,5 @@
-// AVX2 build of the shading kernel: 8 pixels a step, texels fetched with gathers. Same float
+// AVX2 build of the shading kernel: 8 pixels a step, texels fetched with gathers (or, where the
+// taps are neighbours, row loads and permutes: contiguous_taps). Same float
 // operations in the same order as shade_scalar.cpp (compiled without FMA contraction), so
 // the output matches it bit for bit. The tail (n % 8) runs the scalar kernel.
 #include <terralign/raster/shade_kernels.hpp>
@@ -17,14 +18,65 @@ struct Acc8 {
   __m256 r, g, b, a;
 };
 
+// Neighbouring pixels mostly read neighbouring texels. When the 8 lanes' bilinear taps (x0 ..
+// x0 + 1, y0 .. y0 + 1, all inside level L) lie in at most three texel rows and 8 columns, three
+// row loads and permutes fetch them instead of four gathers: the same texels, so the same
+// bits. The lanes at the ends give the box (a row of pixels over terrain maps to a curve whose
+// extremes are mostly at its ends), and every lane is checked to be inside it. Calls
+// add_tap(w[k], texels of tap k) for k = 0..3 in the gathers' order and returns true, or
+// returns false and reads nothing.
+template <class AddTap>
+inline bool contiguous_taps(const MipLevel& L, const int* texels, __m256i x0, __m256i y0, const __m256 w[4],
+                            AddTap& add_tap) {
+  const int xa = _mm256_cvtsi256_si32(x0), xb = _mm256_extract_epi32(x0, 7);
+  const int ya = _mm256_cvtsi256_si32(y0), yb = _mm256_extract_epi32(y0, 7);
+  const int xlo = xa < xb ? xa : xb, xspan = (xa < xb ? xb : xa) - xlo;
+  const int ylo = ya < yb ? ya : yb, yspan = (ya < yb ? yb : ya) - ylo;
+  if (xspan > 6 || yspan > 1) return false;
+  const __m256i dx = _mm256_sub_epi32(x0, _mm256_set1_epi32(xlo));
+  const __m256i dy = _mm256_sub_epi32(y0, _mm256_set1_epi32(ylo));
+  const __m256i xs = _mm256_set1_epi32(xspan), ys = _mm256_set1_epi32(yspan);
+  // 0 <= d <= span, unsigned: max(d, span) == span.
+  const __m256i in = _mm256_and_si256(_mm256_cmpeq_epi32(_mm256_max_epu32(dx, xs), xs),
+                                      _mm256_cmpeq_epi32(_mm256_max_epu32(dy, ys), ys));
+  if (_mm256_movemask_epi8(in) != -1) return false;
+  // Rows ylo .. ylo + yspan + 1 and columns xlo .. xlo + xspan + 1 are inside the level (every
+  // lane's taps are); the masked loads read only those.
+  const int* row = texels + L.offset + ylo * L.width + xlo;
+  const __m256i cols = _mm256_cmpgt_epi32(_mm256_set1_epi32(xspan + 2), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+  const __m256i r0 = _mm256_maskload_epi32(row, cols), r1 = _mm256_maskload_epi32(row + L.width, cols);
+  const __m256i right = _mm256_add_epi32(dx, _mm256_set1_epi32(1));
+  if (yspan == 0) {
+    add_tap(w[0], _mm256_permutevar8x32_epi32(r0, dx));
+    add_tap(w[1], _mm256_permutevar8x32_epi32(r0, right));
+    add_tap(w[2], _mm256_permutevar8x32_epi32(r1, dx));
+    add_tap(w[3], _mm256_permutevar8x32_epi32(r1, right));
+    return true;
+  }
+  // Two rows of lanes: a lane with dy = 1 takes its taps from the next row pair.
+  const __m256i r2 = _mm256_maskload_epi32(row + 2 * L.width, cols);
+  const __m256 low = _mm256_castsi256_ps(_mm256_cmpeq_epi32(dy, _mm256_setzero_si256()));
+  auto pick = [&](__m256i a, __m256i b, __m256i at) {
+    return _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(_mm256_permutevar8x32_epi32(b, at)),
+                                                _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(a, at)), low));
+  };
+  add_tap(w[0], pick(r0, r1, dx));
+  add_tap(w[1], pick(r0, r1, right));
+  add_tap(w[2], pick(r1, r2, dx));
+  add_tap(w[3], pick(r1, r2, right));
+  return true;
+}
+
 inline Acc8 sample8(const ShadeParams& p, __m256i level, __m256 u, __m256 v) {
   const int* lv = reinterpret_cast<const int*>(p.levels);
   __m256i off, wid, hei;
   __m256 scale;
+  const MipLevel* one_level = nullptr;
   const int l0 = _mm256_cvtsi256_si32(level);
   if (_mm256_movemask_epi8(_mm256_cmpeq_epi32(level, _mm256_set1_epi32(l0))) == -1) {
     // One level for all lanes (the usual case): broadcast its fields.
     const MipLevel& L = p.levels[l0];
+    one_level = &L;
     off = _mm256_set1_epi32(L.offset);
     wid = _mm256_set1_epi32(L.width);
     hei = _mm256_set1_epi32(L.height);
@@ -50,8 +102,8 @@ inline Acc8 sample8(const ShadeParams& p, __m256i level, __m256 u, __m256 v) {
   const __m256i wm1 = _mm256_sub_epi32(wid, ione), hm1 = _mm256_sub_epi32(hei, ione);
   const __m256i mask8 = _mm256_set1_epi32(255);
   Acc8 acc{_mm256_setzero_ps(), _mm256_setzero_ps(), _mm256_setzero_ps(), _mm256_setzero_ps()};
-  auto add_tap = [&](__m256 wk, __m256i at) {
-    const __m256i t = _mm256_i32gather_epi32(reinterpret_cast<const int*>(p.texels), at, 4);
+  const int* texels = reinterpret_cast<const int*>(p.texels);
+  auto add_tap = [&](__m256 wk, __m256i t) {
     const __m256 wa = _mm256_mul_ps(wk, _mm256_cvtepi32_ps(_mm256_srli_epi32(t, 24)));
     acc.r = _mm256_add_ps(acc.r, _mm256_mul_ps(wa, _mm256_cvtepi32_ps(_mm256_and_si256(t, mask8))));
     acc.g = _mm256_add_ps(acc.g, _mm256_mul_ps(wa, _mm256_cvtepi32_ps(_mm256_and_si256(_mm256_srli_epi32(t, 8), mask8))));
@@ -64,12 +116,13 @@ inline Acc8 sample8(const ShadeParams& p, __m256i level, __m256 u, __m256 v) {
       _mm256_or_si256(_mm256_cmpgt_epi32(zero, x0), _mm256_cmpgt_epi32(zero, y0)),
       _mm256_and_si256(_mm256_cmpgt_epi32(wm1, x0), _mm256_cmpgt_epi32(hm1, y0)));
   if (_mm256_movemask_epi8(interior) == -1) {
+    if (one_level != nullptr && contiguous_taps(*one_level, texels, x0, y0, w, add_tap)) return acc;
     const __m256i row0 = _mm256_add_epi32(off, _mm256_add_epi32(_mm256_mullo_epi32(y0, wid), x0));
     const __m256i row1 = _mm256_add_epi32(row0, wid);
-    add_tap(w[0], row0);
-    add_tap(w[1], _mm256_add_epi32(row0, ione));
-    add_tap(w[2], row1);
-    add_tap(w[3], _mm256_add_epi32(row1, ione));
+    add_tap(w[0], _mm256_i32gather_epi32(texels, row0, 4));
+    add_tap(w[1], _mm256_i32gather_epi32(texels, _mm256_add_epi32(row0, ione), 4));
+    add_tap(w[2], _mm256_i32gather_epi32(texels, row1, 4));
+    add_tap(w[3], _mm256_i32gather_epi32(texels, _mm256_add_epi32(row1, ione), 4));
     return acc;
   }
   for (int k = 0; k < 4; ++k) {
@@ -82,7 +135,7 @@ inline Acc8 sample8(const ShadeParams& p, __m256i level, __m256 u, __m256 v) {
     const __m256i xc = _mm256_min_epi32(_mm256_max_epi32(x, zero), wm1);
     const __m256i yc = _mm256_min_epi32(_mm256_max_epi32(y, zero), hm1);
     add_tap(_mm256_and_ps(w[k], _mm256_castsi256_ps(inside)),
-            _mm256_add_epi32(off, _mm256_add_epi32(_mm256_mullo_epi32(yc, wid), xc)));
+            _mm256_i32gather_epi32(texels, _mm256_add_epi32(off, _mm256_add_epi32(_mm256_mullo_epi32(yc, wid), xc)), 4));
   }
   return acc;
 }
