@@ -46,6 +46,22 @@ std::string first_truth_pose(const std::string& dir) {
   return first.substr(first.find(' ') + 1);
 }
 
+// The data rows of a CSV that has no quoted commas (track's poses), split at commas.
+std::vector<std::vector<std::string>> csv_rows(const std::string& path) {
+  std::ifstream csv(path);
+  std::string line;
+  std::getline(csv, line);  // header
+  std::vector<std::vector<std::string>> rows;
+  while (std::getline(csv, line)) {
+    std::vector<std::string> f;
+    std::stringstream s(line);
+    std::string cell;
+    while (std::getline(s, cell, ',')) f.push_back(cell);
+    rows.push_back(std::move(f));
+  }
+  return rows;
+}
+
 }  // namespace
 
 TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged and the track recovers") {
@@ -77,17 +93,35 @@ TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged an
   CHECK(j["nees_mean"].get<double>() > 1.5);
   CHECK(j["nees_mean"].get<double>() < 24.0);
   // The CSV flags frame 6 and only it.
-  std::ifstream csv(dir + "/poses.csv");
-  std::string line;
-  std::getline(csv, line);  // header
-  for (int i = 0; std::getline(csv, line); ++i) {
-    std::vector<std::string> f;
-    std::stringstream s(line);
-    std::string cell;
-    while (std::getline(s, cell, ',')) f.push_back(cell);
-    REQUIRE(f.size() > 9);
+  const auto rows = csv_rows(dir + "/poses.csv");
+  REQUIRE(rows.size() == 12);
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    REQUIRE(rows[i].size() == 51);  // 15 columns and the 36 of the covariance
     CAPTURE(i);
-    CHECK(f[8] == (i == 6 ? "0" : "1"));
+    CHECK(rows[i][8] == (i == 6 ? "0" : "1"));
+  }
+  // --registration-floor 1 (camera pixels, ten times the default): the same poses, and every
+  // converged frame's position variance east and north larger (the floor's shifts move the
+  // camera sideways); a floor that is not a number in [0, 100] is refused, naming it.
+  const std::string floor_cmd = tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
+                                "/list.txt --init \"" + init + "\" --out " + dir + "/floor.csv --registration-floor ";
+  REQUIRE(run(floor_cmd + "1") == 0);
+  const auto wide = csv_rows(dir + "/floor.csv");
+  REQUIRE(wide.size() == rows.size());
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    CAPTURE(i);
+    for (int c = 1; c <= 7; ++c) CHECK(wide[i][static_cast<std::size_t>(c)] == rows[i][static_cast<std::size_t>(c)]);
+    if (i == 6) continue;
+    for (int c : {15 + 3 * 6 + 3, 15 + 4 * 6 + 4}) {  // cov33, cov44
+      CAPTURE(c);
+      CHECK(std::stod(wide[i][static_cast<std::size_t>(c)]) > 2 * std::stod(rows[i][static_cast<std::size_t>(c)]));
+    }
+  }
+  for (const char* bad : {"-1", "101", "nan", "wide"}) {
+    CAPTURE(bad);
+    const std::string err = dir + "/floor_err.txt";
+    CHECK(std::system((floor_cmd + "\"" + bad + "\" 2>" + err + " >/dev/null").c_str()) != 0);
+    CHECK(test::read_text(err).find("--registration-floor '" + std::string(bad) + "' must be in [0, 100]") != std::string::npos);
   }
 }
 

@@ -5,6 +5,8 @@
 #include <cstdlib>
 #include <sys/stat.h>
 
+#include <terralign/iclk/tracker.hpp>
+
 namespace terralign::cli {
 
 Result<Args> Args::parse(const std::vector<std::string>& argv, const std::set<std::string>& options,
@@ -91,6 +93,13 @@ Result<double> parse_tilt_prior(const Args& args) {
   if (!v.ok() || !(v.value() >= 0 && v.value() <= 10))
     return Error{"--tilt-prior '" + args.get("tilt-prior") + "' must be in [0, 10] degrees (0: no tilt prior)"};
   return v.value() * 3.14159265358979323846 / 180;
+}
+
+Result<double> parse_registration_floor(const Args& args) {
+  auto v = args.get_double("registration-floor", iclk::TrackerOptions{}.registration_floor_px);
+  if (!v.ok() || !(v.value() >= 0 && v.value() <= 100))
+    return Error{"--registration-floor '" + args.get("registration-floor") + "' must be in [0, 100] camera pixels"};
+  return v.value();
 }
 
 }  // namespace terralign::cli

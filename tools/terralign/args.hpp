@@ -42,4 +42,10 @@ Result<nn::WeightFile> learned_weights(const Args& args);
 // iclk::TrackerOptions::tilt_prior_rad.
 Result<double> parse_tilt_prior(const Args& args);
 
+// --registration-floor PX: the smallest registration error the covariance admits, in camera
+// pixels (iclk::TrackerOptions::registration_floor_px; its default when absent). The default
+// suits a map of the image's own year; across years of change the error is larger (README,
+// tracking a flight).
+Result<double> parse_registration_floor(const Args& args);
+
 }  // namespace terralign::cli

@@ -43,7 +43,7 @@ nlohmann::json pose_json(const geo::Pose& p) {
 
 int run_align(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "image", "prior", "layer", "method", "iterations", "robust", "threads", "weights",
-                                 "tilt-prior"}, {});
+                                 "tilt-prior", "registration-floor"}, {});
   if (!args.ok()) return usage_error("align", args.error());
   for (const char* k : {"map", "camera", "image", "prior", "layer"})
     if (!args->has(k)) return usage_error("align", Error{std::string("missing required option --") + k});
@@ -59,6 +59,8 @@ int run_align(const std::vector<std::string>& argv) {
   if (!prior.ok()) return fail(prior.error());
   auto tilt_prior = parse_tilt_prior(args.value());
   if (!tilt_prior.ok()) return usage_error("align", tilt_prior.error());
+  auto floor_px = parse_registration_floor(args.value());
+  if (!floor_px.ok()) return usage_error("align", floor_px.error());
 
   const auto t0 = std::chrono::steady_clock::now();
   auto map = geo::load_map(args->get("map"));
@@ -78,6 +80,7 @@ int run_align(const std::vector<std::string>& argv) {
   opt.iterations = iters.value();
   opt.robust = robust.value();
   opt.tilt_prior_rad = tilt_prior.value();
+  opt.registration_floor_px = floor_px.value();
   std::optional<nn::WeightFile> weights;
   if (method == "nn") {
     auto w = learned_weights(args.value());

@@ -111,7 +111,7 @@ geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, d
 
 int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
-                                 "threads", "weights", "attitude", "tilt-prior", "init-velocity"}, {});
+                                 "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
@@ -146,9 +146,12 @@ int run_track(const std::vector<std::string>& argv) {
     if (!a.ok()) return fail(a.error());
     attitude = std::move(a.value());
   }
+  auto floor_px = parse_registration_floor(args.value());
+  if (!floor_px.ok()) return usage_error("track", floor_px.error());
   iclk::TrackerOptions opt;
   opt.iterations = iters.value();
   opt.tilt_prior_rad = tilt_prior.value();
+  opt.registration_floor_px = floor_px.value();
   std::optional<nn::WeightFile> weights;
   if (method == "nn") {
     auto w = learned_weights(args.value());

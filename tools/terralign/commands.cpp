@@ -21,7 +21,7 @@ const std::vector<Command>& commands() {
       {"align", "align one camera image to the map from a prior pose; prints the pose as JSON",
        "usage: terralign align --map MAP.json --camera CAMERA.json --image IMG --prior \"x y z qw qx qy qz\"\n"
        "                       --layer NAME [--method classic|nn] [--iterations N] [--robust none|huber|tukey]\n"
-       "                       [--threads N] [--weights FILE] [--tilt-prior DEG]\n\n"
+       "                       [--threads N] [--weights FILE] [--tilt-prior DEG] [--registration-floor PX]\n\n"
        "Renders LAYER at the prior, aligns the image to it (inverse-compositional LM on SE(3),\n"
        "4 levels, N iterations per level, default 20) and prints {\"pose\", \"covariance\",\n"
        "\"converged\", \"reason\", \"iterations\", \"ms\"}. The covariance is 6x6 over\n"
@@ -33,7 +33,10 @@ const std::vector<Command>& commands() {
        "for weights other than the shipped weights/deep_iclk_s16.tlw.\n"
        "--tilt-prior DEG: the prior's roll and pitch come from an attitude reference (an IMU) good\n"
        "to DEG degrees (1 sigma per axis); the answer's tilt is held to them with that weight while\n"
-       "its heading and position stay free (default 0: no tilt prior).\n",
+       "its heading and position stay free (default 0: no tilt prior).\n"
+       "--registration-floor PX: the smallest registration error the covariance admits, in camera\n"
+       "pixels (default 0.1, as same-year renders are registered; a map of another year than the\n"
+       "image calls for more: 0.7 made the learned tracker's NEES honest across a year, README).\n",
        run_align},
       {"eval", "the paper's evaluation: sampled poses, rendered pairs, error tables per method",
        "usage: terralign eval --map MAP.json --camera CAMERA.json --ref-layer A --query-layer B --count N\n"
@@ -80,7 +83,7 @@ const std::vector<Command>& commands() {
        "                       --init \"x y z qw qx qy qz\" [--method classic|nn] [--out poses.csv]\n"
        "                       [--truth POSES] [--json SUMMARY] [--iterations N] [--threads N]\n"
        "                       [--weights FILE] [--attitude FILE [--tilt-prior DEG]]\n"
-       "                       [--init-velocity \"vx vy vz\"]\n\n"
+       "                       [--init-velocity \"vx vy vz\"] [--registration-floor PX]\n\n"
        "LIST has 'timestamp image-path' lines; --init is the pose at the first frame's time. Each\n"
        "frame's prior is the last converged estimate, moved by the velocity of the last two; a frame that fails (not converged, an unreadable or\n"
        "wrongly sized image, a timestamp going backwards) keeps the prediction, says why on stderr,\n"
@@ -95,7 +98,8 @@ const std::vector<Command>& commands() {
        "--attitude FILE: an attitude reference (an IMU) that outlives the GPS, 'timestamp qw qx qy\n"
        "qz' a line, one per frame at its timestamp; a prior not yet predicted from two converged\n"
        "frames takes its roll and pitch (the heading stays the prior's). --tilt-prior DEG holds\n"
-       "each answer's tilt to it with that sigma (as align's).\n",
+       "each answer's tilt to it with that sigma (as align's).\n"
+       "--registration-floor PX: as align's (default 0.1 camera pixels; 0.7 for a map of another year).\n",
        run_track},
       {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
        "usage: terralign dataset --map MAP.json --camera CAMERA.json --count N --seed S --out DIR\n"
