@@ -37,20 +37,9 @@ int main() {
   // The texture: 5 m texels, random opaque colours, levels back to back with a guard texel
   // at each end (shade_kernels.hpp).
   std::mt19937 rng(1);
-  std::vector<std::uint32_t> texels{0xffffffffu};
-  std::vector<MipLevel> levels;
-  int w = 2048, h = 2048, off = 1;
-  float scale = 1;
-  while (true) {
-    levels.push_back({off, w, h, scale});
-    for (int k = 0; k < w * h; ++k) texels.push_back(rng() | 0xff000000u);
-    off += w * h;
-    if (w == 1 && h == 1) break;
-    w = std::max(1, (w + 1) / 2);
-    h = std::max(1, (h + 1) / 2);
-    scale *= 0.5f;
-  }
-  texels.push_back(0xffffffffu);
+  const std::vector<MipLevel> levels = mip_chain(2048, 2048, 16);
+  std::vector<std::uint32_t> texels(mip_chain_end(levels) + 1, 0xffffffffu);
+  for (std::size_t k = 1; k < mip_chain_end(levels); ++k) texels[k] = rng() | 0xff000000u;
   const float texel_m = 5.0f;
   // World (0, 0) at texel (1000, 1000); v grows southwards.
   const ShadeParams p{texels.data(), levels.data(), static_cast<int>(levels.size()), 1000.0f, 1 / texel_m, 0.0f, 1000.0f, 0.0f,

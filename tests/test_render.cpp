@@ -272,24 +272,15 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
   std::mt19937 rng(12345);
   // A guard texel at each end, as the renderer's arrays have (shade_kernels.hpp); opaque
   // white, so a kernel that gave one a weight would change the colours compared below.
+  const std::vector<MipLevel> levels = mip_chain(37, 23, 16);
   std::vector<std::uint32_t> texels{0xffffffffu};
-  std::vector<MipLevel> levels;
-  int w = 37, h = 23, off = 1;
-  float scale = 1;
-  while (true) {
-    levels.push_back({off, w, h, scale});
-    for (int k = 0; k < w * h; ++k) {
+  for (const MipLevel& L : levels)
+    for (int k = 0; k < L.width * L.height; ++k) {
       std::uint32_t t = rng() | 0xff000000u;
       if (k % 7 == 0) t &= 0x00ffffffu;  // some no-data texels
       if (k % 11 == 0) t = (t & 0x00ffffffu) | 0x80000000u;  // and half-transparent ones
       texels.push_back(t);
     }
-    off += w * h;
-    if (w == 1 && h == 1) break;
-    w = std::max(1, (w + 1) / 2);
-    h = std::max(1, (h + 1) / 2);
-    scale *= 0.5f;
-  }
   texels.push_back(0xffffffffu);
   ShadeParams p{texels.data(), levels.data(), static_cast<int>(levels.size()), 3.0f, 0.9f, 0.1f, 5.0f, -0.05f, 1.1f, 0.3f};
   std::uniform_real_distribution<float> pos(-2, 30), fp(-3, 6);  // a few pixels off the edges

@@ -162,37 +162,28 @@ void for_rows(ThreadPool& pool, int rows, F fn) {
 }
 
 void build_mips(const geo::Layer& L, LayerTexture& T, ThreadPool& pool) {
-  int w = L.rgba.width(), h = L.rgba.height();
-  std::size_t total = 0;
-  for (int lw = w, lh = h;; lw = std::max(1, (lw + 1) / 2), lh = std::max(1, (lh + 1) / 2)) {
-    total += static_cast<std::size_t>(lw) * static_cast<std::size_t>(lh);
-    if ((lw == 1 && lh == 1) || T.levels.size() >= 15) break;
-    T.levels.push_back({});
-  }
-  T.levels.clear();
+  const int w0 = L.rgba.width(), h0 = L.rgba.height();
+  T.levels = mip_chain(w0, h0, 16);
+  const std::size_t end = mip_chain_end(T.levels);
   // A guard texel (0) at each end: the AVX-512 kernel reads a row's two taps as one pair,
   // which may start one texel before a level or end one after it (shade_kernels.hpp). Not
   // zero-filled here: every texel is written below, the rows split over the threads (a
   // 20000^2 layer is 2.1 GB with its mips; the first touch of its pages is most of the cost).
-  T.texels.reset(new std::uint32_t[total + 2]);
+  T.texels.reset(new std::uint32_t[end + 1]);
   T.texels[0] = 0;
+  T.texels[end] = 0;
   // Level 0.
   const std::uint8_t* src = L.rgba.data();
-  for_rows(pool, h, [&](int y) {
-    for (std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(w); k < static_cast<std::size_t>(y + 1) * static_cast<std::size_t>(w); ++k)
+  for_rows(pool, h0, [&](int y) {
+    for (std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(w0); k < static_cast<std::size_t>(y + 1) * static_cast<std::size_t>(w0); ++k)
       T.texels[1 + k] = std::uint32_t{src[4 * k]} | std::uint32_t{src[4 * k + 1]} << 8 |
                         std::uint32_t{src[4 * k + 2]} << 16 | std::uint32_t{src[4 * k + 3]} << 24;
   });
-  T.levels.push_back({1, w, h, 1.0f});
-  std::size_t off = 1 + static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
-  float scale = 1.0f;
-  while (!(w == 1 && h == 1) && T.levels.size() < 16) {
-    const MipLevel prev = T.levels.back();
-    const int nw = std::max(1, (w + 1) / 2), nh = std::max(1, (h + 1) / 2);
-    if (off + static_cast<std::size_t>(nw) * static_cast<std::size_t>(nh) > 1 + total) break;
-    scale *= 0.5f;
-    for_rows(pool, nh, [&](int y) {
-      for (int x = 0; x < nw; ++x) {
+  for (std::size_t l = 1; l < T.levels.size(); ++l) {
+    const MipLevel prev = T.levels[l - 1], cur = T.levels[l];
+    const int w = prev.width, h = prev.height;
+    for_rows(pool, cur.height, [&](int y) {
+      for (int x = 0; x < cur.width; ++x) {
         // Alpha-weighted 2x2 box: no-data texels do not darken their neighbours.
         double acc[4] = {0, 0, 0, 0};
         for (int k = 0; k < 4; ++k) {
@@ -208,15 +199,10 @@ void build_mips(const geo::Layer& L, LayerTexture& T, ThreadPool& pool) {
         if (acc[3] > 0)
           for (int c = 0; c < 3; ++c) out |= static_cast<std::uint32_t>(std::lround(acc[c] / acc[3])) << (8 * c);
         out |= static_cast<std::uint32_t>(std::lround(acc[3] / 4.0)) << 24;
-        T.texels[off + static_cast<std::size_t>(y) * static_cast<std::size_t>(nw) + static_cast<std::size_t>(x)] = out;
+        T.texels[static_cast<std::size_t>(cur.offset) + static_cast<std::size_t>(y) * static_cast<std::size_t>(cur.width) + static_cast<std::size_t>(x)] = out;
       }
     });
-    T.levels.push_back({static_cast<std::int32_t>(off), nw, nh, scale});
-    off += static_cast<std::size_t>(nw) * static_cast<std::size_t>(nh);
-    w = nw;
-    h = nh;
   }
-  std::fill(T.texels.get() + off, T.texels.get() + total + 2, 0u);  // the last guard, and any level not built
 }
 
 }  // namespace

@@ -38,6 +38,18 @@ inline Acc sample(const ShadeParams& p, int level, float u, float v) {
 
 }  // namespace
 
+std::vector<MipLevel> mip_chain(int width, int height, int max_levels) {
+  std::vector<MipLevel> levels;
+  std::size_t offset = 1;
+  float scale = 1.0f;
+  for (int w = width, h = height;; w = (w + 1) / 2, h = (h + 1) / 2, scale *= 0.5f) {
+    levels.push_back({static_cast<std::int32_t>(offset), w, h, scale});
+    offset += static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
+    if ((w == 1 && h == 1) || static_cast<int>(levels.size()) >= max_levels) break;
+  }
+  return levels;
+}
+
 void shade_row_scalar(int n, const float* wx, const float* wy, const float* log2fp,
                       std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p) {
   const int top = p.n_levels - 1;

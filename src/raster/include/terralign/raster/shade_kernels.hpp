@@ -7,6 +7,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <vector>
 
 namespace terralign::raster {
 
@@ -16,6 +17,16 @@ struct MipLevel {
   std::int32_t height;
   float scale;          // 2^-level: level-0 texel coordinate -> this level's, about centres
 };
+
+// The levels of a mip chain over a width x height level 0, laid out in one texel array after
+// its leading guard texel: each level half the last (rounded up) down to 1 x 1, at most
+// max_levels of them, back to back from index 1. The array holds mip_chain_end(levels) + 1
+// texels (the trailing guard last).
+std::vector<MipLevel> mip_chain(int width, int height, int max_levels);
+inline std::size_t mip_chain_end(const std::vector<MipLevel>& levels) {
+  const MipLevel& last = levels.back();
+  return static_cast<std::size_t>(last.offset) + static_cast<std::size_t>(last.width) * static_cast<std::size_t>(last.height);
+}
 
 struct ShadeParams {
   const std::uint32_t* texels;  // RGBA8 packed (R in the low byte), every level back to back,
