@@ -62,6 +62,16 @@ std::vector<std::vector<std::string>> csv_rows(const std::string& path) {
   return rows;
 }
 
+// Runs `cmd`, which must be refused: a non-zero exit, and stderr (into `err`) naming `want`.
+void check_refused(const std::string& cmd, const std::string& err, const std::string& want) {
+  const int rc = std::system((cmd + " >/dev/null 2>" + err).c_str());
+  const std::string text = test::read_text(err);
+  CAPTURE(cmd);
+  CAPTURE(text);
+  CHECK(rc != 0);
+  CHECK(text.find(want) != std::string::npos);
+}
+
 }  // namespace
 
 TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged and the track recovers") {
@@ -117,12 +127,9 @@ TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged an
       CHECK(std::stod(wide[i][static_cast<std::size_t>(c)]) > 2 * std::stod(rows[i][static_cast<std::size_t>(c)]));
     }
   }
-  for (const char* bad : {"-1", "101", "nan", "wide"}) {
-    CAPTURE(bad);
-    const std::string err = dir + "/floor_err.txt";
-    CHECK(std::system((floor_cmd + "\"" + bad + "\" 2>" + err + " >/dev/null").c_str()) != 0);
-    CHECK(test::read_text(err).find("--registration-floor '" + std::string(bad) + "' must be in [0, 100]") != std::string::npos);
-  }
+  for (const char* bad : {"-1", "101", "nan", "wide"})
+    check_refused(floor_cmd + "\"" + bad + "\"", dir + "/floor_err.txt",
+                  "--registration-floor '" + std::string(bad) + "' must be in [0, 100]");
 }
 
 TEST_CASE("the learned tracker confirms a prediction that is already right instead of calling it diverged") {
@@ -198,12 +205,9 @@ TEST_CASE("track starts from --init-velocity: the first frames' priors fly on wi
     CAPTURE(i);
     CHECK(with[i] < 1.0);
   }
-  for (const char* bad : {"25 0", "25 0 nan", "25 0 0 1", "east"}) {
-    CAPTURE(bad);
-    const std::string err = dir + "/velocity_err.txt";
-    CHECK(std::system((base + "/bad.json --init-velocity \"" + bad + "\" 2>" + err + " >/dev/null").c_str()) != 0);
-    CHECK(test::read_text(err).find("--init-velocity '" + std::string(bad) + "' must be three finite numbers") != std::string::npos);
-  }
+  for (const char* bad : {"25 0", "25 0 nan", "25 0 0 1", "east"})
+    check_refused(base + "/bad.json --init-velocity \"" + bad + "\"", dir + "/velocity_err.txt",
+                  "--init-velocity '" + std::string(bad) + "' must be three finite numbers");
 }
 
 TEST_CASE("track holds each answer's tilt to an attitude reference's, frame by frame, and refuses a bad attitude file") {
@@ -266,13 +270,7 @@ TEST_CASE("track holds each answer's tilt to an attitude reference's, frame by f
   }
   // Bad files and options are refused by name, before any frame is tracked.
   auto refused = [&](const std::string& opts, const std::string& want) {
-    const std::string err = dir + "/err.txt";
-    const int rc = std::system((track + " " + opts + " >/dev/null 2>" + err).c_str());
-    const std::string text = test::read_text(err);
-    CAPTURE(opts);
-    CAPTURE(text);
-    CHECK(rc != 0);
-    CHECK(text.find(want) != std::string::npos);
+    check_refused(track + " " + opts, dir + "/err.txt", want);
   };
   refused("--tilt-prior 0.5", "--tilt-prior needs --attitude");
   refused("--attitude " + dir + "/nope.txt", "nope.txt: cannot open the attitude readings");
