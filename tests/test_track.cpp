@@ -147,6 +147,24 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   CHECK(j["converged_fraction"].get<double>() == 1.0);
   // Same-year learned tracking: 0.16 m RMSE over 40 frames (README); 1 m as the classical test.
   CHECK(j["position_rmse_m"].get<double>() < 1.0);
+  // --min-sharpness reaches the learned tracker: no answer has a residual 2 px away 1000
+  // times its own (same year 18-57, eval's per-pose JSON; across years about 1), so every
+  // frame fails and keeps its prediction: "ambiguous" while the prior is still near the
+  // aircraft (with no frame converged, every prior is --init, which the aircraft leaves at
+  // 25 m/s; by frame 8 the alignments diverge instead). Out-of-range thresholds and searches
+  // are refused.
+  const std::string cmd = tl + " track --method nn --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
+                          "/list.txt --init \"" + first_truth_pose(dir) + "\" --out " + dir + "/sharp.csv ";
+  REQUIRE(run(cmd + "--min-sharpness 1000") == 0);
+  const auto rows = csv_rows(dir + "/sharp.csv");
+  REQUIRE(rows.size() == 12);
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    CAPTURE(i);
+    CHECK(rows[i][8] == "0");
+    if (i < 4) CHECK(rows[i][9].find("ambiguous") != std::string::npos);
+  }
+  check_refused(cmd + "--min-sharpness 1001", dir + "/err.txt", "--min-sharpness '1001' must be in [-1000, 1000]");
+  check_refused(cmd + "--coarse-search 17", dir + "/err.txt", "--coarse-search '17' must be an integer in [-1, 16]");
 }
 
 TEST_CASE("track reports bad frames by name and goes on: a missing image, a wrong size, time going backwards") {

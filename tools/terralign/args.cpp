@@ -102,4 +102,13 @@ Result<double> parse_registration_floor(const Args& args) {
   return v.value();
 }
 
+Result<double> parse_min_sharpness(const Args& args) {
+  auto v = args.get_double("min-sharpness", 0.0);
+  if (!v.ok() || !(std::abs(v.value()) <= 1000))
+    return Error{"--min-sharpness '" + args.get("min-sharpness") + "' must be in [-1000, 1000] (negative: no sharpness test)"};
+  return v.value();
+}
+
+Result<int> parse_coarse_search(const Args& args) { return args.get_int("coarse-search", 0, -1, 16); }
+
 }  // namespace terralign::cli

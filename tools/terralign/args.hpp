@@ -48,4 +48,13 @@ Result<double> parse_tilt_prior(const Args& args);
 // tracking a flight).
 Result<double> parse_registration_floor(const Args& args);
 
+// --min-sharpness S: the learned tracker's sharpness test (iclk::TrackerOptions::min_sharpness),
+// in [-1000, 1000]; 0 (the default): the weight file's '# min-sharpness'; negative: no test.
+Result<double> parse_min_sharpness(const Args& args);
+
+// --coarse-search PX: the search before the coarsest level (iclk::TrackerOptions::
+// coarse_search_px), in [-1, 16] coarsest-level pixels; 0 (the default): each tracker's own
+// (kClassicCoarseSearchPx, iclk::DeepAligner::kCoarseSearchPx); -1: none.
+Result<int> parse_coarse_search(const Args& args);
+
 }  // namespace terralign::cli

@@ -134,10 +134,9 @@ int run_eval(const std::vector<std::string>& argv) {
   if (!robust.ok()) return usage_error("eval", robust.error());
   auto levels = args->get_int("levels", 4, 1, 6);
   if (!levels.ok()) return usage_error("eval", levels.error());
-  auto min_sharpness = args->get_double("min-sharpness", 0.0);
-  if (!min_sharpness.ok() || !(std::abs(min_sharpness.value()) <= 10))
-    return usage_error("eval", Error{"--min-sharpness must be in [-10, 10] (negative: no sharpness test)"});
-  auto coarse_search = args->get_int("coarse-search", 0, -1, 16);
+  auto min_sharpness = parse_min_sharpness(args.value());
+  if (!min_sharpness.ok()) return usage_error("eval", min_sharpness.error());
+  auto coarse_search = parse_coarse_search(args.value());
   if (!coarse_search.ok()) return usage_error("eval", coarse_search.error());
   auto imu_tilt = args->get_double("imu-tilt", 0.0);
   if (!imu_tilt.ok() || !(imu_tilt.value() >= 0 && imu_tilt.value() <= 10))

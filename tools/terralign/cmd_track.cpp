@@ -111,7 +111,7 @@ geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, d
 
 int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
-                                 "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor"}, {});
+                                 "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor", "min-sharpness", "coarse-search"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
@@ -148,10 +148,16 @@ int run_track(const std::vector<std::string>& argv) {
   }
   auto floor_px = parse_registration_floor(args.value());
   if (!floor_px.ok()) return usage_error("track", floor_px.error());
+  auto min_sharpness = parse_min_sharpness(args.value());
+  if (!min_sharpness.ok()) return usage_error("track", min_sharpness.error());
+  auto coarse_search = parse_coarse_search(args.value());
+  if (!coarse_search.ok()) return usage_error("track", coarse_search.error());
   iclk::TrackerOptions opt;
   opt.iterations = iters.value();
   opt.tilt_prior_rad = tilt_prior.value();
   opt.registration_floor_px = floor_px.value();
+  opt.min_sharpness = min_sharpness.value();
+  opt.coarse_search_px = coarse_search.value();
   std::optional<nn::WeightFile> weights;
   if (method == "nn") {
     auto w = learned_weights(args.value());

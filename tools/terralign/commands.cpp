@@ -83,7 +83,8 @@ const std::vector<Command>& commands() {
        "                       --init \"x y z qw qx qy qz\" [--method classic|nn] [--out poses.csv]\n"
        "                       [--truth POSES] [--json SUMMARY] [--iterations N] [--threads N]\n"
        "                       [--weights FILE] [--attitude FILE [--tilt-prior DEG]]\n"
-       "                       [--init-velocity \"vx vy vz\"] [--registration-floor PX]\n\n"
+       "                       [--init-velocity \"vx vy vz\"] [--registration-floor PX]\n"
+       "                       [--min-sharpness S] [--coarse-search PX]\n\n"
        "LIST has 'timestamp image-path' lines; --init is the pose at the first frame's time. Each\n"
        "frame's prior is the last converged estimate, moved by the velocity of the last two; a frame that fails (not converged, an unreadable or\n"
        "wrongly sized image, a timestamp going backwards) keeps the prediction, says why on stderr,\n"
@@ -99,7 +100,9 @@ const std::vector<Command>& commands() {
        "qz' a line, one per frame at its timestamp; a prior not yet predicted from two converged\n"
        "frames takes its roll and pitch (the heading stays the prior's). --tilt-prior DEG holds\n"
        "each answer's tilt to it with that sigma (as align's).\n"
-       "--registration-floor PX: as align's (default 0.1 camera pixels; 0.7 for a map of another year).\n",
+       "--registration-floor PX: as align's (default 0.1 camera pixels; 0.7 for a map of another year).\n"
+       "--min-sharpness S and --coarse-search PX: as eval's (the learned tracker's sharpness test,\n"
+       "negative: none; the search before the coarsest level, -1: none).\n",
        run_track},
       {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
        "usage: terralign dataset --map MAP.json --camera CAMERA.json --count N --seed S --out DIR\n"
