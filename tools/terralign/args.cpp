@@ -88,27 +88,22 @@ Result<nn::WeightFile> learned_weights(const Args& args) {
   return w;
 }
 
-Result<double> parse_tilt_prior(const Args& args) {
-  auto v = args.get_double("tilt-prior", 0.0);
-  if (!v.ok() || !(v.value() >= 0 && v.value() <= 10))
+Result<iclk::TrackerOptions> parse_tracker_options(const Args& args) {
+  iclk::TrackerOptions opt;
+  auto tilt = args.get_double("tilt-prior", 0.0);
+  if (!tilt.ok() || !(tilt.value() >= 0 && tilt.value() <= 10))
     return Error{"--tilt-prior '" + args.get("tilt-prior") + "' must be in [0, 10] degrees (0: no tilt prior)"};
-  return v.value() * 3.14159265358979323846 / 180;
-}
-
-Result<double> parse_registration_floor(const Args& args) {
-  auto v = args.get_double("registration-floor", iclk::TrackerOptions{}.registration_floor_px);
-  if (!v.ok() || !(v.value() >= 0 && v.value() <= 100))
+  opt.tilt_prior_rad = tilt.value() * 3.14159265358979323846 / 180;
+  auto floor_px = args.get_double("registration-floor", opt.registration_floor_px);
+  if (!floor_px.ok() || !(floor_px.value() >= 0 && floor_px.value() <= 100))
     return Error{"--registration-floor '" + args.get("registration-floor") + "' must be in [0, 100] camera pixels"};
-  return v.value();
-}
-
-Result<double> parse_min_sharpness(const Args& args) {
-  auto v = args.get_double("min-sharpness", 0.0);
-  if (!v.ok() || !(std::abs(v.value()) <= 1000))
+  opt.registration_floor_px = floor_px.value();
+  auto sharp = args.get_double("min-sharpness", 0.0);
+  if (!sharp.ok() || !(std::abs(sharp.value()) <= 1000))
     return Error{"--min-sharpness '" + args.get("min-sharpness") + "' must be in [-1000, 1000] (negative: no sharpness test)"};
-  return v.value();
+  opt.min_sharpness = sharp.value();
+  TERRALIGN_TRY_ASSIGN(opt.coarse_search_px, args.get_int("coarse-search", 0, -1, 16));
+  return opt;
 }
-
-Result<int> parse_coarse_search(const Args& args) { return args.get_int("coarse-search", 0, -1, 16); }
 
 }  // namespace terralign::cli

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include <terralign/geo/result.hpp>
+#include <terralign/iclk/tracker.hpp>
 #include <terralign/nn/weights.hpp>
 
 namespace terralign::cli {
@@ -37,24 +38,18 @@ Status ensure_dir(const std::string& dir);
 // (weights/deep_iclk_s16.tlw in the source tree the program was built from).
 Result<nn::WeightFile> learned_weights(const Args& args);
 
+// The tracker's options that align, eval and track share, on iclk::TrackerOptions' defaults
+// (a command that does not accept one keeps its default):
 // --tilt-prior DEG: the standard deviation of the prior's tilt (roll and pitch, from an
-// attitude reference), in [0, 10] degrees; 0 (the default): none. Returned in radians, for
-// iclk::TrackerOptions::tilt_prior_rad.
-Result<double> parse_tilt_prior(const Args& args);
-
+//   attitude reference), in [0, 10] degrees; 0 (the default): none (tilt_prior_rad, radians).
 // --registration-floor PX: the smallest registration error the covariance admits, in camera
-// pixels (iclk::TrackerOptions::registration_floor_px; its default when absent). The default
-// suits a map of the image's own year; across years of change the error is larger (README,
-// tracking a flight).
-Result<double> parse_registration_floor(const Args& args);
-
-// --min-sharpness S: the learned tracker's sharpness test (iclk::TrackerOptions::min_sharpness),
-// in [-1000, 1000]; 0 (the default): the weight file's '# min-sharpness'; negative: no test.
-Result<double> parse_min_sharpness(const Args& args);
-
-// --coarse-search PX: the search before the coarsest level (iclk::TrackerOptions::
-// coarse_search_px), in [-1, 16] coarsest-level pixels; 0 (the default): each tracker's own
-// (kClassicCoarseSearchPx, iclk::DeepAligner::kCoarseSearchPx); -1: none.
-Result<int> parse_coarse_search(const Args& args);
+//   pixels, [0, 100] (registration_floor_px). The default suits a map of the image's own
+//   year; across years of change the error is larger (README, tracking a flight).
+// --min-sharpness S: the learned tracker's sharpness test (min_sharpness), in [-1000, 1000];
+//   0 (the default): the weight file's '# min-sharpness'; negative: no test.
+// --coarse-search PX: the search before the coarsest level (coarse_search_px), in [-1, 16]
+//   coarsest-level pixels; 0 (the default): each tracker's own (kClassicCoarseSearchPx,
+//   iclk::DeepAligner::kCoarseSearchPx); -1: none.
+Result<iclk::TrackerOptions> parse_tracker_options(const Args& args);
 
 }  // namespace terralign::cli

@@ -57,10 +57,8 @@ int run_align(const std::vector<std::string>& argv) {
   if (!robust.ok()) return usage_error("align", robust.error());
   auto prior = geo::parse_pose(args->get("prior"));
   if (!prior.ok()) return fail(prior.error());
-  auto tilt_prior = parse_tilt_prior(args.value());
-  if (!tilt_prior.ok()) return usage_error("align", tilt_prior.error());
-  auto floor_px = parse_registration_floor(args.value());
-  if (!floor_px.ok()) return usage_error("align", floor_px.error());
+  auto topt = parse_tracker_options(args.value());
+  if (!topt.ok()) return usage_error("align", topt.error());
 
   const auto t0 = std::chrono::steady_clock::now();
   auto map = geo::load_map(args->get("map"));
@@ -76,11 +74,9 @@ int run_align(const std::vector<std::string>& argv) {
   if (!map->find_layer(args->get("layer")))
     return fail(Error{"no layer named '" + args->get("layer") + "' in " + args->get("map") + " (layers: " + map->layer_names() + ")"});
   ImageU8 live = cam->model == geo::DistortionModel::None ? std::move(image.value()) : undistort(image->view(), cam.value());
-  iclk::TrackerOptions opt;
+  iclk::TrackerOptions opt = topt.value();
   opt.iterations = iters.value();
   opt.robust = robust.value();
-  opt.tilt_prior_rad = tilt_prior.value();
-  opt.registration_floor_px = floor_px.value();
   std::optional<nn::WeightFile> weights;
   if (method == "nn") {
     auto w = learned_weights(args.value());

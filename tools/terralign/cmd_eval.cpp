@@ -134,15 +134,11 @@ int run_eval(const std::vector<std::string>& argv) {
   if (!robust.ok()) return usage_error("eval", robust.error());
   auto levels = args->get_int("levels", 4, 1, 6);
   if (!levels.ok()) return usage_error("eval", levels.error());
-  auto min_sharpness = parse_min_sharpness(args.value());
-  if (!min_sharpness.ok()) return usage_error("eval", min_sharpness.error());
-  auto coarse_search = parse_coarse_search(args.value());
-  if (!coarse_search.ok()) return usage_error("eval", coarse_search.error());
   auto imu_tilt = args->get_double("imu-tilt", 0.0);
   if (!imu_tilt.ok() || !(imu_tilt.value() >= 0 && imu_tilt.value() <= 10))
     return usage_error("eval", Error{"--imu-tilt must be in [0, 10] degrees (0: the protocol's prior rotation)"});
-  auto tilt_prior = parse_tilt_prior(args.value());
-  if (!tilt_prior.ok()) return usage_error("eval", tilt_prior.error());
+  auto topt = parse_tracker_options(args.value());
+  if (!topt.ok()) return usage_error("eval", topt.error());
   // The learned tracker's working size and levels (as the firmware sets them): 0 keeps the
   // weight file's.
   LocalizerSizes sizes;
@@ -201,12 +197,9 @@ int run_eval(const std::vector<std::string>& argv) {
   auto samples = sample_poses(map.value(), cam, area, count.value(), seed, lo, hi, tilt.value(), imu_tilt.value());
   if (!samples.ok()) return fail(samples.error());
 
-  iclk::TrackerOptions opt;
-  opt.tilt_prior_rad = tilt_prior.value();
+  iclk::TrackerOptions opt = topt.value();
   opt.robust = robust.value();
   opt.levels = levels.value();
-  opt.min_sharpness = min_sharpness.value();
-  opt.coarse_search_px = coarse_search.value();
   auto loc = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value());
   if (!loc.ok()) return fail(loc.error());
   std::unique_ptr<Localizer> learned;

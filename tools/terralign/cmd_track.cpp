@@ -137,9 +137,9 @@ int run_track(const std::vector<std::string>& argv) {
   auto cam_in = geo::load_camera(args->get("camera"));
   if (!cam_in.ok()) return fail(cam_in.error());
   const geo::CameraModel cam = pinhole_of(cam_in.value());
-  auto tilt_prior = parse_tilt_prior(args.value());
-  if (!tilt_prior.ok()) return usage_error("track", tilt_prior.error());
-  if (tilt_prior.value() > 0 && !args->has("attitude"))
+  auto topt = parse_tracker_options(args.value());
+  if (!topt.ok()) return usage_error("track", topt.error());
+  if (topt->tilt_prior_rad > 0 && !args->has("attitude"))
     return usage_error("track", Error{"--tilt-prior needs --attitude FILE: the tilt it holds the answer to"});
   std::vector<Eigen::Quaterniond> attitude;
   if (args->has("attitude")) {
@@ -147,18 +147,8 @@ int run_track(const std::vector<std::string>& argv) {
     if (!a.ok()) return fail(a.error());
     attitude = std::move(a.value());
   }
-  auto floor_px = parse_registration_floor(args.value());
-  if (!floor_px.ok()) return usage_error("track", floor_px.error());
-  auto min_sharpness = parse_min_sharpness(args.value());
-  if (!min_sharpness.ok()) return usage_error("track", min_sharpness.error());
-  auto coarse_search = parse_coarse_search(args.value());
-  if (!coarse_search.ok()) return usage_error("track", coarse_search.error());
-  iclk::TrackerOptions opt;
+  iclk::TrackerOptions opt = topt.value();
   opt.iterations = iters.value();
-  opt.tilt_prior_rad = tilt_prior.value();
-  opt.registration_floor_px = floor_px.value();
-  opt.min_sharpness = min_sharpness.value();
-  opt.coarse_search_px = coarse_search.value();
   std::optional<nn::WeightFile> weights;
   if (method == "nn") {
     auto w = learned_weights(args.value());
