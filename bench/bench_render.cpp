@@ -125,6 +125,7 @@ double median(std::vector<double> v) {
 double fps(raster::Renderer& r, raster::RenderOutput& out, const geo::Pose& T, int frames, double stage_ms[3] = nullptr) {
   std::vector<double> per, geo_ms, raster_ms, shade_ms;
   raster::RenderStats st;
+  if (stage_ms) std::fill(stage_ms, stage_ms + 3, NAN);  // a failed render prints NaN stages
   if (!r.render(T, out, &st).ok()) return -1;
   for (int b = 0; b < 5; ++b) {
     const auto t0 = std::chrono::steady_clock::now();
