@@ -42,8 +42,8 @@ int main() {
   for (std::size_t k = 1; k < mip_chain_end(levels); ++k) texels[k] = rng() | 0xff000000u;
   const float texel_m = 5.0f;
   // World (0, 0) at texel (1000, 1000); v grows southwards.
-  const ShadeParams p{texels.data(), levels.data(), static_cast<int>(levels.size()), 1000.0f, 1 / texel_m, 0.0f, 1000.0f, 0.0f,
-                      -1 / texel_m, -std::log2(texel_m)};
+  const std::vector<LevelCoords> coords = level_coords(levels, 1000.0, 1 / texel_m, 0.0, 1000.0, 0.0, -1 / texel_m);
+  const ShadeParams p{texels.data(), levels.data(), coords.data(), static_cast<int>(levels.size()), -std::log2(texel_m)};
   const int W = 752, H = 480;
   std::vector<float> wx(W * H), wy(W * H), lf(W * H);
   std::vector<std::uint8_t> rgb(3 * W * H), valid(W * H), rgb_ref(3 * W * H), valid_ref(W * H);

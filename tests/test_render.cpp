@@ -1,7 +1,9 @@
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <new>
 #include <random>
 
@@ -165,6 +167,49 @@ TEST_CASE("one ortho texel east moves a nadir image by exactly f * texel / heigh
   CHECK(worst <= 1);  // float rounding of texel coordinates may flip one level
 }
 
+TEST_CASE("no-data texels do not darken their neighbours, at any level of detail") {
+  // One colour over 1 m texels, with 8 x 8 blocks of no-data on a diagonal lattice; seen from
+  // heights where the filter magnifies, takes level 1 and blends levels 2 and 3. The mip chain
+  // of premultiplied texels and the filter's division by its alpha leave every valid pixel
+  // the layer's colour (to the rounding of the fixed point, 1); a filter of straight colours
+  // would mix no-data's black in at the blocks' edges.
+  geo::Layer L = make_layer("c", 600, 600, 0, 600, 1.0, [](int, int, std::uint8_t* p) {
+    p[0] = 200;
+    p[1] = 120;
+    p[2] = 40;
+  });
+  for (int y = 0; y < 600; ++y)
+    for (int x = 0; x < 600; ++x)
+      if (((x / 8) + (y / 8)) % 3 == 0) {
+        L.rgba.at(x, y, 3) = 0;
+        --L.valid_pixels;
+      }
+  const geo::Map map = test::flat_map(0.0, std::move(L));
+  const geo::CameraModel cam = camera(200, 150, 500);
+  auto r = make(map, cam);
+  auto o = r->make_output({"c"});
+  REQUIRE(o.ok());
+  for (double height : {150.0, 900.0, 2600.0}) {  // 0.3, 1.8 and 5.2 m a pixel
+    CAPTURE(height);
+    REQUIRE(r->render(look_down(300.3, 299.6, height), o.value()).ok());
+    int valid = 0, invalid = 0, worst = 0;
+    for (int v = 0; v < cam.height; ++v)
+      for (int u = 0; u < cam.width; ++u) {
+        if (o->valid[0].at(u, v, 0) == 0) {
+          ++invalid;
+          continue;
+        }
+        ++valid;
+        const int want[3] = {200, 120, 40};
+        for (int c = 0; c < 3; ++c) worst = std::max(worst, std::abs(o->rgb[0].at(u, v, c) - want[c]));
+      }
+    // A third of the texels are no-data; at 5 m a pixel many pixels straddle a block.
+    CHECK(valid > cam.width * cam.height / 4);
+    CHECK(invalid > cam.width * cam.height / 20);  // the blocks still show as no-data
+    CHECK(worst <= 1);
+  }
+}
+
 TEST_CASE("1 and 2 threads, and scalar and AVX2 shading, give the same bytes") {
   const geo::Map map = test::dem_map(257, 257, 0, 2000, 7.8125, [](double x, double y) {
     return 100 + 30 * std::sin(x * 0.004) * std::cos(y * 0.006);
@@ -252,66 +297,50 @@ TEST_CASE("render options out of range are refused, naming the option and its va
   CHECK(Renderer::create(map, camera(), o).ok());
 }
 
-TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded random inputs (AVX2, AVX-512, NEON vs scalar)") {
+TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agree bit for bit on seeded random inputs (AVX2, AVX-512, NEON vs scalar)") {
   struct Kernels {
     const char* name;
     ShadeRowFn shade;
-    ResolveRowFn resolve;
+    ResolveShadeRowFn resolve_shade;
     DepthBlockFn depth;
     EdgeBlockFn edge;  // null: this ISA runs the scalar one
   };
   std::vector<Kernels> vector_kernels;
 #if defined(TERRALIGN_HAVE_AVX2)
-  if (cpu_has_avx2()) vector_kernels.push_back({"avx2", shade_row_avx2, resolve_row_avx2, depth_block_avx2, edge_block_avx2});
-  if (cpu_has_avx512()) vector_kernels.push_back({"avx512", shade_row_avx512, resolve_row_avx512, depth_block_avx2, edge_block_avx2});
+  if (cpu_has_avx2()) vector_kernels.push_back({"avx2", shade_row_avx2, resolve_shade_row_avx2, depth_block_avx2, edge_block_avx2});
+  if (cpu_has_avx512()) vector_kernels.push_back({"avx512", shade_row_avx512, resolve_shade_row_avx512, depth_block_avx2, edge_block_avx2});
 #endif
 #if defined(TERRALIGN_HAVE_NEON)
-  vector_kernels.push_back({"neon", shade_row_neon, resolve_row_neon, depth_block_neon, nullptr});
+  vector_kernels.push_back({"neon", shade_row_neon, resolve_shade_row_neon, depth_block_neon, nullptr});
 #endif
   if (vector_kernels.empty()) MESSAGE("this CPU or build has no vector shading kernel: nothing to compare");
   std::mt19937 rng(12345);
-  // A guard texel at each end, as the renderer's arrays have (shade_kernels.hpp); opaque
-  // white, so a kernel that gave one a weight would change the colours compared below.
+  // Premultiplied texels (a colour never above its alpha): mostly opaque, some no-data, some
+  // half-transparent (as a mip level has them at the edge of no-data). A guard texel at each
+  // end, as the renderer's arrays have (shade_kernels.hpp); opaque white, so a kernel that
+  // gave one a weight would change the colours compared below.
   const std::vector<MipLevel> levels = mip_chain(37, 23, 16);
   std::vector<std::uint32_t> texels{0xffffffffu};
   for (const MipLevel& L : levels)
     for (int k = 0; k < L.width * L.height; ++k) {
-      std::uint32_t t = rng() | 0xff000000u;
-      if (k % 7 == 0) t &= 0x00ffffffu;  // some no-data texels
-      if (k % 11 == 0) t = (t & 0x00ffffffu) | 0x80000000u;  // and half-transparent ones
+      const std::uint32_t a = k % 7 == 0 ? 0u : k % 11 == 0 ? 128u : 255u;
+      std::uint32_t t = a << 24;
+      for (int c = 0; c < 3; ++c) t |= (rng() % (a + 1)) << (8 * c);
       texels.push_back(t);
     }
   texels.push_back(0xffffffffu);
-  ShadeParams p{texels.data(), levels.data(), static_cast<int>(levels.size()), 3.0f, 0.9f, 0.1f, 5.0f, -0.05f, 1.1f, 0.3f};
+  const std::vector<LevelCoords> coords = level_coords(levels, 3.0, 0.9, 0.1, 5.0, -0.05, 1.1);
+  const ShadeParams p{texels.data(), levels.data(), coords.data(), static_cast<int>(levels.size()), 0.3f};
   std::uniform_real_distribution<float> pos(-2, 30), fp(-3, 6);  // a few pixels off the edges
-  const int n = 1003;
+  const int n = 1003;  // 62 groups and a short one
   std::vector<float> wx(n), wy(n), lf(n);
   for (int i = 0; i < n; ++i) {
     wx[i] = pos(rng);
     wy[i] = pos(rng);
-    lf[i] = i % 5 == 0 ? 0.0f : fp(rng);
-    if (i % 13 == 0) wx[i] = NAN;
+    lf[i] = i % 5 == 0 ? -0.3f : fp(rng);  // some groups at a whole level (fraction 0)
+    if (i % 13 == 0 || (i >= 32 && i < 48)) wx[i] = NAN;  // no terrain, a whole group of it too
   }
   std::vector<std::uint8_t> rgb_s(3 * n), val_s(n);
-  shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_s.data(), val_s.data(), p);
-  int valid = 0;
-  for (auto v : val_s) valid += v != 0;
-  CHECK(valid > n / 4);  // the test exercises real samples, not only invalid pixels
-  // The resolve kernel: a row of 93 pixels (vectors and a tail) seeing five tilted planes in
-  // runs of every length from 1 to 9, lanes of one plane, of several, and of none (-1).
-  const int m = 93;
-  std::vector<float> coef;
-  for (int e = 0; e < 5; ++e)
-    for (float v : {0.0021f, -1.3e-6f, 2.1e-6f, 1.7f, 0.0003f, 0.00011f, -0.9f, 0.0002f, -0.0004f})
-      coef.push_back(v * (1.0f + 0.1f * static_cast<float>(e)));
-  std::vector<int> ids;
-  for (int run = 1; static_cast<int>(ids.size()) < m; ++run)
-    for (int i = 0; i < run % 10 && static_cast<int>(ids.size()) < m; ++i) ids.push_back(run % 6 - 1);
-  for (int i = 16; i < 32; ++i) ids[static_cast<std::size_t>(i)] = 3;  // one plane over a whole vector
-  for (int i = 32; i < 48; ++i) ids[static_cast<std::size_t>(i)] = -1;  // and no terrain over one
-  std::vector<float> a(4 * m);
-  resolve_row_scalar(m, ids.data(), coef.data(), 5.0f, 7.0f, a.data(), a.data() + m, a.data() + 2 * m, a.data() + 3 * m);
-  // Each vector kernel's shading of the current inputs against the scalar one's.
   auto compare_shading = [&](const Kernels& k) {
     CAPTURE(std::string(k.name));
     std::vector<std::uint8_t> rgb_v(3 * n), val_v(n);
@@ -319,15 +348,13 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
     CHECK(rgb_s == rgb_v);
     CHECK(val_s == val_v);
   };
-  for (const Kernels& k : vector_kernels) {
-    compare_shading(k);
-    CAPTURE(std::string(k.name));
-    std::vector<float> b(4 * m);
-    k.resolve(m, ids.data(), coef.data(), 5.0f, 7.0f, b.data(), b.data() + m, b.data() + 2 * m, b.data() + 3 * m);
-    CHECK(std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0);
-  }
+  shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_s.data(), val_s.data(), p);
+  int valid = 0, partial = 0;
+  for (int i = 0; i < n; ++i) valid += val_s[static_cast<std::size_t>(i)] != 0;
+  CHECK(valid > n / 4);  // the test exercises real samples, not only invalid pixels
+  for (const Kernels& k : vector_kernels) compare_shading(k);
   // Positions well inside the texture at levels 0-2, so that every vector's taps are all
-  // inside (the AVX-512 kernel's shortcut past the edge masks), and NaN lanes among them.
+  // inside (the kernels' shortcut past the edge masks), and NaN lanes among them.
   std::uniform_real_distribution<float> inner(1, 12), inner_fp(-3, 1.5f);
   for (int i = 0; i < n; ++i) {
     wx[i] = i % 29 == 0 ? NAN : inner(rng);
@@ -335,15 +362,20 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
     lf[i] = inner_fp(rng);
   }
   shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_s.data(), val_s.data(), p);
+  for (int i = 0; i < n; ++i) {
+    const int r = rgb_s[3 * static_cast<std::size_t>(i)], a = val_s[static_cast<std::size_t>(i)];
+    partial += a != 0 && r > 0 && r < 255;
+  }
+  CHECK(partial > 10);
   for (const Kernels& k : vector_kernels) compare_shading(k);
-  // Rows of pixels as a render has them: runs of 16 along a line, 0.05-1.4 world units (about
-  // texels) apart in eight directions, at level 0 alone or trilinear between 0 and 1, starting
-  // anywhere up to the level's far edges. Most vectors' taps then lie in a few neighbouring
-  // texels (the AVX2 kernel's row loads instead of gathers: at most 7 columns by 2 rows of
-  // texel pairs), some just too far apart, some across the edges.
+  // Rows of pixels as a render has them: groups of 16 along a line, 0.05-1.4 world units
+  // (about texels) apart in eight directions, at level 0 alone or trilinear between 0 and 1,
+  // starting anywhere up to the level's far edges. Most vectors' taps then lie in a few
+  // neighbouring texel rows (the kernels' row windows instead of gathers), some too far apart
+  // (gathers), some across the edges.
   std::uniform_real_distribution<float> start_x(-1, 38), start_y(-2, 18), step(0.05f, 1.4f);
   const float angles[8] = {0.0f, 0.03f, 0.1f, 3.1f, 2.9f, 0.5f, 1.6f, -0.05f};  // mostly along texel rows
-  int near_taps = 0, far_taps = 0;
+  int window = 0, gathered = 0;
   for (int i = 0; i < n; i += 16) {
     const float sx = start_x(rng), sy = start_y(rng), d = step(rng);
     const float angle = angles[(i / 16) % 8];
@@ -353,23 +385,121 @@ TEST_CASE("the shading, resolve and depth kernels agree bit for bit on seeded ra
       wy[j] = sy + d * std::sin(angle) * static_cast<float>(j - i);
       lf[j] = level_lf;
     }
-    // How the 8-lane vectors at level 0 split (u, v are level 0's texel coordinates).
+    // How the 8-lane vectors at level 0 split: inside the level, the taps within 8 columns
+    // and 4 rows (the AVX2 window) or not.
     for (int j = i; j + 8 <= std::min(n, i + 16); j += 8) {
       int xlo = 1 << 30, xhi = -xlo, ylo = xlo, yhi = -xlo;
       bool inside = true;
       for (int k = j; k < j + 8; ++k) {
-        const int x0 = static_cast<int>(std::floor(p.a0 + p.a1 * wx[k] + p.a2 * wy[k]));
-        const int y0 = static_cast<int>(std::floor(p.b0 + p.b1 * wx[k] + p.b2 * wy[k]));
+        const int x0 = static_cast<int>(std::floor(coords[0].a0 + coords[0].a1 * wx[k] + coords[0].a2 * wy[k]));
+        const int y0 = static_cast<int>(std::floor(coords[0].b0 + coords[0].b1 * wx[k] + coords[0].b2 * wy[k]));
         inside = inside && x0 >= 0 && x0 < levels[0].width - 1 && y0 >= 0 && y0 < levels[0].height - 1;
         xlo = std::min(xlo, x0), xhi = std::max(xhi, x0), ylo = std::min(ylo, y0), yhi = std::max(yhi, y0);
       }
-      if (inside && yhi - ylo <= 1) (xhi - xlo <= 6 ? near_taps : far_taps) += 1;
+      if (inside) (xhi - xlo <= 6 && yhi - ylo <= 4 ? window : gathered) += 1;
     }
   }
-  CHECK(near_taps > 30);  // the inputs reach the row loads ...
-  CHECK(far_taps > 10);   // ... and the gathers next to them
+  CHECK(window > 30);    // the inputs reach the row windows ...
+  CHECK(gathered > 10);  // ... and the gathers next to them
   shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_s.data(), val_s.data(), p);
   for (const Kernels& k : vector_kernels) compare_shading(k);
+  // The same rows over an opaque texture (as most of a real layer is): the vector kernels'
+  // shortcut for groups whose every tap is opaque, (S_c + 64) >> 7.
+  std::vector<std::uint32_t> saved = texels;
+  for (std::size_t k = 1; k + 1 < texels.size(); ++k) texels[k] = rng() | 0xff000000u;
+  shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_s.data(), val_s.data(), p);
+  int opaque = 0;
+  for (auto v : val_s) opaque += v != 0;
+  CHECK(opaque > n / 2);
+  for (const Kernels& k : vector_kernels) compare_shading(k);
+  texels.swap(saved);  // back to the texture with no-data and transparency
+
+  // The fused kernel: a row of 93 pixels (five groups and a short one) seeing five tilted
+  // planes in runs of every length from 1 to 9, groups of one plane, of several, and of none
+  // (-1), shading two layers (the second's texel coordinates and bias differ). Each plane
+  // passes world (15, 10) at the row's middle and runs over the texture and off it, its
+  // footprint 0.1-4 world units a pixel (levels 0-2).
+  const int m = 93;
+  std::vector<float> coef;
+  for (int e = 0; e < 5; ++e) {
+    const float s = std::array<float, 5>{10, 40, 100, 200, 400}[static_cast<std::size_t>(e)];
+    const float q0 = 0.002f, ax = 2e-5f * s, bx = -1e-5f * s;
+    for (float v : {q0, -1.3e-6f, 2.1e-6f, 15 * q0 - 50 * ax, ax, 1e-5f * s, 10 * q0 - 50 * bx, bx, 2e-5f * s}) coef.push_back(v);
+  }
+  std::vector<int> ids;
+  for (int run = 1; static_cast<int>(ids.size()) < m; ++run)
+    for (int i = 0; i < run % 10 && static_cast<int>(ids.size()) < m; ++i) ids.push_back(run % 6 - 1);
+  for (int i = 16; i < 32; ++i) ids[static_cast<std::size_t>(i)] = 3;  // one plane over a whole group
+  for (int i = 32; i < 48; ++i) ids[static_cast<std::size_t>(i)] = -1;  // and no terrain over one
+  const std::vector<LevelCoords> coords2 = level_coords(levels, 1.5, 0.7, -0.2, 2.0, 0.1, 0.8);
+  const ShadeParams p2{texels.data(), levels.data(), coords2.data(), static_cast<int>(levels.size()), -0.4f};
+  struct Fused {
+    std::vector<float> z;
+    std::vector<std::uint8_t> rgb[2], valid[2];
+  };
+  auto fused = [&](ResolveShadeRowFn fn) {
+    Fused f;
+    f.z.assign(static_cast<std::size_t>(m), 7.0f);
+    for (int k = 0; k < 2; ++k) {
+      f.rgb[k].assign(3 * static_cast<std::size_t>(m), 1);
+      f.valid[k].assign(static_cast<std::size_t>(m), 1);
+    }
+    const ShadeTarget targets[2] = {{&p, f.rgb[0].data(), f.valid[0].data()}, {&p2, f.rgb[1].data(), f.valid[1].data()}};
+    fn(m, ids.data(), coef.data(), 5.0f, 7.0f, f.z.data(), 2, targets);
+    return f;
+  };
+  const Fused ref = fused(resolve_shade_row_scalar);
+  // The fused kernel is the documented resolve followed by shade_row: the same bits.
+  {
+    std::vector<float> x(m), y(m), z(m), l2(m);
+    for (int i = 0; i < m; ++i) {
+      x[static_cast<std::size_t>(i)] = y[static_cast<std::size_t>(i)] = z[static_cast<std::size_t>(i)] = NAN;
+      l2[static_cast<std::size_t>(i)] = 0.0f;
+      if (ids[static_cast<std::size_t>(i)] < 0) continue;
+      const float* c = coef.data() + 9 * ids[static_cast<std::size_t>(i)];
+      const float dx = 5.0f + static_cast<float>(i), dy = 7.0f;
+      const float zz = 1.0f / ((c[0] + c[2] * dy) + c[1] * dx);
+      z[static_cast<std::size_t>(i)] = zz;
+      x[static_cast<std::size_t>(i)] = ((c[3] + c[5] * dy) + c[4] * dx) * zz;
+      y[static_cast<std::size_t>(i)] = ((c[6] + c[8] * dy) + c[7] * dx) * zz;
+      l2[static_cast<std::size_t>(i)] = plane_footprint_log2(c, dx, dy);
+    }
+    CHECK(std::memcmp(z.data(), ref.z.data(), z.size() * sizeof(float)) == 0);
+    const ShadeParams* ps[2] = {&p, &p2};
+    for (int k = 0; k < 2; ++k) {
+      std::vector<std::uint8_t> rgb(3 * static_cast<std::size_t>(m)), val(static_cast<std::size_t>(m));
+      shade_row_scalar(m, x.data(), y.data(), l2.data(), rgb.data(), val.data(), *ps[k]);
+      CHECK(rgb == ref.rgb[k]);
+      CHECK(val == ref.valid[k]);
+    }
+    int levels_seen = 0;  // the groups' levels differ (the planes' footprints span levels)
+    for (int g = 0; g + 16 <= m; g += 16) levels_seen |= 1 << group_level(l2[static_cast<std::size_t>(g)], p).l0;
+    CHECK(__builtin_popcount(static_cast<unsigned>(levels_seen)) >= 2);
+    int shown = 0;
+    for (auto v : ref.valid[0]) shown += v != 0;
+    CHECK(shown > 10);
+  }
+  for (const Kernels& k : vector_kernels) {
+    CAPTURE(std::string(k.name));
+    const Fused f = fused(k.resolve_shade);
+    CHECK(std::memcmp(f.z.data(), ref.z.data(), f.z.size() * sizeof(float)) == 0);
+    for (int t = 0; t < 2; ++t) {
+      CHECK(f.rgb[t] == ref.rgb[t]);
+      CHECK(f.valid[t] == ref.valid[t]);
+    }
+  }
+  // And over the opaque texture (the shortcut, as above).
+  texels.swap(saved);
+  const Fused ref_opaque = fused(resolve_shade_row_scalar);
+  for (const Kernels& k : vector_kernels) {
+    CAPTURE(std::string(k.name));
+    const Fused f = fused(k.resolve_shade);
+    for (int t = 0; t < 2; ++t) {
+      CHECK(f.rgb[t] == ref_opaque.rgb[t]);
+      CHECK(f.valid[t] == ref_opaque.valid[t]);
+    }
+  }
+  texels.swap(saved);
   // The depth kernel: blocks of every width 1..8 and height 1..8 written into a 12 x 10
   // buffer holding other triangles' depths (some nearer, some farther), with a row stride.
   const int stride = 12;

@@ -9,6 +9,7 @@ const CpuFeatures& cpu_features() {
     __builtin_cpu_init();
     c.avx2_fma = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
     c.avx512f = c.avx2_fma && __builtin_cpu_supports("avx512f");
+    c.avx512bw_vl = c.avx512f && __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512vl");
 #endif
     return c;
   }();

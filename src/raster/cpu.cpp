@@ -14,7 +14,7 @@ bool cpu_has_avx2() {
 
 bool cpu_has_avx512() {
 #if defined(TERRALIGN_HAVE_AVX2)
-  return cpu_features().avx512f && cpu_features().avx2_fma;
+  return cpu_features().avx512bw_vl;
 #else
   return false;
 #endif

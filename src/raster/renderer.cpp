@@ -70,7 +70,7 @@ struct LayerTexture {
   std::string name;
   std::unique_ptr<std::uint32_t[]> texels;
   std::vector<MipLevel> levels;
-  double a0, a1, a2, b0, b1, b2;  // local world -> level-0 texel coordinates
+  std::vector<LevelCoords> coords;  // local world -> each level's texel coordinates
   float lod_bias;
 };
 
@@ -86,7 +86,7 @@ struct Renderer::Impl {
   Terrain terrain;
   std::vector<LayerTexture> layers;
   ShadeRowFn shade = shade_row_scalar;
-  ResolveRowFn resolve = resolve_row_scalar;
+  ResolveShadeRowFn resolve_shade = resolve_shade_row_scalar;
   DepthBlockFn depth_block = depth_block_scalar;
   EdgeBlockFn edge_block = edge_block_scalar;
   EdgeBlock32Fn edge_block32 = nullptr;   // where built: blocks whose edge values fit 32 bits
@@ -114,7 +114,7 @@ struct Renderer::Impl {
   std::vector<float> remap_u, remap_v;    // per output pixel, pinhole position (distortion)
   std::vector<float> gx, gy, gz;          // distorted camera, per output pixel: local world x, y; depth
   std::vector<float> log2fp;              // distorted camera, per output pixel
-  std::vector<float> row_g;               // pinhole camera, per thread: one tile row of x, y, log2fp
+  std::vector<ShadeTarget> row_targets;   // pinhole camera, per thread: one row's layers
   std::vector<ShadeParams> layer_params;  // per layer
   std::vector<int> chunk_stack;
 
@@ -165,41 +165,38 @@ void build_mips(const geo::Layer& L, LayerTexture& T, ThreadPool& pool) {
   const int w0 = L.rgba.width(), h0 = L.rgba.height();
   T.levels = mip_chain(w0, h0, 16);
   const std::size_t end = mip_chain_end(T.levels);
-  // A guard texel (0) at each end: the AVX-512 kernel reads a row's two taps as one pair,
+  // A guard texel (0) at each end: the vector kernels read a row's two taps as one pair,
   // which may start one texel before a level or end one after it (shade_kernels.hpp). Not
   // zero-filled here: every texel is written below, the rows split over the threads (a
   // 20000^2 layer is 2.1 GB with its mips; the first touch of its pages is most of the cost).
   T.texels.reset(new std::uint32_t[end + 1]);
   T.texels[0] = 0;
   T.texels[end] = 0;
-  // Level 0.
+  // Level 0, premultiplied (shade_kernels.hpp): a layer's alpha is 0 or 255, which makes this
+  // exact; the rounding serves any other alpha.
   const std::uint8_t* src = L.rgba.data();
   for_rows(pool, h0, [&](int y) {
-    for (std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(w0); k < static_cast<std::size_t>(y + 1) * static_cast<std::size_t>(w0); ++k)
-      T.texels[1 + k] = std::uint32_t{src[4 * k]} | std::uint32_t{src[4 * k + 1]} << 8 |
-                        std::uint32_t{src[4 * k + 2]} << 16 | std::uint32_t{src[4 * k + 3]} << 24;
+    for (std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(w0); k < static_cast<std::size_t>(y + 1) * static_cast<std::size_t>(w0); ++k) {
+      const std::uint32_t a = src[4 * k + 3];
+      auto pre = [a](std::uint32_t c) { return (c * a + 127) / 255; };
+      T.texels[1 + k] = pre(src[4 * k]) | pre(src[4 * k + 1]) << 8 | pre(src[4 * k + 2]) << 16 | a << 24;
+    }
   });
+  // Each coarser level: the rounded mean of the 2 x 2 premultiplied texels below (the last
+  // row or column repeated where the level below is odd), channel by channel, alpha too.
   for (std::size_t l = 1; l < T.levels.size(); ++l) {
     const MipLevel prev = T.levels[l - 1], cur = T.levels[l];
     const int w = prev.width, h = prev.height;
     for_rows(pool, cur.height, [&](int y) {
       for (int x = 0; x < cur.width; ++x) {
-        // Alpha-weighted 2x2 box: no-data texels do not darken their neighbours.
-        double acc[4] = {0, 0, 0, 0};
+        std::uint32_t sum[4] = {2, 2, 2, 2};
         for (int k = 0; k < 4; ++k) {
           const int sx = std::min(2 * x + (k & 1), w - 1), sy = std::min(2 * y + (k >> 1), h - 1);
           const std::uint32_t t = T.texels[static_cast<std::size_t>(prev.offset) + static_cast<std::size_t>(sy) * static_cast<std::size_t>(w) + static_cast<std::size_t>(sx)];
-          const double a = t >> 24;
-          acc[0] += a * (t & 255u);
-          acc[1] += a * ((t >> 8) & 255u);
-          acc[2] += a * ((t >> 16) & 255u);
-          acc[3] += a;
+          for (int c = 0; c < 4; ++c) sum[c] += (t >> (8 * c)) & 255u;
         }
-        std::uint32_t out = 0;
-        if (acc[3] > 0)
-          for (int c = 0; c < 3; ++c) out |= static_cast<std::uint32_t>(std::lround(acc[c] / acc[3])) << (8 * c);
-        out |= static_cast<std::uint32_t>(std::lround(acc[3] / 4.0)) << 24;
-        T.texels[static_cast<std::size_t>(cur.offset) + static_cast<std::size_t>(y) * static_cast<std::size_t>(cur.width) + static_cast<std::size_t>(x)] = out;
+        T.texels[static_cast<std::size_t>(cur.offset) + static_cast<std::size_t>(y) * static_cast<std::size_t>(cur.width) + static_cast<std::size_t>(x)] =
+            (sum[0] >> 2) | (sum[1] >> 2) << 8 | (sum[2] >> 2) << 16 | (sum[3] >> 2) << 24;
       }
     });
   }
@@ -241,8 +238,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     L.transform.world_to_pixel(m.ox, m.oy, u0, v0);
     L.transform.world_to_pixel(m.ox + 1.0, m.oy, u1, v1);
     L.transform.world_to_pixel(m.ox, m.oy + 1.0, u2, v2);
-    T.a0 = u0; T.a1 = u1 - u0; T.a2 = u2 - u0;
-    T.b0 = v0; T.b1 = v1 - v0; T.b2 = v2 - v0;
+    T.coords = level_coords(T.levels, u0, u1 - u0, u2 - u0, v0, v1 - v0, v2 - v0);
     const auto& g = L.transform.gdal();
     T.lod_bias = static_cast<float>(-0.5 * std::log2(std::abs(g[1] * g[5] - g[2] * g[4])));
     m.layers.push_back(std::move(T));
@@ -325,11 +321,9 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.gz.resize(opx);
     m.log2fp.resize(opx);
   }
-  m.row_g.resize(static_cast<std::size_t>(options.threads) * 3 * kTileW);
+  m.row_targets.resize(static_cast<std::size_t>(options.threads) * m.layers.size());
   for (const LayerTexture& T : m.layers)
-    m.layer_params.push_back({T.texels.get(), T.levels.data(), static_cast<int>(T.levels.size()),
-                              static_cast<float>(T.a0), static_cast<float>(T.a1), static_cast<float>(T.a2),
-                              static_cast<float>(T.b0), static_cast<float>(T.b1), static_cast<float>(T.b2), T.lod_bias});
+    m.layer_params.push_back({T.texels.get(), T.levels.data(), T.coords.data(), static_cast<int>(T.levels.size()), T.lod_bias});
   m.chunk_stack.reserve(m.terrain.chunks().size() + 8);
   m.draw_list.reserve(m.terrain.chunks().size());
   m.drawn.assign(m.terrain.chunks().size(), 0);
@@ -340,7 +334,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
 #if defined(TERRALIGN_HAVE_AVX2)
   if (avx2 && options.simd != RenderOptions::Simd::Scalar) {
     m.shade = shade_row_avx2;
-    m.resolve = resolve_row_avx2;
+    m.resolve_shade = resolve_shade_row_avx2;
     m.depth_block = depth_block_avx2;
     m.edge_block = edge_block_avx2;
     m.edge_block32 = edge_block32_avx2;
@@ -352,14 +346,14 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
 #if defined(TERRALIGN_HAVE_AVX2)
   if (cpu_has_avx512() && (options.simd == RenderOptions::Simd::Auto || options.simd == RenderOptions::Simd::Avx512)) {
     m.shade = shade_row_avx512;  // the depth kernels stay AVX2
-    m.resolve = resolve_row_avx512;
+    m.resolve_shade = resolve_shade_row_avx512;
     m.simd = "avx512";
   }
 #endif
   if (options.simd == RenderOptions::Simd::Neon) {
 #if defined(TERRALIGN_HAVE_NEON)
     m.shade = shade_row_neon;
-    m.resolve = resolve_row_neon;
+    m.resolve_shade = resolve_shade_row_neon;
     m.depth_block = depth_block_neon;
     m.simd = "neon";
 #else
@@ -369,7 +363,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
 #if defined(TERRALIGN_HAVE_NEON)
   if (options.simd == RenderOptions::Simd::Auto) {  // every aarch64 core has NEON
     m.shade = shade_row_neon;
-    m.resolve = resolve_row_neon;
+    m.resolve_shade = resolve_shade_row_neon;
     m.depth_block = depth_block_neon;
     m.simd = "neon";
   }
@@ -401,6 +395,9 @@ Result<RenderOutput> Renderer::make_output(const std::vector<std::string>& names
       out.layer_index.push_back(index);
     }
   }
+  if (out.layer_names.size() > static_cast<std::size_t>(kMaxShadeTargets))
+    return Error{"render: " + std::to_string(out.layer_names.size()) + " layers in one output, over " +
+                 std::to_string(kMaxShadeTargets) + "; render them in several outputs"};
   const int w = impl_->camera.width, h = impl_->camera.height;
   for (std::size_t i = 0; i < out.layer_names.size(); ++i) {
     out.rgb.emplace_back(w, h, 3);
@@ -807,17 +804,18 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     }
     return;
   }
-  // Pinhole camera: resolve and shade this tile now, row by row, the row's world positions
-  // kept in this thread's scratch (never written to memory in full).
+  // Pinhole camera: resolve and shade this tile now, row by row (the fused kernel keeps each
+  // pixel's world position in registers).
   const std::size_t w = static_cast<std::size_t>(camera.width);
-  float* rx = row_g.data() + static_cast<std::size_t>(thread) * 3 * kTileW;
-  float* ry = rx + kTileW;
-  float* rl = ry + kTileW;
+  const std::size_t n_layers = frame_out->layer_names.size();
+  ShadeTarget* targets = row_targets.data() + static_cast<std::size_t>(thread) * layers.size();
   for (int y = y0; y <= y1; ++y) {
-    float* depth = frame_out->depth.data() + static_cast<std::size_t>(y) * w + static_cast<std::size_t>(x0);
-    resolve(x1 - x0 + 1, idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw + x0, coef, 0.0f, static_cast<float>(y - y0),
-            rx, ry, depth, rl);
-    shade_span(y, x0, x1 - x0 + 1, rx, ry, rl);
+    const std::size_t k = static_cast<std::size_t>(y) * w + static_cast<std::size_t>(x0);
+    for (std::size_t l = 0; l < n_layers; ++l)
+      targets[l] = {&layer_params[static_cast<std::size_t>(frame_out->layer_index[l])], frame_out->rgb[l].data() + 3 * k,
+                    frame_out->valid[l].data() + k};
+    resolve_shade(x1 - x0 + 1, idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw + x0, coef, 0.0f, static_cast<float>(y - y0),
+                  frame_out->depth.data() + k, static_cast<int>(n_layers), targets);
   }
 }
 

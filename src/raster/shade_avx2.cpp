@@ -1,7 +1,9 @@
-// AVX2 build of the shading kernel: 8 pixels a step, texels fetched with gathers (or, where the
-// taps are neighbours, row loads and permutes: contiguous_taps). Same float
-// operations in the same order as shade_scalar.cpp (compiled without FMA contraction), so
-// the output matches it bit for bit. The tail (n % 8) runs the scalar kernel.
+// AVX2 build of the shading kernels: a group of 16 pixels as two vectors of 8, the filter of
+// shade_kernels.hpp in 16-bit lanes (R and B words, G and A words of each pixel's 32 bits), so
+// the output matches shade_scalar.cpp bit for bit. A group's pixels share a level, so texels
+// come from row loads and permutes where a vector's taps lie in a window of a few texel rows
+// and 8 columns (window_taps), from gathers elsewhere. A row's last group, if short, runs the
+// scalar kernel. Also the AVX2 depth and edge kernels.
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <cmath>
@@ -14,25 +16,44 @@
 namespace terralign::raster {
 namespace {
 
-struct Acc8 {
-  __m256 r, g, b, a;
+#define TL_INLINE inline __attribute__((always_inline))
+
+// A row window holds the taps of lanes spread over at most this many texel rows.
+constexpr int kWindowRows = 6;
+
+struct Taps {
+  __m256i t00, t10, t01, t11;  // top-left, top-right, bottom-left, bottom-right
 };
 
-// Neighbouring pixels mostly read neighbouring texels. When the 8 lanes' bilinear taps (x0 ..
-// x0 + 1, y0 .. y0 + 1, all inside level L) lie in at most three texel rows and 8 columns, three
-// row loads and permutes fetch them instead of four gathers: the same texels, so the same
-// bits. The lanes at the ends give the box (a row of pixels over terrain maps to a curve whose
-// extremes are mostly at its ends), and every lane is checked to be inside it. Calls
-// add_tap(w[k], texels of tap k) for k = 0..3 in the gathers' order and returns true, or
-// returns false and reads nothing.
-template <class AddTap>
-inline bool contiguous_taps(const MipLevel& L, const int* texels, __m256i x0, __m256i y0, const __m256 w[4],
-                            AddTap& add_tap) {
+// A sample's channels in the filter's fixed point: R|B and G|A word pairs, x128.
+struct Sample8 {
+  __m256i rb, ga;
+};
+
+TL_INLINE __m256i lerp15(__m256i a, __m256i b, __m256i f) {
+  return _mm256_add_epi16(a, _mm256_mulhrs_epi16(_mm256_sub_epi16(b, a), f));
+}
+
+TL_INLINE Sample8 lerp_row(__m256i left, __m256i right, __m256i fx) {
+  const __m256i m = _mm256_set1_epi32(0x7F807F80);
+  // R, B of each texel at bits 7-14 and 23-30 (t << 7); G, A likewise (t >> 1).
+  const __m256i rb_l = _mm256_and_si256(_mm256_slli_epi32(left, 7), m), rb_r = _mm256_and_si256(_mm256_slli_epi32(right, 7), m);
+  const __m256i ga_l = _mm256_and_si256(_mm256_srli_epi32(left, 1), m), ga_r = _mm256_and_si256(_mm256_srli_epi32(right, 1), m);
+  return {lerp15(rb_l, rb_r, fx), lerp15(ga_l, ga_r, fx)};
+}
+
+// Neighbouring pixels mostly read neighbouring texels. When the 8 lanes' taps (x0 .. x0 + 1,
+// y0 .. y0 + 1, all inside level L) lie in at most kWindowRows texel rows and 8 columns, each
+// row of the window is one masked load and each lane picks its taps with permutes: the
+// texels the gathers would fetch. The lanes at the ends give the box (a row of pixels over
+// terrain maps to a curve whose extremes are mostly at its ends), and every lane is checked
+// to be inside it. Returns false, having read nothing, when the taps do not fit.
+TL_INLINE bool window_taps(const MipLevel& L, const int* texels, __m256i x0, __m256i y0, Taps& t) {
   const int xa = _mm256_cvtsi256_si32(x0), xb = _mm256_extract_epi32(x0, 7);
   const int ya = _mm256_cvtsi256_si32(y0), yb = _mm256_extract_epi32(y0, 7);
   const int xlo = xa < xb ? xa : xb, xspan = (xa < xb ? xb : xa) - xlo;
   const int ylo = ya < yb ? ya : yb, yspan = (ya < yb ? yb : ya) - ylo;
-  if (xspan > 6 || yspan > 1) return false;
+  if (xspan > 6 || yspan > kWindowRows - 2) return false;
   const __m256i dx = _mm256_sub_epi32(x0, _mm256_set1_epi32(xlo));
   const __m256i dy = _mm256_sub_epi32(y0, _mm256_set1_epi32(ylo));
   const __m256i xs = _mm256_set1_epi32(xspan), ys = _mm256_set1_epi32(yspan);
@@ -40,104 +61,208 @@ inline bool contiguous_taps(const MipLevel& L, const int* texels, __m256i x0, __
   const __m256i in = _mm256_and_si256(_mm256_cmpeq_epi32(_mm256_max_epu32(dx, xs), xs),
                                       _mm256_cmpeq_epi32(_mm256_max_epu32(dy, ys), ys));
   if (_mm256_movemask_epi8(in) != -1) return false;
-  // Rows ylo .. ylo + yspan + 1 and columns xlo .. xlo + xspan + 1 are inside the level (every
-  // lane's taps are); the masked loads read only those.
+  // Columns xlo .. xlo + xspan + 1 of rows ylo .. ylo + yspan + 1 are inside the level (every
+  // lane's taps are): the masked loads read only those.
   const int* row = texels + L.offset + ylo * L.width + xlo;
   const __m256i cols = _mm256_cmpgt_epi32(_mm256_set1_epi32(xspan + 2), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
-  const __m256i r0 = _mm256_maskload_epi32(row, cols), r1 = _mm256_maskload_epi32(row + L.width, cols);
-  const __m256i right = _mm256_add_epi32(dx, _mm256_set1_epi32(1));
-  if (yspan == 0) {
-    add_tap(w[0], _mm256_permutevar8x32_epi32(r0, dx));
-    add_tap(w[1], _mm256_permutevar8x32_epi32(r0, right));
-    add_tap(w[2], _mm256_permutevar8x32_epi32(r1, dx));
-    add_tap(w[3], _mm256_permutevar8x32_epi32(r1, right));
+  const __m256i dx1 = _mm256_add_epi32(dx, _mm256_set1_epi32(1));
+  __m256i r0 = _mm256_maskload_epi32(row, cols);
+  t.t00 = _mm256_permutevar8x32_epi32(r0, dx);
+  t.t10 = _mm256_permutevar8x32_epi32(r0, dx1);
+  if (yspan == 0) {  // one pair of rows for every lane (a row along a texel row)
+    r0 = _mm256_maskload_epi32(row + L.width, cols);
+    t.t01 = _mm256_permutevar8x32_epi32(r0, dx);
+    t.t11 = _mm256_permutevar8x32_epi32(r0, dx1);
     return true;
   }
-  // Two rows of lanes: a lane with dy = 1 takes its taps from the next row pair.
-  const __m256i r2 = _mm256_maskload_epi32(row + 2 * L.width, cols);
-  const __m256 low = _mm256_castsi256_ps(_mm256_cmpeq_epi32(dy, _mm256_setzero_si256()));
-  auto pick = [&](__m256i a, __m256i b, __m256i at) {
-    return _mm256_castps_si256(_mm256_blendv_ps(_mm256_castsi256_ps(_mm256_permutevar8x32_epi32(b, at)),
-                                                _mm256_castsi256_ps(_mm256_permutevar8x32_epi32(a, at)), low));
-  };
-  add_tap(w[0], pick(r0, r1, dx));
-  add_tap(w[1], pick(r0, r1, right));
-  add_tap(w[2], pick(r1, r2, dx));
-  add_tap(w[3], pick(r1, r2, right));
+  // Row r gives the top taps of the lanes with dy = r and the bottom taps of those with dy + 1 = r.
+  t.t01 = t.t11 = _mm256_setzero_si256();
+  for (int r = 1; r <= yspan + 1; ++r) {
+    row += L.width;
+    r0 = _mm256_maskload_epi32(row, cols);
+    const __m256i left = _mm256_permutevar8x32_epi32(r0, dx), right = _mm256_permutevar8x32_epi32(r0, dx1);
+    const __m256i top = _mm256_cmpeq_epi32(dy, _mm256_set1_epi32(r));
+    const __m256i bottom = _mm256_cmpeq_epi32(dy, _mm256_set1_epi32(r - 1));
+    t.t00 = _mm256_blendv_epi8(t.t00, left, top);
+    t.t10 = _mm256_blendv_epi8(t.t10, right, top);
+    t.t01 = _mm256_blendv_epi8(t.t01, left, bottom);
+    t.t11 = _mm256_blendv_epi8(t.t11, right, bottom);
+  }
   return true;
 }
 
-inline Acc8 sample8(const ShadeParams& p, __m256i level, __m256 u, __m256 v) {
-  const int* lv = reinterpret_cast<const int*>(p.levels);
-  __m256i off, wid, hei;
-  __m256 scale;
-  const MipLevel* one_level = nullptr;
-  const int l0 = _mm256_cvtsi256_si32(level);
-  if (_mm256_movemask_epi8(_mm256_cmpeq_epi32(level, _mm256_set1_epi32(l0))) == -1) {
-    // One level for all lanes (the usual case): broadcast its fields.
-    const MipLevel& L = p.levels[l0];
-    one_level = &L;
-    off = _mm256_set1_epi32(L.offset);
-    wid = _mm256_set1_epi32(L.width);
-    hei = _mm256_set1_epi32(L.height);
-    scale = _mm256_set1_ps(L.scale);
-  } else {
-    // MipLevel is 4 x 32 bits: gather its fields per lane.
-    const __m256i idx = _mm256_slli_epi32(level, 2);
-    off = _mm256_i32gather_epi32(lv + 0, idx, 4);
-    wid = _mm256_i32gather_epi32(lv + 1, idx, 4);
-    hei = _mm256_i32gather_epi32(lv + 2, idx, 4);
-    scale = _mm256_castsi256_ps(_mm256_i32gather_epi32(lv + 3, idx, 4));
-  }
-  const __m256 half = _mm256_set1_ps(0.5f), one = _mm256_set1_ps(1.0f);
-  const __m256 ul = _mm256_sub_ps(_mm256_mul_ps(_mm256_add_ps(u, half), scale), half);
-  const __m256 vl = _mm256_sub_ps(_mm256_mul_ps(_mm256_add_ps(v, half), scale), half);
-  const __m256 fx0 = _mm256_floor_ps(ul), fy0 = _mm256_floor_ps(vl);
-  const __m256 fx = _mm256_sub_ps(ul, fx0), fy = _mm256_sub_ps(vl, fy0);
-  const __m256i x0 = _mm256_cvttps_epi32(fx0), y0 = _mm256_cvttps_epi32(fy0);
-  const __m256 gx = _mm256_sub_ps(one, fx), gy = _mm256_sub_ps(one, fy);
-  const __m256 w[4] = {_mm256_mul_ps(gx, gy), _mm256_mul_ps(fx, gy), _mm256_mul_ps(gx, fy),
-                       _mm256_mul_ps(fx, fy)};
+// floor(c * 256) of texel coordinates c.
+TL_INLINE __m256i fixed8(__m256 c) { return _mm256_cvttps_epi32(_mm256_floor_ps(_mm256_mul_ps(c, _mm256_set1_ps(256.0f)))); }
+
+// (U & 255) << 7 in both 16-bit halves of each lane: the low byte moved to each word's high
+// byte, then halved.
+TL_INLINE __m256i fraction_pair(__m256i U) {
+  const __m256i to_high = _mm256_setr_epi8(-1, 0, -1, 0, -1, 4, -1, 4, -1, 8, -1, 8, -1, 12, -1, 12,
+                                           -1, 0, -1, 0, -1, 4, -1, 4, -1, 8, -1, 8, -1, 12, -1, 12);
+  return _mm256_srli_epi16(_mm256_shuffle_epi8(U, to_high), 1);
+}
+
+// A vector's taps at one level and its texel coordinates in fixed point (for the fractions).
+struct Fetched {
+  Taps t;
+  __m256i U, V;
+};
+
+// The taps of 8 lanes seeing world (x, y) at one level.
+TL_INLINE Fetched fetch8(const ShadeParams& p, int level, __m256 x, __m256 y) {
+  const MipLevel& L = p.levels[level];
+  const LevelCoords& k = p.coords[level];
+  const int* texels = reinterpret_cast<const int*>(p.texels);
+  Fetched f;
+  f.U = fixed8(_mm256_add_ps(_mm256_add_ps(_mm256_set1_ps(k.a0), _mm256_mul_ps(_mm256_set1_ps(k.a1), x)),
+                             _mm256_mul_ps(_mm256_set1_ps(k.a2), y)));
+  f.V = fixed8(_mm256_add_ps(_mm256_add_ps(_mm256_set1_ps(k.b0), _mm256_mul_ps(_mm256_set1_ps(k.b1), x)),
+                             _mm256_mul_ps(_mm256_set1_ps(k.b2), y)));
+  const __m256i x0 = _mm256_srai_epi32(f.U, 8), y0 = _mm256_srai_epi32(f.V, 8);
+  const __m256i wid = _mm256_set1_epi32(L.width), hei = _mm256_set1_epi32(L.height);
   const __m256i zero = _mm256_setzero_si256(), ione = _mm256_set1_epi32(1);
   const __m256i wm1 = _mm256_sub_epi32(wid, ione), hm1 = _mm256_sub_epi32(hei, ione);
-  const __m256i mask8 = _mm256_set1_epi32(255);
-  Acc8 acc{_mm256_setzero_ps(), _mm256_setzero_ps(), _mm256_setzero_ps(), _mm256_setzero_ps()};
-  const int* texels = reinterpret_cast<const int*>(p.texels);
-  auto add_tap = [&](__m256 wk, __m256i t) {
-    const __m256 wa = _mm256_mul_ps(wk, _mm256_cvtepi32_ps(_mm256_srli_epi32(t, 24)));
-    acc.r = _mm256_add_ps(acc.r, _mm256_mul_ps(wa, _mm256_cvtepi32_ps(_mm256_and_si256(t, mask8))));
-    acc.g = _mm256_add_ps(acc.g, _mm256_mul_ps(wa, _mm256_cvtepi32_ps(_mm256_and_si256(_mm256_srli_epi32(t, 8), mask8))));
-    acc.b = _mm256_add_ps(acc.b, _mm256_mul_ps(wa, _mm256_cvtepi32_ps(_mm256_and_si256(_mm256_srli_epi32(t, 16), mask8))));
-    acc.a = _mm256_add_ps(acc.a, wa);
-  };
-  // 0 <= x0 < w - 1 and 0 <= y0 < h - 1 in every lane (most vectors): all four taps inside,
-  // so the masks below would all be set and the clamps change nothing; skipped.
+  Taps& t = f.t;
+  // 0 <= x0 < w - 1 and 0 <= y0 < h - 1 in every lane (most vectors): all four taps inside.
   const __m256i interior = _mm256_andnot_si256(
       _mm256_or_si256(_mm256_cmpgt_epi32(zero, x0), _mm256_cmpgt_epi32(zero, y0)),
       _mm256_and_si256(_mm256_cmpgt_epi32(wm1, x0), _mm256_cmpgt_epi32(hm1, y0)));
   if (_mm256_movemask_epi8(interior) == -1) {
-    if (one_level != nullptr && contiguous_taps(*one_level, texels, x0, y0, w, add_tap)) return acc;
-    const __m256i row0 = _mm256_add_epi32(off, _mm256_add_epi32(_mm256_mullo_epi32(y0, wid), x0));
-    const __m256i row1 = _mm256_add_epi32(row0, wid);
-    add_tap(w[0], _mm256_i32gather_epi32(texels, row0, 4));
-    add_tap(w[1], _mm256_i32gather_epi32(texels, _mm256_add_epi32(row0, ione), 4));
-    add_tap(w[2], _mm256_i32gather_epi32(texels, row1, 4));
-    add_tap(w[3], _mm256_i32gather_epi32(texels, _mm256_add_epi32(row1, ione), 4));
-    return acc;
+    if (!window_taps(L, texels, x0, y0, t)) {
+      const __m256i row0 = _mm256_add_epi32(_mm256_set1_epi32(L.offset), _mm256_add_epi32(_mm256_mullo_epi32(y0, wid), x0));
+      const __m256i row1 = _mm256_add_epi32(row0, wid);
+      t.t00 = _mm256_i32gather_epi32(texels, row0, 4);
+      t.t10 = _mm256_i32gather_epi32(texels, _mm256_add_epi32(row0, ione), 4);
+      t.t01 = _mm256_i32gather_epi32(texels, row1, 4);
+      t.t11 = _mm256_i32gather_epi32(texels, _mm256_add_epi32(row1, ione), 4);
+    }
+  } else {
+    // Each tap clamped into the level for its fetch, and 0 where it lies outside.
+    const __m256i off = _mm256_set1_epi32(L.offset);
+    auto tap = [&](int kx, int ky) {
+      const __m256i tx = _mm256_add_epi32(x0, _mm256_set1_epi32(kx)), ty = _mm256_add_epi32(y0, _mm256_set1_epi32(ky));
+      const __m256i in_x = _mm256_andnot_si256(_mm256_cmpgt_epi32(zero, tx), _mm256_cmpgt_epi32(wid, tx));
+      const __m256i in_y = _mm256_andnot_si256(_mm256_cmpgt_epi32(zero, ty), _mm256_cmpgt_epi32(hei, ty));
+      const __m256i xc = _mm256_min_epi32(_mm256_max_epi32(tx, zero), wm1), yc = _mm256_min_epi32(_mm256_max_epi32(ty, zero), hm1);
+      const __m256i at = _mm256_add_epi32(off, _mm256_add_epi32(_mm256_mullo_epi32(yc, wid), xc));
+      return _mm256_and_si256(_mm256_i32gather_epi32(texels, at, 4), _mm256_and_si256(in_x, in_y));
+    };
+    t.t00 = tap(0, 0);
+    t.t10 = tap(1, 0);
+    t.t01 = tap(0, 1);
+    t.t11 = tap(1, 1);
   }
-  for (int k = 0; k < 4; ++k) {
-    const __m256i x = _mm256_add_epi32(x0, _mm256_set1_epi32(k & 1));
-    const __m256i y = _mm256_add_epi32(y0, _mm256_set1_epi32(k >> 1));
-    // inside: 0 <= x < w and 0 <= y < h
-    const __m256i in_x = _mm256_andnot_si256(_mm256_cmpgt_epi32(zero, x), _mm256_cmpgt_epi32(wid, x));
-    const __m256i in_y = _mm256_andnot_si256(_mm256_cmpgt_epi32(zero, y), _mm256_cmpgt_epi32(hei, y));
-    const __m256i inside = _mm256_and_si256(in_x, in_y);
-    const __m256i xc = _mm256_min_epi32(_mm256_max_epi32(x, zero), wm1);
-    const __m256i yc = _mm256_min_epi32(_mm256_max_epi32(y, zero), hm1);
-    add_tap(_mm256_and_ps(w[k], _mm256_castsi256_ps(inside)),
-            _mm256_i32gather_epi32(texels, _mm256_add_epi32(off, _mm256_add_epi32(_mm256_mullo_epi32(yc, wid), xc)), 4));
+  return f;
+}
+
+// The bilinear sample of fetched taps.
+TL_INLINE Sample8 filter8(const Fetched& f) {
+  const __m256i fx = fraction_pair(f.U), fy = fraction_pair(f.V);
+  const Sample8 top = lerp_row(f.t.t00, f.t.t10, fx), bottom = lerp_row(f.t.t01, f.t.t11, fx);
+  return {lerp15(top.rb, bottom.rb, fy), lerp15(top.ga, bottom.ga, fy)};
+}
+
+// The colour and validity of 8 pixels' samples (zero where no terrain): 24 bytes of RGB and
+// 8 validity bytes.
+TL_INLINE void output8(Sample8 s, std::uint8_t* rgb, std::uint8_t* valid) {
+  const __m256i sa = _mm256_srli_epi32(s.ga, 16);
+  const __m256i ok = _mm256_cmpgt_epi32(sa, _mm256_set1_epi32(16319));
+  const __m256i opaque = _mm256_cmpeq_epi32(sa, _mm256_set1_epi32(32640));
+  __m256i px;
+  if (_mm256_testz_si256(ok, _mm256_xor_si256(ok, opaque))) {
+    // (S + 64) >> 7 in every word; the R|B and G|A words interleave into RGBA bytes.
+    const __m256i r64 = _mm256_set1_epi16(64);
+    const __m256i rb = _mm256_srli_epi16(_mm256_add_epi16(s.rb, r64), 7);
+    const __m256i ga = _mm256_srli_epi16(_mm256_add_epi16(s.ga, r64), 7);
+    px = _mm256_and_si256(_mm256_or_si256(rb, _mm256_slli_epi16(ga, 8)), ok);
+  } else {
+    // Some lanes partly transparent: c = min(255, (int)(float(S_c * 255) / float(S_a) + 0.5)).
+    const __m256 fa = _mm256_cvtepi32_ps(sa);
+    const __m256i lo = _mm256_set1_epi32(0xFFFF), c255 = _mm256_set1_epi32(255);
+    auto channel = [&](__m256i sc) {
+      const __m256 q = _mm256_div_ps(_mm256_cvtepi32_ps(_mm256_mullo_epi32(sc, c255)), fa);
+      return _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_add_ps(q, _mm256_set1_ps(0.5f))), c255);
+    };
+    const __m256i r = channel(_mm256_and_si256(s.rb, lo)), g = channel(_mm256_and_si256(s.ga, lo));
+    const __m256i b = channel(_mm256_srli_epi32(s.rb, 16));
+    px = _mm256_and_si256(_mm256_or_si256(r, _mm256_or_si256(_mm256_slli_epi32(g, 8), _mm256_slli_epi32(b, 16))), ok);
   }
-  return acc;
+  store_rgb8_avx2(rgb, px);
+  // Validity bytes: 0 / -1 per lane, narrowed to 8 bytes of 0 / 255.
+  const __m256i v16 = _mm256_packs_epi32(ok, ok);
+  const __m256i v8 = _mm256_packs_epi16(v16, v16);
+  _mm_storel_epi64(reinterpret_cast<__m128i*>(valid), _mm_unpacklo_epi32(_mm256_castsi256_si128(v8), _mm256_extracti128_si256(v8, 1)));
+}
+
+// Up to kChunkGroups groups (two vectors each) of a row processed together.
+constexpr int kChunkGroups = 4;
+constexpr int kChunkVectors = 2 * kChunkGroups;
+
+// Shades `vectors` consecutive vectors of one layer: vector v's pixels see world (x[v], y[v])
+// where terrain[v] is all ones, at the levels of its group, lev[(v / 2) * lev_stride]. Each
+// step is taken for every vector before the next: a vector's work is one long chain
+// (coordinates, the window's bounds, its loads, the filter, the packing), and the vectors'
+// chains are independent, so the core overlaps them instead of waiting on each.
+TL_INLINE void shade_chunk(const ShadeParams& p, const GroupLevel* lev, int lev_stride, int vectors, const __m256* x,
+                           const __m256* y, const __m256* terrain, std::uint8_t* rgb, std::uint8_t* valid) {
+  __m256 xs[kChunkVectors], ys[kChunkVectors];
+  Fetched f[kChunkVectors];
+  Sample8 s[kChunkVectors];
+  bool any[kChunkVectors];
+  // Lanes without terrain compute on (0, 0) and are cleared at the end.
+  for (int v = 0; v < vectors; ++v) {
+    any[v] = _mm256_movemask_ps(terrain[v]) != 0;
+    xs[v] = _mm256_and_ps(x[v], terrain[v]);
+    ys[v] = _mm256_and_ps(y[v], terrain[v]);
+  }
+  for (int v = 0; v < vectors; ++v)
+    if (any[v]) f[v] = fetch8(p, lev[(v / 2) * lev_stride].l0, xs[v], ys[v]);
+  for (int v = 0; v < vectors; ++v)
+    s[v] = any[v] ? filter8(f[v]) : Sample8{_mm256_setzero_si256(), _mm256_setzero_si256()};
+  // Trilinear groups: the next level's sample, lerped in by the level fraction.
+  for (int v = 0; v < vectors; ++v) {
+    const GroupLevel& l = lev[(v / 2) * lev_stride];
+    if (!any[v] || l.t == 0) continue;
+    const Sample8 s1 = filter8(fetch8(p, l.l1, xs[v], ys[v]));
+    const __m256i t = _mm256_set1_epi16(static_cast<short>(l.t));
+    s[v].rb = lerp15(s[v].rb, s1.rb, t);
+    s[v].ga = lerp15(s[v].ga, s1.ga, t);
+  }
+  for (int v = 0; v < vectors; ++v) {
+    const __m256i in = _mm256_castps_si256(terrain[v]);
+    output8({_mm256_and_si256(s[v].rb, in), _mm256_and_si256(s[v].ga, in)}, rgb + 24 * v, valid + 8 * v);
+  }
+}
+
+// A vector's planes per lane, with each row's part summed: iz = r0 + c1 dx, x z = r3 + c4 dx,
+// y z = r6 + c7 dx, where r0 = q0 + dq0/dy dy (and r3, r6 likewise) is formed in scalar, the
+// same IEEE operation as lane by lane.
+struct Planes8 {
+  __m256 r0, c1, r3, c4, r6, c7;
+};
+
+// The planes of the triangles the lanes in `seen` (bits) see: broadcast when it is one
+// triangle (most vectors), else each triangle's blended into the lanes that see it.
+TL_INLINE Planes8 planes8(__m256i id, unsigned seen, const int* ids, const float* coef, float dy) {
+  auto row = [dy](const float* c, int q) { return c[3 * q] + c[3 * q + 2] * dy; };
+  const int e0 = ids[__builtin_ctz(seen)];
+  const float* c = coef + 9 * static_cast<std::ptrdiff_t>(e0);
+  Planes8 P{_mm256_set1_ps(row(c, 0)), _mm256_set1_ps(c[1]), _mm256_set1_ps(row(c, 1)),
+            _mm256_set1_ps(c[4]), _mm256_set1_ps(row(c, 2)), _mm256_set1_ps(c[7])};
+  unsigned left = seen & ~static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(id, _mm256_set1_epi32(e0)))));
+  while (left != 0) {
+    const int e = ids[__builtin_ctz(left)];
+    const __m256 these = _mm256_castsi256_ps(_mm256_cmpeq_epi32(id, _mm256_set1_epi32(e)));
+    c = coef + 9 * static_cast<std::ptrdiff_t>(e);
+    P.r0 = _mm256_blendv_ps(P.r0, _mm256_set1_ps(row(c, 0)), these);
+    P.c1 = _mm256_blendv_ps(P.c1, _mm256_set1_ps(c[1]), these);
+    P.r3 = _mm256_blendv_ps(P.r3, _mm256_set1_ps(row(c, 1)), these);
+    P.c4 = _mm256_blendv_ps(P.c4, _mm256_set1_ps(c[4]), these);
+    P.r6 = _mm256_blendv_ps(P.r6, _mm256_set1_ps(row(c, 2)), these);
+    P.c7 = _mm256_blendv_ps(P.c7, _mm256_set1_ps(c[7]), these);
+    left &= ~static_cast<unsigned>(_mm256_movemask_ps(these));
+  }
+  return P;
 }
 
 // The depth test of one row of a block where `in` (all-ones lanes) marks the covered pixels:
@@ -153,121 +278,77 @@ inline void depth_row(__m256i in, __m256 iz, float* z, int* id, __m256i ve) {
 
 void shade_row_avx2(int n, const float* wx, const float* wy, const float* log2fp,
                     std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p) {
-  const int top = p.n_levels - 1;
-  const __m256 ftop = _mm256_set1_ps(static_cast<float>(top));
-  const __m256i itop = _mm256_set1_epi32(top);
-  const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f), half = _mm256_set1_ps(0.5f);
+  GroupLevel lev[kChunkGroups];
+  __m256 x[kChunkVectors], y[kChunkVectors], terrain[kChunkVectors];
   int i = 0;
-  for (; i + 8 <= n; i += 8) {
-    const __m256 x = _mm256_loadu_ps(wx + i), y = _mm256_loadu_ps(wy + i);
-    const __m256 terrain = _mm256_cmp_ps(x, x, _CMP_ORD_Q);
-    // NaN lanes compute on 0 and are masked at the end.
-    const __m256 xs = _mm256_and_ps(x, terrain), ys = _mm256_and_ps(y, terrain);
-    const __m256 u = _mm256_add_ps(_mm256_add_ps(_mm256_set1_ps(p.a0), _mm256_mul_ps(_mm256_set1_ps(p.a1), xs)),
-                                   _mm256_mul_ps(_mm256_set1_ps(p.a2), ys));
-    const __m256 v = _mm256_add_ps(_mm256_add_ps(_mm256_set1_ps(p.b0), _mm256_mul_ps(_mm256_set1_ps(p.b1), xs)),
-                                   _mm256_mul_ps(_mm256_set1_ps(p.b2), ys));
-    __m256 lod = _mm256_add_ps(_mm256_and_ps(_mm256_loadu_ps(log2fp + i), terrain), _mm256_set1_ps(p.lod_bias));
-    // Same as the scalar "lod > 0 ? lod : 0" and "lod < top ? lod : top" (NaN -> 0, top).
-    lod = _mm256_blendv_ps(zero, lod, _mm256_cmp_ps(lod, zero, _CMP_GT_OQ));
-    lod = _mm256_blendv_ps(ftop, lod, _mm256_cmp_ps(lod, ftop, _CMP_LT_OQ));
-    const __m256 fl = _mm256_floor_ps(lod);
-    const __m256i l0 = _mm256_cvttps_epi32(fl);
-    const __m256i l1 = _mm256_min_epi32(_mm256_add_epi32(l0, _mm256_set1_epi32(1)), itop);
-    const __m256 t = _mm256_sub_ps(lod, fl);
-    const Acc8 s0 = sample8(p, l0, u, v);
-    Acc8 acc;
-    if (_mm256_movemask_ps(_mm256_cmp_ps(t, zero, _CMP_GT_OQ)) == 0) {
-      // t == 0 in every lane: s0 * 1 + s1 * 0 == s0, as the scalar kernel's shortcut.
-      acc = s0;
-    } else {
-      Acc8 s1 = sample8(p, l1, u, v);
-      const __m256 live = _mm256_cmp_ps(t, zero, _CMP_GT_OQ);
-      s1.r = _mm256_and_ps(s1.r, live);
-      s1.g = _mm256_and_ps(s1.g, live);
-      s1.b = _mm256_and_ps(s1.b, live);
-      s1.a = _mm256_and_ps(s1.a, live);
-      const __m256 w0 = _mm256_sub_ps(one, t);
-      acc.r = _mm256_add_ps(_mm256_mul_ps(s0.r, w0), _mm256_mul_ps(s1.r, t));
-      acc.g = _mm256_add_ps(_mm256_mul_ps(s0.g, w0), _mm256_mul_ps(s1.g, t));
-      acc.b = _mm256_add_ps(_mm256_mul_ps(s0.b, w0), _mm256_mul_ps(s1.b, t));
-      acc.a = _mm256_add_ps(_mm256_mul_ps(s0.a, w0), _mm256_mul_ps(s1.a, t));
+  while (i + kShadeGroup <= n) {
+    const int groups = (n - i) / kShadeGroup < kChunkGroups ? (n - i) / kShadeGroup : kChunkGroups;
+    for (int g = 0; g < groups; ++g) {
+      const int at = i + g * kShadeGroup;
+      unsigned seen = 0;
+      for (int h = 0; h < 2; ++h) {
+        x[2 * g + h] = _mm256_loadu_ps(wx + at + 8 * h);
+        y[2 * g + h] = _mm256_loadu_ps(wy + at + 8 * h);
+        terrain[2 * g + h] = _mm256_cmp_ps(x[2 * g + h], x[2 * g + h], _CMP_ORD_Q);
+        seen |= static_cast<unsigned>(_mm256_movemask_ps(terrain[2 * g + h])) << (8 * h);
+      }
+      lev[g] = group_level(seen ? log2fp[at + __builtin_ctz(seen)] : 0.0f, p);
     }
-    acc.a = _mm256_and_ps(acc.a, terrain);
-    const __m256 ok = _mm256_cmp_ps(acc.a, _mm256_set1_ps(127.5f), _CMP_GE_OQ);
-    const __m256 inv = _mm256_and_ps(_mm256_div_ps(one, acc.a), ok);
-    const __m256i r = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(_mm256_and_ps(acc.r, terrain), inv), half));
-    const __m256i g = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(_mm256_and_ps(acc.g, terrain), inv), half));
-    const __m256i b = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(_mm256_and_ps(acc.b, terrain), inv), half));
-    // RGBX per pixel, then 12 bytes of RGB from each 128-bit half.
-    const __m256i px = _mm256_or_si256(r, _mm256_or_si256(_mm256_slli_epi32(g, 8), _mm256_slli_epi32(b, 16)));
-    store_rgb8_avx2(rgb + 3 * i, px);
-    // Validity bytes: 0 / -1 per lane, narrowed to 8 bytes of 0 / 255.
-    const __m256i v16 = _mm256_packs_epi32(_mm256_castps_si256(ok), _mm256_castps_si256(ok));
-    const __m256i v8 = _mm256_packs_epi16(v16, v16);
-    _mm_storel_epi64(reinterpret_cast<__m128i*>(valid + i),
-                     _mm_unpacklo_epi32(_mm256_castsi256_si128(v8), _mm256_extracti128_si256(v8, 1)));
+    shade_chunk(p, lev, 1, 2 * groups, x, y, terrain, rgb + 3 * i, valid + i);
+    i += groups * kShadeGroup;
   }
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
 }
 
-void resolve_row_avx2(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
-                      float* z, float* log2fp) {
+void resolve_shade_row_avx2(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
+                            const ShadeTarget* targets) {
   const __m256 lane = _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7);
-  const __m256 one = _mm256_set1_ps(1.0f), nan = _mm256_set1_ps(NAN), zero = _mm256_setzero_ps();
-  const __m256 vdy = _mm256_set1_ps(dy);
-  auto b = [](float v) { return _mm256_set1_ps(v); };
+  const __m256 one = _mm256_set1_ps(1.0f), nan = _mm256_set1_ps(NAN);
+  // Chunks of up to kChunkGroups groups: the chunk's levels (a chain of scalar work per group,
+  // on which its texel coordinates wait), its resolve, then its shading, each for every group
+  // of the chunk in turn.
+  GroupLevel lev[kChunkGroups][kMaxShadeTargets];
+  __m256 x[kChunkVectors], y[kChunkVectors], in[kChunkVectors];
   int i = 0;
-  for (; i + 8 <= n; i += 8) {
-    const __m256i id = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(ids + i));
-    const __m256 seen = _mm256_castsi256_ps(_mm256_cmpgt_epi32(id, _mm256_set1_epi32(-1)));
-    const int seen_bits = _mm256_movemask_ps(seen);
-    if (seen_bits == 0) {
-      _mm256_storeu_ps(z + i, nan);
-      _mm256_storeu_ps(wx + i, nan);
-      _mm256_storeu_ps(wy + i, nan);
-      _mm256_storeu_ps(log2fp + i, zero);
-      continue;
+  while (i + kShadeGroup <= n) {
+    const int groups = (n - i) / kShadeGroup < kChunkGroups ? (n - i) / kShadeGroup : kChunkGroups;
+    for (int g = 0; g < groups; ++g) {
+      const int at = i + g * kShadeGroup;
+      int first = at;
+      while (first < at + kShadeGroup && ids[first] < 0) ++first;
+      const float l2 = first < at + kShadeGroup
+                           ? plane_footprint_log2(coef + 9 * static_cast<std::ptrdiff_t>(ids[first]), dx0 + static_cast<float>(first), dy)
+                           : 0.0f;
+      for (int k = 0; k < n_targets; ++k) lev[g][k] = group_level(l2, *targets[k].params);
     }
-    // The planes of each lane's entry: one broadcast when the eight pixels see one triangle
-    // (most of a frame), else gathered lane by lane.
-    __m256 c[9];
-    const bool one_entry = seen_bits == 0xff &&
-        _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(id, _mm256_set1_epi32(ids[i])))) == 0xff;
-    if (one_entry) {
-      const float* ce = coef + 9 * static_cast<std::ptrdiff_t>(ids[i]);
-      for (int k = 0; k < 9; ++k) c[k] = _mm256_set1_ps(ce[k]);
-    } else {
-      const __m256i idx = _mm256_add_epi32(_mm256_slli_epi32(id, 3), id);  // 9 e
-      for (int k = 0; k < 9; ++k) c[k] = _mm256_mask_i32gather_ps(zero, coef + k, idx, seen, 4);
+    for (int v = 0; v < 2 * groups; ++v) {
+      const int at = i + 8 * v;
+      const __m256i id = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(ids + at));
+      in[v] = _mm256_castsi256_ps(_mm256_cmpgt_epi32(id, _mm256_set1_epi32(-1)));
+      const unsigned seen = static_cast<unsigned>(_mm256_movemask_ps(in[v]));
+      x[v] = y[v] = nan;
+      if (seen == 0) {
+        _mm256_storeu_ps(z + at, nan);
+        continue;
+      }
+      const Planes8 P = planes8(id, seen, ids + at, coef, dy);
+      // The scalar twin's operations in the same order, 8 lanes wide.
+      const __m256 dx = _mm256_add_ps(_mm256_set1_ps(dx0 + static_cast<float>(at)), lane);
+      const __m256 zz = _mm256_div_ps(one, _mm256_add_ps(P.r0, _mm256_mul_ps(P.c1, dx)));
+      x[v] = _mm256_mul_ps(_mm256_add_ps(P.r3, _mm256_mul_ps(P.c4, dx)), zz);
+      y[v] = _mm256_mul_ps(_mm256_add_ps(P.r6, _mm256_mul_ps(P.c7, dx)), zz);
+      _mm256_storeu_ps(z + at, _mm256_blendv_ps(nan, zz, in[v]));
     }
-    const __m256 dx = _mm256_add_ps(_mm256_set1_ps(dx0 + static_cast<float>(i)), lane);
-    const __m256 iz = _mm256_add_ps(_mm256_add_ps(c[0], _mm256_mul_ps(c[2], vdy)), _mm256_mul_ps(c[1], dx));
-    const __m256 zz = _mm256_div_ps(one, iz);
-    const __m256 x = _mm256_mul_ps(_mm256_add_ps(_mm256_add_ps(c[3], _mm256_mul_ps(c[5], vdy)), _mm256_mul_ps(c[4], dx)), zz);
-    const __m256 y = _mm256_mul_ps(_mm256_add_ps(_mm256_add_ps(c[6], _mm256_mul_ps(c[8], vdy)), _mm256_mul_ps(c[7], dx)), zz);
-    const __m256 du_x = _mm256_mul_ps(_mm256_sub_ps(c[4], _mm256_mul_ps(x, c[1])), zz);
-    const __m256 du_y = _mm256_mul_ps(_mm256_sub_ps(c[7], _mm256_mul_ps(y, c[1])), zz);
-    const __m256 dv_x = _mm256_mul_ps(_mm256_sub_ps(c[5], _mm256_mul_ps(x, c[2])), zz);
-    const __m256 dv_y = _mm256_mul_ps(_mm256_sub_ps(c[8], _mm256_mul_ps(y, c[2])), zz);
-    const __m256 su = _mm256_add_ps(_mm256_mul_ps(du_x, du_x), _mm256_mul_ps(du_y, du_y));
-    const __m256 sv = _mm256_add_ps(_mm256_mul_ps(dv_x, dv_x), _mm256_mul_ps(dv_y, dv_y));
-    __m256 d2 = _mm256_blendv_ps(sv, su, _mm256_cmp_ps(su, sv, _CMP_GT_OQ));
-    d2 = _mm256_blendv_ps(b(1e-12f), d2, _mm256_cmp_ps(d2, b(1e-12f), _CMP_GT_OQ));
-    // fast_log2, lane-wise: exponent + quadratic in the mantissa, as in the scalar twin.
-    const __m256i bits = _mm256_castps_si256(d2);
-    const __m256 e = _mm256_cvtepi32_ps(_mm256_sub_epi32(_mm256_srli_epi32(bits, 23), _mm256_set1_epi32(127)));
-    const __m256 m = _mm256_castsi256_ps(_mm256_or_si256(_mm256_and_si256(bits, _mm256_set1_epi32(0x7fffff)),
-                                                         _mm256_set1_epi32(0x3f800000)));
-    const __m256 poly = _mm256_sub_ps(_mm256_mul_ps(_mm256_add_ps(_mm256_mul_ps(b(-0.34484843f), m), b(2.02466578f)), m),
-                                      b(0.67487759f));
-    const __m256 l2 = _mm256_mul_ps(b(0.5f), _mm256_add_ps(e, poly));
-    _mm256_storeu_ps(z + i, _mm256_blendv_ps(nan, zz, seen));
-    _mm256_storeu_ps(wx + i, _mm256_blendv_ps(nan, x, seen));
-    _mm256_storeu_ps(wy + i, _mm256_blendv_ps(nan, y, seen));
-    _mm256_storeu_ps(log2fp + i, _mm256_blendv_ps(zero, l2, seen));
+    for (int k = 0; k < n_targets; ++k)
+      shade_chunk(*targets[k].params, &lev[0][k], kMaxShadeTargets, 2 * groups, x, y, in, targets[k].rgb + 3 * i,
+                  targets[k].valid + i);
+    i += groups * kShadeGroup;
   }
-  if (i < n) resolve_row_scalar(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, wx + i, wy + i, z + i, log2fp + i);
+  if (i < n) {
+    ShadeTarget rest[kMaxShadeTargets];
+    for (int k = 0; k < n_targets; ++k) rest[k] = {targets[k].params, targets[k].rgb + 3 * i, targets[k].valid + i};
+    resolve_shade_row_scalar(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, z + i, n_targets, rest);
+  }
 }
 
 void depth_block_avx2(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,

@@ -1,215 +1,346 @@
-// AVX-512 build of the shading kernel: 16 pixels a step, texels fetched with gathers. Same
-// float operations in the same order as shade_scalar.cpp (compiled without FMA contraction),
-// so the output matches it bit for bit. The shading tail (n % 16) runs the scalar kernel, the
-// resolve tail the AVX2 one.
+// AVX-512 (F, BW, VL) build of the shading kernels: one group of 16 pixels a step, the filter of
+// shade_kernels.hpp in 16-bit lanes (R and B words, G and A words of each pixel's 32 bits), so
+// the output matches shade_scalar.cpp bit for bit. A group's pixels share a level, so texels
+// come from row loads and permutes where its taps lie in a window of a few texel rows and at
+// most 32 columns, from gathers elsewhere. A row's last group, if short, runs the scalar kernel.
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <immintrin.h>
 
 #include <cmath>
 
-#include "pack_avx2.hpp"
-
 namespace terralign::raster {
 namespace {
 
-struct Acc16 {
-  __m512 r, g, b, a;
+#define TL_INLINE inline __attribute__((always_inline))
+
+// A row window holds the taps of lanes spread over at most this many texel rows (a row of
+// pixels along a texel row: 2; turned a little, or minified, a few more); beyond, gathers.
+constexpr int kWindowRows = 6;
+
+// The four taps of 16 lanes: top-left, top-right, bottom-left, bottom-right.
+struct Taps {
+  __m512i t00, t10, t01, t11;
 };
 
-inline Acc16 sample16(const ShadeParams& p, __m512i level, __m512 u, __m512 v) {
-  const int* lv = reinterpret_cast<const int*>(p.levels);
-  __m512i off, wid, hei;
-  __m512 scale;
-  const int l0 = _mm_cvtsi128_si32(_mm512_castsi512_si128(level));
-  if (_mm512_cmpeq_epi32_mask(level, _mm512_set1_epi32(l0)) == 0xFFFF) {
-    const MipLevel& L = p.levels[l0];  // one level for all lanes (the usual case)
-    off = _mm512_set1_epi32(L.offset);
-    wid = _mm512_set1_epi32(L.width);
-    hei = _mm512_set1_epi32(L.height);
-    scale = _mm512_set1_ps(L.scale);
-  } else {
-    const __m512i idx = _mm512_slli_epi32(level, 2);  // MipLevel is 4 x 32 bits
-    off = _mm512_i32gather_epi32(idx, lv + 0, 4);
-    wid = _mm512_i32gather_epi32(idx, lv + 1, 4);
-    hei = _mm512_i32gather_epi32(idx, lv + 2, 4);
-    scale = _mm512_castsi512_ps(_mm512_i32gather_epi32(idx, lv + 3, 4));
+// A sample's channels in the filter's fixed point: R|B and G|A word pairs, x128.
+struct Sample16 {
+  __m512i rb, ga;
+};
+
+TL_INLINE int lane0(__m512i v) { return _mm_cvtsi128_si32(_mm512_castsi512_si128(v)); }
+TL_INLINE int lane15(__m512i v) { return _mm_extract_epi32(_mm512_extracti32x4_epi32(v, 3), 3); }
+
+// floor(c * 256) of texel coordinates c.
+TL_INLINE __m512i fixed8(__m512 c) {
+  return _mm512_cvt_roundps_epi32(_mm512_mul_ps(c, _mm512_set1_ps(256.0f)), _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+}
+
+// (U & 255) << 7 in both 16-bit halves of each lane: the low byte moved to each word's high
+// byte, then halved.
+TL_INLINE __m512i fraction_pair(__m512i U) {
+  const __m512i to_high = _mm512_broadcast_i32x4(_mm_setr_epi8(-1, 0, -1, 0, -1, 4, -1, 4, -1, 8, -1, 8, -1, 12, -1, 12));
+  return _mm512_srli_epi16(_mm512_shuffle_epi8(U, to_high), 1);
+}
+
+TL_INLINE __m512i lerp15(__m512i a, __m512i b, __m512i f) {
+  return _mm512_add_epi16(a, _mm512_mulhrs_epi16(_mm512_sub_epi16(b, a), f));
+}
+
+// One row of taps lerped by the column fraction: (left, right) -> x128 word pairs.
+TL_INLINE Sample16 lerp_row(__m512i left, __m512i right, __m512i fx) {
+  const __m512i m = _mm512_set1_epi32(0x7F807F80);
+  // R, B of each texel at bits 7-14 and 23-30 (t << 7); G, A likewise (t >> 1).
+  const __m512i rb_l = _mm512_and_si512(_mm512_slli_epi32(left, 7), m), rb_r = _mm512_and_si512(_mm512_slli_epi32(right, 7), m);
+  const __m512i ga_l = _mm512_and_si512(_mm512_srli_epi32(left, 1), m), ga_r = _mm512_and_si512(_mm512_srli_epi32(right, 1), m);
+  return {lerp15(rb_l, rb_r, fx), lerp15(ga_l, ga_r, fx)};
+}
+
+// Row windows: when the lanes' taps (x0 .. x0 + 1, y0 .. y0 + 1, all inside level L) lie in at
+// most kWindowRows texel rows and 32 columns, each row of the window is two masked loads and
+// each lane picks its taps with permutes: the texels the gathers would fetch. The lanes at the
+// ends give the box (a row of pixels over terrain maps to a curve whose extremes are mostly at
+// its ends), and every lane is checked to be inside it. Returns false, having read nothing,
+// when the taps do not fit.
+TL_INLINE bool window_taps(const MipLevel& L, const int* texels, __m512i x0, __m512i y0, Taps& t) {
+  const int xa = lane0(x0), xb = lane15(x0), ya = lane0(y0), yb = lane15(y0);
+  const int xlo = xa < xb ? xa : xb, xspan = (xa < xb ? xb : xa) - xlo;
+  const int ylo = ya < yb ? ya : yb, yspan = (ya < yb ? yb : ya) - ylo;
+  if (xspan > 30 || yspan > kWindowRows - 2) return false;
+  const __m512i dx = _mm512_sub_epi32(x0, _mm512_set1_epi32(xlo)), dy = _mm512_sub_epi32(y0, _mm512_set1_epi32(ylo));
+  if ((_mm512_cmple_epu32_mask(dx, _mm512_set1_epi32(xspan)) & _mm512_cmple_epu32_mask(dy, _mm512_set1_epi32(yspan))) != 0xFFFF)
+    return false;
+  // Columns xlo .. xlo + xspan + 1 of rows ylo .. ylo + yspan + 1 are inside the level (every
+  // lane's taps are): the masked loads read only those.
+  const unsigned cols = static_cast<unsigned>(xspan) + 2;
+  const __mmask16 m0 = static_cast<__mmask16>(cols >= 16 ? 0xFFFFu : (1u << cols) - 1);
+  const __mmask16 m1 = static_cast<__mmask16>(cols <= 16 ? 0u : (1u << (cols - 16)) - 1);
+  const int* row = texels + L.offset + ylo * L.width + xlo;
+  const __m512i dx1 = _mm512_add_epi32(dx, _mm512_set1_epi32(1));
+  auto load = [&](const int* r, __m512i& left, __m512i& right) {
+    const __m512i a = _mm512_maskz_loadu_epi32(m0, r), b = _mm512_maskz_loadu_epi32(m1, r + 16);
+    left = _mm512_permutex2var_epi32(a, dx, b);
+    right = _mm512_permutex2var_epi32(a, dx1, b);
+  };
+  load(row, t.t00, t.t10);
+  if (yspan == 0) {  // one pair of rows for every lane (a row along a texel row)
+    load(row + L.width, t.t01, t.t11);
+    return true;
   }
-  const __m512 half = _mm512_set1_ps(0.5f), one = _mm512_set1_ps(1.0f);
-  const __m512 ul = _mm512_sub_ps(_mm512_mul_ps(_mm512_add_ps(u, half), scale), half);
-  const __m512 vl = _mm512_sub_ps(_mm512_mul_ps(_mm512_add_ps(v, half), scale), half);
-  const __m512 fx0 = _mm512_roundscale_ps(ul, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
-  const __m512 fy0 = _mm512_roundscale_ps(vl, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
-  const __m512 fx = _mm512_sub_ps(ul, fx0), fy = _mm512_sub_ps(vl, fy0);
-  const __m512i x0 = _mm512_cvttps_epi32(fx0), y0 = _mm512_cvttps_epi32(fy0);
-  const __m512 gx = _mm512_sub_ps(one, fx), gy = _mm512_sub_ps(one, fy);
-  const __m512 w[4] = {_mm512_mul_ps(gx, gy), _mm512_mul_ps(fx, gy), _mm512_mul_ps(gx, fy), _mm512_mul_ps(fx, fy)};
-  const __m512i zero = _mm512_setzero_si512(), ione = _mm512_set1_epi32(1), mone = _mm512_set1_epi32(-1);
-  const __m512i wm1 = _mm512_sub_epi32(wid, ione), hm1 = _mm512_sub_epi32(hei, ione);
-  const __m512i mask8 = _mm512_set1_epi32(255);
+  // Row r gives the top taps of the lanes with dy = r and the bottom taps of those with dy + 1 = r.
+  t.t01 = t.t11 = _mm512_setzero_si512();
+  for (int r = 1; r <= yspan + 1; ++r) {
+    row += L.width;
+    __m512i left, right;
+    load(row, left, right);
+    const __mmask16 top = _mm512_cmpeq_epi32_mask(dy, _mm512_set1_epi32(r));
+    const __mmask16 bottom = _mm512_cmpeq_epi32_mask(dy, _mm512_set1_epi32(r - 1));
+    t.t00 = _mm512_mask_mov_epi32(t.t00, top, left);
+    t.t10 = _mm512_mask_mov_epi32(t.t10, top, right);
+    t.t01 = _mm512_mask_mov_epi32(t.t01, bottom, left);
+    t.t11 = _mm512_mask_mov_epi32(t.t11, bottom, right);
+  }
+  return true;
+}
+
+// Each row's two taps are neighbours in memory: one 64-bit gather fetches both (half the
+// elements of two 32-bit gathers), split into the left and the right tap.
+TL_INLINE void gather_pair(const int* texels, __m512i at, __m512i& left, __m512i& right) {
+  const long long* base = reinterpret_cast<const long long*>(texels);
+  const __m512i q0 = _mm512_i32gather_epi64(_mm512_castsi512_si256(at), base, 4);
+  const __m512i q1 = _mm512_i32gather_epi64(_mm512_extracti64x4_epi64(at, 1), base, 4);
   const __m512i even = _mm512_set_epi32(30, 28, 26, 24, 22, 20, 18, 16, 14, 12, 10, 8, 6, 4, 2, 0);
-  const __m512i odd = _mm512_add_epi32(even, ione);
-  const long long* base = reinterpret_cast<const long long*>(p.texels);
-  Acc16 acc{_mm512_setzero_ps(), _mm512_setzero_ps(), _mm512_setzero_ps(), _mm512_setzero_ps()};
-  auto add_tap = [&](__m512 wk, __m512i t) {
-    const __m512 wa = _mm512_mul_ps(wk, _mm512_cvtepi32_ps(_mm512_srli_epi32(t, 24)));
-    acc.r = _mm512_add_ps(acc.r, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(t, mask8))));
-    acc.g = _mm512_add_ps(acc.g, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(t, 8), mask8))));
-    acc.b = _mm512_add_ps(acc.b, _mm512_mul_ps(wa, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(t, 16), mask8))));
-    acc.a = _mm512_add_ps(acc.a, wa);
-  };
-  // Each row's two taps are neighbours in memory: one 64-bit gather fetches both (half the
-  // elements of two 32-bit gathers), split into the left and the right tap.
-  auto row_pair = [&](__m512i at, __m512i pair[2]) {
-    const __m512i q0 = _mm512_i32gather_epi64(_mm512_castsi512_si256(at), base, 4);
-    const __m512i q1 = _mm512_i32gather_epi64(_mm512_extracti64x4_epi64(at, 1), base, 4);
-    pair[0] = _mm512_permutex2var_epi32(q0, even, q1);
-    pair[1] = _mm512_permutex2var_epi32(q0, odd, q1);
-  };
-  const __mmask16 interior = _mm512_cmpge_epi32_mask(x0, zero) & _mm512_cmplt_epi32_mask(x0, wm1) &
-                             _mm512_cmpge_epi32_mask(y0, zero) & _mm512_cmplt_epi32_mask(y0, hm1);
+  left = _mm512_permutex2var_epi32(q0, even, q1);
+  right = _mm512_permutex2var_epi32(q0, _mm512_add_epi32(even, _mm512_set1_epi32(1)), q1);
+}
+
+// A group's taps at one level and its texel coordinates in fixed point (for the fractions).
+struct Fetched {
+  Taps t;
+  __m512i U, V;
+};
+
+// The taps of 16 lanes seeing world (x, y) at one level.
+TL_INLINE Fetched fetch16(const ShadeParams& p, int level, __m512 x, __m512 y) {
+  const MipLevel& L = p.levels[level];
+  const LevelCoords& k = p.coords[level];
+  const int* texels = reinterpret_cast<const int*>(p.texels);
+  Fetched f;
+  f.U = fixed8(_mm512_add_ps(_mm512_add_ps(_mm512_set1_ps(k.a0), _mm512_mul_ps(_mm512_set1_ps(k.a1), x)),
+                             _mm512_mul_ps(_mm512_set1_ps(k.a2), y)));
+  f.V = fixed8(_mm512_add_ps(_mm512_add_ps(_mm512_set1_ps(k.b0), _mm512_mul_ps(_mm512_set1_ps(k.b1), x)),
+                             _mm512_mul_ps(_mm512_set1_ps(k.b2), y)));
+  const __m512i x0 = _mm512_srai_epi32(f.U, 8), y0 = _mm512_srai_epi32(f.V, 8);
+  const __m512i wid = _mm512_set1_epi32(L.width), hei = _mm512_set1_epi32(L.height);
+  Taps& t = f.t;
+  // 0 <= x0 < width - 1 and 0 <= y0 < height - 1 unsigned: every lane's four taps inside.
+  const __mmask16 interior = _mm512_cmplt_epu32_mask(x0, _mm512_set1_epi32(L.width - 1)) &
+                             _mm512_cmplt_epu32_mask(y0, _mm512_set1_epi32(L.height - 1));
   if (interior == 0xFFFF) {
-    // Every lane's four taps inside the level (most vectors): the masks below would all be
-    // set and the clamps change nothing, so they are skipped; the same operations otherwise.
-    for (int row = 0; row < 2; ++row) {
-      const __m512i y = _mm512_add_epi32(y0, _mm512_set1_epi32(row));
-      __m512i pair[2];
-      row_pair(_mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(y, wid), x0)), pair);
-      add_tap(w[2 * row], pair[0]);
-      add_tap(w[2 * row + 1], pair[1]);
+    if (!window_taps(L, texels, x0, y0, t)) {
+      const __m512i at = _mm512_add_epi32(_mm512_set1_epi32(L.offset), _mm512_add_epi32(_mm512_mullo_epi32(y0, wid), x0));
+      gather_pair(texels, at, t.t00, t.t10);
+      gather_pair(texels, _mm512_add_epi32(at, wid), t.t01, t.t11);
     }
-    return acc;
+  } else {
+    // The pair starts at x0 clamped to [-1, width - 1] and the row is clamped into the level;
+    // a tap outside the level reads as 0, whatever the pair fetched (the array has a guard
+    // texel at each end, so the pair never leaves it).
+    const __m512i zero = _mm512_setzero_si512(), ione = _mm512_set1_epi32(1);
+    const __m512i wm1 = _mm512_sub_epi32(wid, ione), hm1 = _mm512_sub_epi32(hei, ione);
+    const __m512i xp = _mm512_min_epi32(_mm512_max_epi32(x0, _mm512_set1_epi32(-1)), wm1);
+    const __m512i x1 = _mm512_add_epi32(x0, ione), y1 = _mm512_add_epi32(y0, ione);
+    const __mmask16 in_l = _mm512_cmplt_epu32_mask(x0, wid), in_r = _mm512_cmplt_epu32_mask(x1, wid);
+    const __mmask16 in_t = _mm512_cmplt_epu32_mask(y0, hei), in_b = _mm512_cmplt_epu32_mask(y1, hei);
+    const __m512i yt = _mm512_min_epi32(_mm512_max_epi32(y0, zero), hm1), yb = _mm512_min_epi32(_mm512_max_epi32(y1, zero), hm1);
+    const __m512i off = _mm512_set1_epi32(L.offset);
+    gather_pair(texels, _mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(yt, wid), xp)), t.t00, t.t10);
+    gather_pair(texels, _mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(yb, wid), xp)), t.t01, t.t11);
+    t.t00 = _mm512_maskz_mov_epi32(in_t & in_l, t.t00);
+    t.t10 = _mm512_maskz_mov_epi32(in_t & in_r, t.t10);
+    t.t01 = _mm512_maskz_mov_epi32(in_b & in_l, t.t01);
+    t.t11 = _mm512_maskz_mov_epi32(in_b & in_r, t.t11);
   }
-  // The pair starts at x0 clamped to [-1, width - 1]; a tap outside the level gets weight 0,
-  // as in the scalar kernel, whatever texel it read (the array has a guard texel at each end,
-  // so the pair never leaves it).
-  const __m512i xp = _mm512_min_epi32(_mm512_max_epi32(x0, mone), wm1);
-  for (int row = 0; row < 2; ++row) {
-    const __m512i y = _mm512_add_epi32(y0, _mm512_set1_epi32(row));
-    const __mmask16 yin = _mm512_cmpge_epi32_mask(y, zero) & _mm512_cmplt_epi32_mask(y, hei);
-    const __m512i yc = _mm512_min_epi32(_mm512_max_epi32(y, zero), hm1);
-    __m512i pair[2];
-    row_pair(_mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(yc, wid), xp)), pair);
-    for (int dx = 0; dx < 2; ++dx) {
-      const __m512i x = _mm512_add_epi32(x0, _mm512_set1_epi32(dx));
-      const __mmask16 inside = yin & _mm512_cmpge_epi32_mask(x, zero) & _mm512_cmplt_epi32_mask(x, wid);
-      add_tap(_mm512_maskz_mov_ps(inside, w[2 * row + dx]), pair[dx]);
-    }
+  return f;
+}
+
+// The bilinear sample of fetched taps.
+TL_INLINE Sample16 filter16(const Fetched& f) {
+  const __m512i fx = fraction_pair(f.U), fy = fraction_pair(f.V);
+  const Sample16 top = lerp_row(f.t.t00, f.t.t10, fx), bottom = lerp_row(f.t.t01, f.t.t11, fx);
+  return {lerp15(top.rb, bottom.rb, fy), lerp15(top.ga, bottom.ga, fy)};
+}
+
+// The colour and validity of 16 pixels' samples (zero where no terrain): 48 bytes of RGB and
+// 16 validity bytes.
+TL_INLINE void output16(Sample16 s, std::uint8_t* rgb, std::uint8_t* valid) {
+  const __m512i sa = _mm512_srli_epi32(s.ga, 16);
+  const __mmask16 ok = _mm512_cmpge_epi32_mask(sa, _mm512_set1_epi32(16320));
+  const __mmask16 opaque = _mm512_cmpeq_epi32_mask(sa, _mm512_set1_epi32(32640));
+  __m512i px;
+  if ((ok & ~opaque) == 0) {
+    // (S + 64) >> 7 in every word; the R|B and G|A words interleave into RGBA bytes.
+    const __m512i r64 = _mm512_set1_epi16(64);
+    const __m512i rb = _mm512_srli_epi16(_mm512_add_epi16(s.rb, r64), 7);
+    const __m512i ga = _mm512_srli_epi16(_mm512_add_epi16(s.ga, r64), 7);
+    px = _mm512_maskz_mov_epi32(ok, _mm512_or_si512(rb, _mm512_slli_epi16(ga, 8)));
+  } else {
+    // Some lanes partly transparent: c = min(255, (int)(float(S_c * 255) / float(S_a) + 0.5)).
+    const __m512 fa = _mm512_cvtepi32_ps(sa);
+    const __m512i lo = _mm512_set1_epi32(0xFFFF), c255 = _mm512_set1_epi32(255);
+    auto channel = [&](__m512i sc) {
+      const __m512 q = _mm512_div_ps(_mm512_cvtepi32_ps(_mm512_mullo_epi32(sc, c255)), fa);
+      return _mm512_min_epi32(_mm512_cvttps_epi32(_mm512_add_ps(q, _mm512_set1_ps(0.5f))), c255);
+    };
+    const __m512i r = channel(_mm512_and_si512(s.rb, lo)), g = channel(_mm512_and_si512(s.ga, lo));
+    const __m512i b = channel(_mm512_srli_epi32(s.rb, 16));
+    px = _mm512_maskz_mov_epi32(ok, _mm512_or_si512(r, _mm512_or_si512(_mm512_slli_epi32(g, 8), _mm512_slli_epi32(b, 16))));
   }
-  return acc;
+  // RGBX -> 48 bytes: each 128-bit lane packs its four pixels' 12 bytes, then the runs join.
+  const __m512i pack = _mm512_broadcast_i32x4(_mm_setr_epi8(0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, -1, -1, -1, -1));
+  const __m512i runs = _mm512_setr_epi32(0, 1, 2, 4, 5, 6, 8, 9, 10, 12, 13, 14, 0, 0, 0, 0);
+  _mm512_mask_storeu_epi32(rgb, 0x0FFF, _mm512_permutexvar_epi32(runs, _mm512_shuffle_epi8(px, pack)));
+  _mm_storeu_si128(reinterpret_cast<__m128i*>(valid), _mm_movm_epi8(ok));
+}
+
+// Up to kChunkGroups groups of a row processed together.
+constexpr int kChunkGroups = 4;
+
+// Shades `groups` consecutive groups of one layer: group g's pixels see world (x[g], y[g])
+// where terrain[g] is set, at levels lev[g * lev_stride]. Each step is taken for every group
+// before the next: a group's work is one long chain (coordinates, the window's bounds, its
+// loads, the filter, the packing), and the groups' chains are independent, so the core
+// overlaps them instead of waiting on each.
+TL_INLINE void shade_chunk(const ShadeParams& p, const GroupLevel* lev, int lev_stride, int groups, const __m512* x,
+                           const __m512* y, const __mmask16* terrain, std::uint8_t* rgb, std::uint8_t* valid) {
+  __m512 xs[kChunkGroups], ys[kChunkGroups];
+  Fetched f[kChunkGroups];
+  Sample16 s[kChunkGroups];
+  // Lanes without terrain compute on (0, 0) and are cleared at the end.
+  for (int g = 0; g < groups; ++g) {
+    xs[g] = _mm512_maskz_mov_ps(terrain[g], x[g]);
+    ys[g] = _mm512_maskz_mov_ps(terrain[g], y[g]);
+  }
+  for (int g = 0; g < groups; ++g)
+    if (terrain[g] != 0) f[g] = fetch16(p, lev[g * lev_stride].l0, xs[g], ys[g]);
+  for (int g = 0; g < groups; ++g) s[g] = filter16(f[g]);
+  // Trilinear groups: the next level's sample, lerped in by the level fraction.
+  for (int g = 0; g < groups; ++g) {
+    const GroupLevel& l = lev[g * lev_stride];
+    if (terrain[g] == 0 || l.t == 0) continue;
+    const Sample16 s1 = filter16(fetch16(p, l.l1, xs[g], ys[g]));
+    const __m512i t = _mm512_set1_epi16(static_cast<short>(l.t));
+    s[g].rb = lerp15(s[g].rb, s1.rb, t);
+    s[g].ga = lerp15(s[g].ga, s1.ga, t);
+  }
+  for (int g = 0; g < groups; ++g)
+    output16({_mm512_maskz_mov_epi32(terrain[g], s[g].rb), _mm512_maskz_mov_epi32(terrain[g], s[g].ga)},
+             rgb + 3 * kShadeGroup * g, valid + kShadeGroup * g);
+}
+
+// A group's planes per lane, with each row's part summed: iz = r0 + c1 dx, x z = r3 + c4 dx,
+// y z = r6 + c7 dx, where r0 = q0 + dq0/dy dy (and r3, r6 likewise) is formed in scalar, the
+// same IEEE operation as lane by lane.
+struct Planes16 {
+  __m512 r0, c1, r3, c4, r6, c7;
+};
+
+// The planes of the triangles the lanes in `seen` see: broadcast when it is one triangle (most
+// groups), else each triangle's blended into the lanes that see it.
+TL_INLINE Planes16 planes16(__m512i id, __mmask16 seen, const int* ids, const float* coef, float dy) {
+  auto row = [dy](const float* c, int q) { return c[3 * q] + c[3 * q + 2] * dy; };
+  const int e0 = ids[__builtin_ctz(seen)];
+  const float* c = coef + 9 * static_cast<std::ptrdiff_t>(e0);
+  Planes16 P{_mm512_set1_ps(row(c, 0)), _mm512_set1_ps(c[1]), _mm512_set1_ps(row(c, 1)),
+             _mm512_set1_ps(c[4]), _mm512_set1_ps(row(c, 2)), _mm512_set1_ps(c[7])};
+  __mmask16 left = static_cast<__mmask16>(seen & ~_mm512_mask_cmpeq_epi32_mask(seen, id, _mm512_set1_epi32(e0)));
+  while (left != 0) {
+    const int e = ids[__builtin_ctz(left)];
+    const __mmask16 these = _mm512_mask_cmpeq_epi32_mask(left, id, _mm512_set1_epi32(e));
+    c = coef + 9 * static_cast<std::ptrdiff_t>(e);
+    P.r0 = _mm512_mask_mov_ps(P.r0, these, _mm512_set1_ps(row(c, 0)));
+    P.c1 = _mm512_mask_mov_ps(P.c1, these, _mm512_set1_ps(c[1]));
+    P.r3 = _mm512_mask_mov_ps(P.r3, these, _mm512_set1_ps(row(c, 1)));
+    P.c4 = _mm512_mask_mov_ps(P.c4, these, _mm512_set1_ps(c[4]));
+    P.r6 = _mm512_mask_mov_ps(P.r6, these, _mm512_set1_ps(row(c, 2)));
+    P.c7 = _mm512_mask_mov_ps(P.c7, these, _mm512_set1_ps(c[7]));
+    left = static_cast<__mmask16>(left & ~these);
+  }
+  return P;
 }
 
 }  // namespace
 
 void shade_row_avx512(int n, const float* wx, const float* wy, const float* log2fp, std::uint8_t* rgb,
                       std::uint8_t* valid, const ShadeParams& p) {
-  const int top = p.n_levels - 1;
-  const __m512 ftop = _mm512_set1_ps(static_cast<float>(top));
-  const __m512i itop = _mm512_set1_epi32(top);
-  const __m512 zero = _mm512_setzero_ps(), one = _mm512_set1_ps(1.0f), half = _mm512_set1_ps(0.5f);
+  GroupLevel lev[kChunkGroups];
+  __m512 x[kChunkGroups], y[kChunkGroups];
+  __mmask16 terrain[kChunkGroups];
   int i = 0;
-  for (; i + 16 <= n; i += 16) {
-    const __m512 x = _mm512_loadu_ps(wx + i), y = _mm512_loadu_ps(wy + i);
-    const __mmask16 terrain = _mm512_cmp_ps_mask(x, x, _CMP_ORD_Q);
-    const __m512 xs = _mm512_maskz_mov_ps(terrain, x), ys = _mm512_maskz_mov_ps(terrain, y);
-    const __m512 u = _mm512_add_ps(_mm512_add_ps(_mm512_set1_ps(p.a0), _mm512_mul_ps(_mm512_set1_ps(p.a1), xs)),
-                                   _mm512_mul_ps(_mm512_set1_ps(p.a2), ys));
-    const __m512 v = _mm512_add_ps(_mm512_add_ps(_mm512_set1_ps(p.b0), _mm512_mul_ps(_mm512_set1_ps(p.b1), xs)),
-                                   _mm512_mul_ps(_mm512_set1_ps(p.b2), ys));
-    __m512 lod = _mm512_add_ps(_mm512_maskz_loadu_ps(terrain, log2fp + i), _mm512_set1_ps(p.lod_bias));
-    // "lod > 0 ? lod : 0" and "lod < top ? lod : top" (NaN -> 0, top), as the scalar twin.
-    lod = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(lod, zero, _CMP_GT_OQ), zero, lod);
-    lod = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(lod, ftop, _CMP_LT_OQ), ftop, lod);
-    const __m512 fl = _mm512_roundscale_ps(lod, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
-    const __m512i l0 = _mm512_cvttps_epi32(fl);
-    const __m512i l1 = _mm512_min_epi32(_mm512_add_epi32(l0, _mm512_set1_epi32(1)), itop);
-    const __m512 t = _mm512_sub_ps(lod, fl);
-    const Acc16 s0 = sample16(p, l0, u, v);
-    const __mmask16 live = _mm512_cmp_ps_mask(t, zero, _CMP_GT_OQ);
-    Acc16 acc;
-    if (live == 0) {
-      acc = s0;  // t == 0 in every lane: s0 * 1 + s1 * 0 == s0, the scalar kernel's shortcut
-    } else {
-      Acc16 s1 = sample16(p, l1, u, v);
-      s1.r = _mm512_maskz_mov_ps(live, s1.r);
-      s1.g = _mm512_maskz_mov_ps(live, s1.g);
-      s1.b = _mm512_maskz_mov_ps(live, s1.b);
-      s1.a = _mm512_maskz_mov_ps(live, s1.a);
-      const __m512 w0 = _mm512_sub_ps(one, t);
-      acc.r = _mm512_add_ps(_mm512_mul_ps(s0.r, w0), _mm512_mul_ps(s1.r, t));
-      acc.g = _mm512_add_ps(_mm512_mul_ps(s0.g, w0), _mm512_mul_ps(s1.g, t));
-      acc.b = _mm512_add_ps(_mm512_mul_ps(s0.b, w0), _mm512_mul_ps(s1.b, t));
-      acc.a = _mm512_add_ps(_mm512_mul_ps(s0.a, w0), _mm512_mul_ps(s1.a, t));
+  while (i + kShadeGroup <= n) {
+    const int groups = (n - i) / kShadeGroup < kChunkGroups ? (n - i) / kShadeGroup : kChunkGroups;
+    for (int g = 0; g < groups; ++g) {
+      const int at = i + g * kShadeGroup;
+      x[g] = _mm512_loadu_ps(wx + at);
+      y[g] = _mm512_loadu_ps(wy + at);
+      terrain[g] = _mm512_cmp_ps_mask(x[g], x[g], _CMP_ORD_Q);
+      lev[g] = group_level(terrain[g] ? log2fp[at + __builtin_ctz(terrain[g])] : 0.0f, p);
     }
-    acc.a = _mm512_maskz_mov_ps(terrain, acc.a);
-    const __mmask16 ok = _mm512_cmp_ps_mask(acc.a, _mm512_set1_ps(127.5f), _CMP_GE_OQ);
-    const __m512 inv = _mm512_maskz_div_ps(ok, one, acc.a);
-    const __m512i r = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(_mm512_maskz_mov_ps(terrain, acc.r), inv), half));
-    const __m512i g = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(_mm512_maskz_mov_ps(terrain, acc.g), inv), half));
-    const __m512i b = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(_mm512_maskz_mov_ps(terrain, acc.b), inv), half));
-    const __m512i px = _mm512_or_si512(r, _mm512_or_si512(_mm512_slli_epi32(g, 8), _mm512_slli_epi32(b, 16)));
-    store_rgb8_avx2(rgb + 3 * i, _mm512_castsi512_si256(px));
-    store_rgb8_avx2(rgb + 3 * i + 24, _mm512_extracti64x4_epi64(px, 1));
-    _mm_storeu_si128(reinterpret_cast<__m128i*>(valid + i), _mm512_cvtepi32_epi8(_mm512_maskz_set1_epi32(ok, 255)));
+    shade_chunk(p, lev, 1, groups, x, y, terrain, rgb + 3 * i, valid + i);
+    i += groups * kShadeGroup;
   }
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
 }
 
-void resolve_row_avx512(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
-                        float* z, float* log2fp) {
+void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
+                              const ShadeTarget* targets) {
   const __m512 lane = _mm512_setr_ps(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-  const __m512 one = _mm512_set1_ps(1.0f), nan = _mm512_set1_ps(NAN), zero = _mm512_setzero_ps();
-  const __m512 vdy = _mm512_set1_ps(dy);
-  auto b = [](float v) { return _mm512_set1_ps(v); };
+  const __m512 one = _mm512_set1_ps(1.0f), nan = _mm512_set1_ps(NAN);
+  // Chunks of up to kChunkGroups groups: the chunk's levels (a chain of scalar work per group,
+  // on which its texel coordinates wait), its resolve, then its shading, each for every group
+  // of the chunk in turn.
+  GroupLevel lev[kChunkGroups][kMaxShadeTargets];
+  __m512 x[kChunkGroups], y[kChunkGroups];
+  __mmask16 seen[kChunkGroups];
   int i = 0;
-  for (; i + 16 <= n; i += 16) {
-    const __m512i id = _mm512_loadu_si512(ids + i);
-    const __mmask16 seen = _mm512_cmpgt_epi32_mask(id, _mm512_set1_epi32(-1));
-    if (seen == 0) {
-      _mm512_storeu_ps(z + i, nan);
-      _mm512_storeu_ps(wx + i, nan);
-      _mm512_storeu_ps(wy + i, nan);
-      _mm512_storeu_ps(log2fp + i, zero);
-      continue;
+  while (i + kShadeGroup <= n) {
+    const int groups = (n - i) / kShadeGroup < kChunkGroups ? (n - i) / kShadeGroup : kChunkGroups;
+    for (int g = 0; g < groups; ++g) {
+      const int at = i + g * kShadeGroup;
+      int first = at;
+      while (first < at + kShadeGroup && ids[first] < 0) ++first;
+      const float l2 = first < at + kShadeGroup
+                           ? plane_footprint_log2(coef + 9 * static_cast<std::ptrdiff_t>(ids[first]), dx0 + static_cast<float>(first), dy)
+                           : 0.0f;
+      for (int k = 0; k < n_targets; ++k) lev[g][k] = group_level(l2, *targets[k].params);
     }
-    // The planes of each lane's entry: broadcast when the 16 pixels see one triangle (most
-    // of a frame), else gathered.
-    __m512 c[9];
-    if (seen == 0xFFFF && _mm512_cmpeq_epi32_mask(id, _mm512_set1_epi32(ids[i])) == 0xFFFF) {
-      const float* ce = coef + 9 * static_cast<std::ptrdiff_t>(ids[i]);
-      for (int k = 0; k < 9; ++k) c[k] = _mm512_set1_ps(ce[k]);
-    } else {
-      const __m512i idx = _mm512_add_epi32(_mm512_slli_epi32(id, 3), id);  // 9 e
-      for (int k = 0; k < 9; ++k) c[k] = _mm512_mask_i32gather_ps(zero, seen, idx, coef + k, 4);
+    for (int g = 0; g < groups; ++g) {
+      const int at = i + g * kShadeGroup;
+      const __m512i id = _mm512_loadu_si512(ids + at);
+      seen[g] = _mm512_cmpgt_epi32_mask(id, _mm512_set1_epi32(-1));
+      x[g] = y[g] = nan;
+      if (seen[g] == 0) {
+        _mm512_storeu_ps(z + at, nan);
+        continue;
+      }
+      const Planes16 P = planes16(id, seen[g], ids + at, coef, dy);
+      // The scalar twin's operations in the same order, 16 lanes wide.
+      const __m512 dx = _mm512_add_ps(_mm512_set1_ps(dx0 + static_cast<float>(at)), lane);
+      const __m512 zz = _mm512_div_ps(one, _mm512_add_ps(P.r0, _mm512_mul_ps(P.c1, dx)));
+      x[g] = _mm512_mul_ps(_mm512_add_ps(P.r3, _mm512_mul_ps(P.c4, dx)), zz);
+      y[g] = _mm512_mul_ps(_mm512_add_ps(P.r6, _mm512_mul_ps(P.c7, dx)), zz);
+      _mm512_storeu_ps(z + at, _mm512_mask_blend_ps(seen[g], nan, zz));
     }
-    // The AVX2 kernel's operations in the same order, 16 lanes wide.
-    const __m512 dx = _mm512_add_ps(_mm512_set1_ps(dx0 + static_cast<float>(i)), lane);
-    const __m512 iz = _mm512_add_ps(_mm512_add_ps(c[0], _mm512_mul_ps(c[2], vdy)), _mm512_mul_ps(c[1], dx));
-    const __m512 zz = _mm512_div_ps(one, iz);
-    const __m512 x = _mm512_mul_ps(_mm512_add_ps(_mm512_add_ps(c[3], _mm512_mul_ps(c[5], vdy)), _mm512_mul_ps(c[4], dx)), zz);
-    const __m512 y = _mm512_mul_ps(_mm512_add_ps(_mm512_add_ps(c[6], _mm512_mul_ps(c[8], vdy)), _mm512_mul_ps(c[7], dx)), zz);
-    const __m512 du_x = _mm512_mul_ps(_mm512_sub_ps(c[4], _mm512_mul_ps(x, c[1])), zz);
-    const __m512 du_y = _mm512_mul_ps(_mm512_sub_ps(c[7], _mm512_mul_ps(y, c[1])), zz);
-    const __m512 dv_x = _mm512_mul_ps(_mm512_sub_ps(c[5], _mm512_mul_ps(x, c[2])), zz);
-    const __m512 dv_y = _mm512_mul_ps(_mm512_sub_ps(c[8], _mm512_mul_ps(y, c[2])), zz);
-    const __m512 su = _mm512_add_ps(_mm512_mul_ps(du_x, du_x), _mm512_mul_ps(du_y, du_y));
-    const __m512 sv = _mm512_add_ps(_mm512_mul_ps(dv_x, dv_x), _mm512_mul_ps(dv_y, dv_y));
-    __m512 d2 = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(su, sv, _CMP_GT_OQ), sv, su);
-    d2 = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(d2, b(1e-12f), _CMP_GT_OQ), b(1e-12f), d2);
-    const __m512i bits = _mm512_castps_si512(d2);
-    const __m512 e = _mm512_cvtepi32_ps(_mm512_sub_epi32(_mm512_srli_epi32(bits, 23), _mm512_set1_epi32(127)));
-    const __m512 m = _mm512_castsi512_ps(_mm512_or_si512(_mm512_and_si512(bits, _mm512_set1_epi32(0x7fffff)),
-                                                         _mm512_set1_epi32(0x3f800000)));
-    const __m512 poly = _mm512_sub_ps(_mm512_mul_ps(_mm512_add_ps(_mm512_mul_ps(b(-0.34484843f), m), b(2.02466578f)), m),
-                                      b(0.67487759f));
-    const __m512 l2 = _mm512_mul_ps(b(0.5f), _mm512_add_ps(e, poly));
-    _mm512_storeu_ps(z + i, _mm512_mask_blend_ps(seen, nan, zz));
-    _mm512_storeu_ps(wx + i, _mm512_mask_blend_ps(seen, nan, x));
-    _mm512_storeu_ps(wy + i, _mm512_mask_blend_ps(seen, nan, y));
-    _mm512_storeu_ps(log2fp + i, _mm512_mask_blend_ps(seen, zero, l2));
+    for (int k = 0; k < n_targets; ++k)
+      shade_chunk(*targets[k].params, &lev[0][k], kMaxShadeTargets, groups, x, y, seen, targets[k].rgb + 3 * i,
+                  targets[k].valid + i);
+    i += groups * kShadeGroup;
   }
-  if (i < n) resolve_row_avx2(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, wx + i, wy + i, z + i, log2fp + i);
+  if (i < n) {
+    ShadeTarget rest[kMaxShadeTargets];
+    for (int k = 0; k < n_targets; ++k) rest[k] = {targets[k].params, targets[k].rgb + 3 * i, targets[k].valid + i};
+    resolve_shade_row_scalar(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, z + i, n_targets, rest);
+  }
 }
 
 }  // namespace terralign::raster
-

@@ -1,6 +1,9 @@
-// NEON (aarch64) build of the shading kernels: four pixels a step, texels fetched lane by
-// lane (NEON has no gather). Same float operations in the same order as shade_scalar.cpp
-// (the raster target compiles with -ffp-contract=off), so the output matches it bit for bit.
+// NEON (aarch64) build of the shading kernels: a group of 16 pixels as four vectors of 4, the
+// filter of shade_kernels.hpp in 16-bit lanes (R and B words, G and A words of each pixel's 32
+// bits; vqrdmulh is the lerp's rounding multiply), texels fetched lane by lane (NEON has no
+// gather). The same integer and float operations in the same order as shade_scalar.cpp (the
+// raster target compiles with -ffp-contract=off), so the output matches it bit for bit. A
+// row's last group, if short, runs the scalar kernel. Also the NEON depth kernel.
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <arm_neon.h>
@@ -10,163 +13,192 @@
 namespace terralign::raster {
 namespace {
 
-struct Acc4 {
-  float32x4_t r, g, b, a;
+// A sample's channels in the filter's fixed point: R|B and G|A word pairs, x128.
+struct Sample4 {
+  int16x8_t rb, ga;
 };
 
-inline Acc4 sample4(const ShadeParams& p, int32x4_t level, float32x4_t u, float32x4_t v) {
-  int32_t lv[4];
-  vst1q_s32(lv, level);
-  int32_t off_a[4], wid_a[4], hei_a[4];
-  float scale_a[4];
-  for (int k = 0; k < 4; ++k) {
-    const MipLevel& L = p.levels[lv[k]];
-    off_a[k] = L.offset;
-    wid_a[k] = L.width;
-    hei_a[k] = L.height;
-    scale_a[k] = L.scale;
-  }
-  const int32x4_t off = vld1q_s32(off_a), wid = vld1q_s32(wid_a), hei = vld1q_s32(hei_a);
-  const float32x4_t scale = vld1q_f32(scale_a);
-  const float32x4_t half = vdupq_n_f32(0.5f), one = vdupq_n_f32(1.0f);
-  const float32x4_t ul = vsubq_f32(vmulq_f32(vaddq_f32(u, half), scale), half);
-  const float32x4_t vl = vsubq_f32(vmulq_f32(vaddq_f32(v, half), scale), half);
-  const float32x4_t fx0 = vrndmq_f32(ul), fy0 = vrndmq_f32(vl);
-  const float32x4_t fx = vsubq_f32(ul, fx0), fy = vsubq_f32(vl, fy0);
-  const int32x4_t x0 = vcvtq_s32_f32(fx0), y0 = vcvtq_s32_f32(fy0);
-  const float32x4_t gx = vsubq_f32(one, fx), gy = vsubq_f32(one, fy);
-  const float32x4_t w[4] = {vmulq_f32(gx, gy), vmulq_f32(fx, gy), vmulq_f32(gx, fy), vmulq_f32(fx, fy)};
-  const int32x4_t zero = vdupq_n_s32(0), ione = vdupq_n_s32(1);
-  const int32x4_t wm1 = vsubq_s32(wid, ione), hm1 = vsubq_s32(hei, ione);
-  const uint32x4_t mask8 = vdupq_n_u32(255);
-  Acc4 acc{vdupq_n_f32(0.0f), vdupq_n_f32(0.0f), vdupq_n_f32(0.0f), vdupq_n_f32(0.0f)};
-  for (int k = 0; k < 4; ++k) {
-    const int32x4_t x = vaddq_s32(x0, vdupq_n_s32(k & 1));
-    const int32x4_t y = vaddq_s32(y0, vdupq_n_s32(k >> 1));
-    const uint32x4_t inside = vandq_u32(vandq_u32(vcgeq_s32(x, zero), vcltq_s32(x, wid)),
-                                        vandq_u32(vcgeq_s32(y, zero), vcltq_s32(y, hei)));
-    const int32x4_t xc = vminq_s32(vmaxq_s32(x, zero), wm1);
-    const int32x4_t yc = vminq_s32(vmaxq_s32(y, zero), hm1);
-    const int32x4_t at = vaddq_s32(off, vaddq_s32(vmulq_s32(yc, wid), xc));
-    uint32x4_t t = vdupq_n_u32(0);
-    t = vld1q_lane_u32(p.texels + vgetq_lane_s32(at, 0), t, 0);
-    t = vld1q_lane_u32(p.texels + vgetq_lane_s32(at, 1), t, 1);
-    t = vld1q_lane_u32(p.texels + vgetq_lane_s32(at, 2), t, 2);
-    t = vld1q_lane_u32(p.texels + vgetq_lane_s32(at, 3), t, 3);
-    const float32x4_t wk = vreinterpretq_f32_u32(vandq_u32(vreinterpretq_u32_f32(w[k]), inside));
-    const float32x4_t wa = vmulq_f32(wk, vcvtq_f32_u32(vshrq_n_u32(t, 24)));
-    acc.r = vaddq_f32(acc.r, vmulq_f32(wa, vcvtq_f32_u32(vandq_u32(t, mask8))));
-    acc.g = vaddq_f32(acc.g, vmulq_f32(wa, vcvtq_f32_u32(vandq_u32(vshrq_n_u32(t, 8), mask8))));
-    acc.b = vaddq_f32(acc.b, vmulq_f32(wa, vcvtq_f32_u32(vandq_u32(vshrq_n_u32(t, 16), mask8))));
-    acc.a = vaddq_f32(acc.a, wa);
-  }
-  return acc;
+inline int16x8_t lerp15(int16x8_t a, int16x8_t b, int16x8_t f) { return vaddq_s16(a, vqrdmulhq_s16(vsubq_s16(b, a), f)); }
+
+// (U & 255) << 7 in both 16-bit halves of each lane.
+inline int16x8_t fraction_pair(int32x4_t U) {
+  const uint32x4_t f = vshlq_n_u32(vandq_u32(vreinterpretq_u32_s32(U), vdupq_n_u32(255)), 7);
+  return vreinterpretq_s16_u32(vorrq_u32(f, vshlq_n_u32(f, 16)));
 }
 
-inline float32x4_t mask(float32x4_t v, uint32x4_t m) { return vreinterpretq_f32_u32(vandq_u32(vreinterpretq_u32_f32(v), m)); }
+// One row of taps lerped by the column fraction.
+inline Sample4 lerp_row(uint32x4_t left, uint32x4_t right, int16x8_t fx) {
+  const uint32x4_t m = vdupq_n_u32(0x7F807F80u);
+  const int16x8_t rb_l = vreinterpretq_s16_u32(vandq_u32(vshlq_n_u32(left, 7), m));
+  const int16x8_t rb_r = vreinterpretq_s16_u32(vandq_u32(vshlq_n_u32(right, 7), m));
+  const int16x8_t ga_l = vreinterpretq_s16_u32(vandq_u32(vshrq_n_u32(left, 1), m));
+  const int16x8_t ga_r = vreinterpretq_s16_u32(vandq_u32(vshrq_n_u32(right, 1), m));
+  return {lerp15(rb_l, rb_r, fx), lerp15(ga_l, ga_r, fx)};
+}
+
+inline uint32x4_t load_lanes(const std::uint32_t* texels, int32x4_t at) {
+  uint32x4_t t = vdupq_n_u32(0);
+  t = vld1q_lane_u32(texels + vgetq_lane_s32(at, 0), t, 0);
+  t = vld1q_lane_u32(texels + vgetq_lane_s32(at, 1), t, 1);
+  t = vld1q_lane_u32(texels + vgetq_lane_s32(at, 2), t, 2);
+  t = vld1q_lane_u32(texels + vgetq_lane_s32(at, 3), t, 3);
+  return t;
+}
+
+// Bilinear sample of 4 lanes seeing world (x, y) at one level.
+inline Sample4 sample4(const ShadeParams& p, int level, float32x4_t x, float32x4_t y) {
+  const MipLevel& L = p.levels[level];
+  const LevelCoords& k = p.coords[level];
+  const float32x4_t s256 = vdupq_n_f32(256.0f);
+  // vcvtm: convert rounding towards minus infinity, floor() then a conversion in one step.
+  const int32x4_t U = vcvtmq_s32_f32(vmulq_f32(vaddq_f32(vaddq_f32(vdupq_n_f32(k.a0), vmulq_f32(vdupq_n_f32(k.a1), x)),
+                                                         vmulq_f32(vdupq_n_f32(k.a2), y)), s256));
+  const int32x4_t V = vcvtmq_s32_f32(vmulq_f32(vaddq_f32(vaddq_f32(vdupq_n_f32(k.b0), vmulq_f32(vdupq_n_f32(k.b1), x)),
+                                                         vmulq_f32(vdupq_n_f32(k.b2), y)), s256));
+  const int32x4_t x0 = vshrq_n_s32(U, 8), y0 = vshrq_n_s32(V, 8);
+  const int32x4_t wid = vdupq_n_s32(L.width), hei = vdupq_n_s32(L.height);
+  const int32x4_t zero = vdupq_n_s32(0), ione = vdupq_n_s32(1);
+  const int32x4_t wm1 = vsubq_s32(wid, ione), hm1 = vsubq_s32(hei, ione);
+  const int32x4_t off = vdupq_n_s32(L.offset);
+  uint32x4_t t00, t10, t01, t11;
+  // 0 <= x0 < w - 1 and 0 <= y0 < h - 1 unsigned: every lane's four taps inside.
+  const uint32x4_t interior = vandq_u32(vcltq_u32(vreinterpretq_u32_s32(x0), vreinterpretq_u32_s32(wm1)),
+                                        vcltq_u32(vreinterpretq_u32_s32(y0), vreinterpretq_u32_s32(hm1)));
+  if (vminvq_u32(interior) != 0) {
+    const int32x4_t at = vaddq_s32(off, vaddq_s32(vmulq_s32(y0, wid), x0));
+    t00 = load_lanes(p.texels, at);
+    t10 = load_lanes(p.texels, vaddq_s32(at, ione));
+    t01 = load_lanes(p.texels, vaddq_s32(at, wid));
+    t11 = load_lanes(p.texels, vaddq_s32(vaddq_s32(at, wid), ione));
+  } else {
+    // Each tap clamped into the level for its fetch, and 0 where it lies outside.
+    auto tap = [&](int kx, int ky) {
+      const int32x4_t tx = vaddq_s32(x0, vdupq_n_s32(kx)), ty = vaddq_s32(y0, vdupq_n_s32(ky));
+      const uint32x4_t inside = vandq_u32(vandq_u32(vcgeq_s32(tx, zero), vcltq_s32(tx, wid)),
+                                          vandq_u32(vcgeq_s32(ty, zero), vcltq_s32(ty, hei)));
+      const int32x4_t xc = vminq_s32(vmaxq_s32(tx, zero), wm1), yc = vminq_s32(vmaxq_s32(ty, zero), hm1);
+      return vandq_u32(load_lanes(p.texels, vaddq_s32(off, vaddq_s32(vmulq_s32(yc, wid), xc))), inside);
+    };
+    t00 = tap(0, 0);
+    t10 = tap(1, 0);
+    t01 = tap(0, 1);
+    t11 = tap(1, 1);
+  }
+  const int16x8_t fx = fraction_pair(U), fy = fraction_pair(V);
+  const Sample4 top = lerp_row(t00, t10, fx), bottom = lerp_row(t01, t11, fx);
+  return {lerp15(top.rb, bottom.rb, fy), lerp15(top.ga, bottom.ga, fy)};
+}
+
+// Shades 4 pixels at world (x, y) where `terrain` is all ones (elsewhere colour 0, invalid).
+inline void shade4(const ShadeParams& p, const GroupLevel& lev, uint32x4_t terrain, float32x4_t x, float32x4_t y,
+                   std::uint8_t* rgb, std::uint8_t* valid) {
+  Sample4 s{vdupq_n_s16(0), vdupq_n_s16(0)};
+  if (vmaxvq_u32(terrain) != 0) {
+    // Lanes without terrain compute on (0, 0) and are cleared below.
+    const float32x4_t xs = vreinterpretq_f32_u32(vandq_u32(vreinterpretq_u32_f32(x), terrain));
+    const float32x4_t ys = vreinterpretq_f32_u32(vandq_u32(vreinterpretq_u32_f32(y), terrain));
+    s = sample4(p, lev.l0, xs, ys);
+    if (lev.t > 0) {
+      const Sample4 s1 = sample4(p, lev.l1, xs, ys);
+      const int16x8_t t = vdupq_n_s16(static_cast<std::int16_t>(lev.t));
+      s.rb = lerp15(s.rb, s1.rb, t);
+      s.ga = lerp15(s.ga, s1.ga, t);
+    }
+    s.rb = vreinterpretq_s16_u32(vandq_u32(vreinterpretq_u32_s16(s.rb), terrain));
+    s.ga = vreinterpretq_s16_u32(vandq_u32(vreinterpretq_u32_s16(s.ga), terrain));
+  }
+  const uint32x4_t rb = vreinterpretq_u32_s16(s.rb), ga = vreinterpretq_u32_s16(s.ga);
+  const uint32x4_t sa = vshrq_n_u32(ga, 16);
+  const uint32x4_t ok = vcgeq_u32(sa, vdupq_n_u32(16320));
+  std::uint32_t c[3][4], okb[4];
+  vst1q_u32(okb, ok);
+  if (vmaxvq_u32(vandq_u32(ok, vmvnq_u32(vceqq_u32(sa, vdupq_n_u32(32640))))) == 0) {
+    // (S + 64) >> 7 per channel.
+    const uint32x4_t lo = vdupq_n_u32(0xFFFF), r64 = vdupq_n_u32(64);
+    vst1q_u32(c[0], vshrq_n_u32(vaddq_u32(vandq_u32(rb, lo), r64), 7));
+    vst1q_u32(c[1], vshrq_n_u32(vaddq_u32(vandq_u32(ga, lo), r64), 7));
+    vst1q_u32(c[2], vshrq_n_u32(vaddq_u32(vshrq_n_u32(rb, 16), r64), 7));
+  } else {
+    // c = min(255, (int)(float(S_c * 255) / float(S_a) + 0.5)).
+    const float32x4_t fa = vcvtq_f32_u32(sa);
+    const uint32x4_t lo = vdupq_n_u32(0xFFFF), c255 = vdupq_n_u32(255);
+    auto channel = [&](uint32x4_t sc) {
+      const float32x4_t q = vdivq_f32(vcvtq_f32_u32(vmulq_u32(sc, c255)), fa);
+      return vminq_u32(vcvtq_u32_f32(vaddq_f32(q, vdupq_n_f32(0.5f))), c255);
+    };
+    vst1q_u32(c[0], channel(vandq_u32(rb, lo)));
+    vst1q_u32(c[1], channel(vandq_u32(ga, lo)));
+    vst1q_u32(c[2], channel(vshrq_n_u32(rb, 16)));
+  }
+  for (int k = 0; k < 4; ++k) {
+    rgb[3 * k + 0] = static_cast<std::uint8_t>(okb[k] ? c[0][k] : 0);
+    rgb[3 * k + 1] = static_cast<std::uint8_t>(okb[k] ? c[1][k] : 0);
+    rgb[3 * k + 2] = static_cast<std::uint8_t>(okb[k] ? c[2][k] : 0);
+    valid[k] = okb[k] ? 255 : 0;
+  }
+}
 
 }  // namespace
 
 void shade_row_neon(int n, const float* wx, const float* wy, const float* log2fp, std::uint8_t* rgb,
                     std::uint8_t* valid, const ShadeParams& p) {
-  const int top = p.n_levels - 1;
-  const float32x4_t ftop = vdupq_n_f32(static_cast<float>(top));
-  const int32x4_t itop = vdupq_n_s32(top);
-  const float32x4_t zero = vdupq_n_f32(0.0f), one = vdupq_n_f32(1.0f), half = vdupq_n_f32(0.5f);
   int i = 0;
-  for (; i + 4 <= n; i += 4) {
-    const float32x4_t x = vld1q_f32(wx + i), y = vld1q_f32(wy + i);
-    const uint32x4_t terrain = vceqq_f32(x, x);  // not NaN
-    const float32x4_t xs = mask(x, terrain), ys = mask(y, terrain);
-    const float32x4_t u = vaddq_f32(vaddq_f32(vdupq_n_f32(p.a0), vmulq_f32(vdupq_n_f32(p.a1), xs)),
-                                    vmulq_f32(vdupq_n_f32(p.a2), ys));
-    const float32x4_t v = vaddq_f32(vaddq_f32(vdupq_n_f32(p.b0), vmulq_f32(vdupq_n_f32(p.b1), xs)),
-                                    vmulq_f32(vdupq_n_f32(p.b2), ys));
-    float32x4_t lod = vaddq_f32(mask(vld1q_f32(log2fp + i), terrain), vdupq_n_f32(p.lod_bias));
-    lod = vbslq_f32(vcgtq_f32(lod, zero), lod, zero);  // lod > 0 ? lod : 0 (NaN -> 0)
-    lod = vbslq_f32(vcltq_f32(lod, ftop), lod, ftop);  // lod < top ? lod : top
-    const float32x4_t fl = vrndmq_f32(lod);
-    const int32x4_t l0 = vcvtq_s32_f32(fl);
-    const int32x4_t l1 = vminq_s32(vaddq_s32(l0, vdupq_n_s32(1)), itop);
-    const float32x4_t t = vsubq_f32(lod, fl);
-    const Acc4 s0 = sample4(p, l0, u, v);
-    const uint32x4_t live = vcgtq_f32(t, zero);
-    Acc4 acc;
-    if (vmaxvq_u32(live) == 0) {
-      acc = s0;  // t == 0 in every lane: s0 * 1 + s1 * 0 == s0, as the scalar kernel's shortcut
-    } else {
-      Acc4 s1 = sample4(p, l1, u, v);
-      s1.r = mask(s1.r, live);
-      s1.g = mask(s1.g, live);
-      s1.b = mask(s1.b, live);
-      s1.a = mask(s1.a, live);
-      const float32x4_t w0 = vsubq_f32(one, t);
-      acc.r = vaddq_f32(vmulq_f32(s0.r, w0), vmulq_f32(s1.r, t));
-      acc.g = vaddq_f32(vmulq_f32(s0.g, w0), vmulq_f32(s1.g, t));
-      acc.b = vaddq_f32(vmulq_f32(s0.b, w0), vmulq_f32(s1.b, t));
-      acc.a = vaddq_f32(vmulq_f32(s0.a, w0), vmulq_f32(s1.a, t));
-    }
-    acc.a = mask(acc.a, terrain);
-    const uint32x4_t ok = vcgeq_f32(acc.a, vdupq_n_f32(127.5f));
-    const float32x4_t inv = mask(vdivq_f32(one, acc.a), ok);
-    std::uint32_t r[4], g[4], b[4], okb[4];
-    vst1q_u32(r, vreinterpretq_u32_s32(vcvtq_s32_f32(vaddq_f32(vmulq_f32(mask(acc.r, terrain), inv), half))));
-    vst1q_u32(g, vreinterpretq_u32_s32(vcvtq_s32_f32(vaddq_f32(vmulq_f32(mask(acc.g, terrain), inv), half))));
-    vst1q_u32(b, vreinterpretq_u32_s32(vcvtq_s32_f32(vaddq_f32(vmulq_f32(mask(acc.b, terrain), inv), half))));
-    vst1q_u32(okb, ok);
-    for (int k = 0; k < 4; ++k) {
-      rgb[3 * (i + k) + 0] = static_cast<std::uint8_t>(r[k]);
-      rgb[3 * (i + k) + 1] = static_cast<std::uint8_t>(g[k]);
-      rgb[3 * (i + k) + 2] = static_cast<std::uint8_t>(b[k]);
-      valid[i + k] = okb[k] ? 255 : 0;
+  for (; i + kShadeGroup <= n; i += kShadeGroup) {
+    int first = i;
+    while (first < i + kShadeGroup && !(wx[first] == wx[first])) ++first;
+    const GroupLevel lev = group_level(first < i + kShadeGroup ? log2fp[first] : 0.0f, p);
+    for (int v = i; v < i + kShadeGroup; v += 4) {
+      const float32x4_t x = vld1q_f32(wx + v);
+      shade4(p, lev, vceqq_f32(x, x), x, vld1q_f32(wy + v), rgb + 3 * v, valid + v);
     }
   }
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
 }
 
-void resolve_row_neon(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
-                      float* z, float* log2fp) {
-  const float32x4_t one = vdupq_n_f32(1.0f), vdy = vdupq_n_f32(dy);
-  auto b = [](float v) { return vdupq_n_f32(v); };
+void resolve_shade_row_neon(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
+                            const ShadeTarget* targets) {
+  GroupLevel lev[kMaxShadeTargets];
   static const float lanes[4] = {0, 1, 2, 3};
+  const float32x4_t one = vdupq_n_f32(1.0f);
   int i = 0;
-  for (; i + 4 <= n; i += 4) {
-    // Each lane's planes, loaded lane by lane (NEON has no gather); lanes with no terrain
-    // compute on zeros and are overwritten below.
-    float cl[9][4];
-    for (int l = 0; l < 4; ++l)
-      for (int k = 0; k < 9; ++k) cl[k][l] = ids[i + l] < 0 ? 0.0f : coef[9 * static_cast<std::ptrdiff_t>(ids[i + l]) + k];
-    float32x4_t c[9];
-    for (int k = 0; k < 9; ++k) c[k] = vld1q_f32(cl[k]);
-    const float32x4_t dx = vaddq_f32(vdupq_n_f32(dx0 + static_cast<float>(i)), vld1q_f32(lanes));
-    const float32x4_t iz = vaddq_f32(vaddq_f32(c[0], vmulq_f32(c[2], vdy)), vmulq_f32(c[1], dx));
-    const float32x4_t zz = vdivq_f32(one, iz);
-    const float32x4_t x = vmulq_f32(vaddq_f32(vaddq_f32(c[3], vmulq_f32(c[5], vdy)), vmulq_f32(c[4], dx)), zz);
-    const float32x4_t y = vmulq_f32(vaddq_f32(vaddq_f32(c[6], vmulq_f32(c[8], vdy)), vmulq_f32(c[7], dx)), zz);
-    vst1q_f32(z + i, zz);
-    vst1q_f32(wx + i, x);
-    vst1q_f32(wy + i, y);
-    const float32x4_t du_x = vmulq_f32(vsubq_f32(c[4], vmulq_f32(x, c[1])), zz);
-    const float32x4_t du_y = vmulq_f32(vsubq_f32(c[7], vmulq_f32(y, c[1])), zz);
-    const float32x4_t dv_x = vmulq_f32(vsubq_f32(c[5], vmulq_f32(x, c[2])), zz);
-    const float32x4_t dv_y = vmulq_f32(vsubq_f32(c[8], vmulq_f32(y, c[2])), zz);
-    const float32x4_t su = vaddq_f32(vmulq_f32(du_x, du_x), vmulq_f32(du_y, du_y));
-    const float32x4_t sv = vaddq_f32(vmulq_f32(dv_x, dv_x), vmulq_f32(dv_y, dv_y));
-    float32x4_t d2 = vbslq_f32(vcgtq_f32(su, sv), su, sv);
-    d2 = vbslq_f32(vcgtq_f32(d2, b(1e-12f)), d2, b(1e-12f));
-    // fast_log2, lane-wise: exponent plus a quadratic in the mantissa.
-    const uint32x4_t bits = vreinterpretq_u32_f32(d2);
-    const float32x4_t e = vcvtq_f32_s32(vsubq_s32(vreinterpretq_s32_u32(vshrq_n_u32(bits, 23)), vdupq_n_s32(127)));
-    const float32x4_t m = vreinterpretq_f32_u32(vorrq_u32(vandq_u32(bits, vdupq_n_u32(0x7fffff)), vdupq_n_u32(0x3f800000)));
-    const float32x4_t poly = vsubq_f32(vmulq_f32(vaddq_f32(vmulq_f32(b(-0.34484843f), m), b(2.02466578f)), m), b(0.67487759f));
-    vst1q_f32(log2fp + i, vmulq_f32(b(0.5f), vaddq_f32(e, poly)));
-    for (int l = 0; l < 4; ++l)
-      if (ids[i + l] < 0) {
-        wx[i + l] = wy[i + l] = z[i + l] = NAN;
-        log2fp[i + l] = 0.0f;
+  for (; i + kShadeGroup <= n; i += kShadeGroup) {
+    int first = i;
+    while (first < i + kShadeGroup && ids[first] < 0) ++first;
+    const float l2 = first < i + kShadeGroup
+                         ? plane_footprint_log2(coef + 9 * static_cast<std::ptrdiff_t>(ids[first]), dx0 + static_cast<float>(first), dy)
+                         : 0.0f;
+    for (int k = 0; k < n_targets; ++k) lev[k] = group_level(l2, *targets[k].params);
+    for (int v = i; v < i + kShadeGroup; v += 4) {
+      // Each lane's planes with the row's part summed (r = q + dq/dy dy, the scalar twin's
+      // first operation), loaded lane by lane; lanes with no terrain compute on zeros.
+      float pl[6][4];
+      std::uint32_t seen[4];
+      for (int l = 0; l < 4; ++l) {
+        const int e = ids[v + l];
+        seen[l] = e >= 0 ? 0xFFFFFFFFu : 0u;
+        const float* c = coef + 9 * static_cast<std::ptrdiff_t>(e < 0 ? 0 : e);
+        pl[0][l] = e < 0 ? 0.0f : c[0] + c[2] * dy;
+        pl[1][l] = e < 0 ? 0.0f : c[1];
+        pl[2][l] = e < 0 ? 0.0f : c[3] + c[5] * dy;
+        pl[3][l] = e < 0 ? 0.0f : c[4];
+        pl[4][l] = e < 0 ? 0.0f : c[6] + c[8] * dy;
+        pl[5][l] = e < 0 ? 0.0f : c[7];
       }
+      const uint32x4_t in = vld1q_u32(seen);
+      const float32x4_t dx = vaddq_f32(vdupq_n_f32(dx0 + static_cast<float>(v)), vld1q_f32(lanes));
+      const float32x4_t zz = vdivq_f32(one, vaddq_f32(vld1q_f32(pl[0]), vmulq_f32(vld1q_f32(pl[1]), dx)));
+      const float32x4_t x = vmulq_f32(vaddq_f32(vld1q_f32(pl[2]), vmulq_f32(vld1q_f32(pl[3]), dx)), zz);
+      const float32x4_t y = vmulq_f32(vaddq_f32(vld1q_f32(pl[4]), vmulq_f32(vld1q_f32(pl[5]), dx)), zz);
+      vst1q_f32(z + v, vbslq_f32(in, zz, vdupq_n_f32(NAN)));
+      for (int k = 0; k < n_targets; ++k)
+        shade4(*targets[k].params, lev[k], in, x, y, targets[k].rgb + 3 * v, targets[k].valid + v);
+    }
   }
-  if (i < n) resolve_row_scalar(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, wx + i, wy + i, z + i, log2fp + i);
+  if (i < n) {
+    ShadeTarget rest[kMaxShadeTargets];
+    for (int k = 0; k < n_targets; ++k) rest[k] = {targets[k].params, targets[k].rgb + 3 * i, targets[k].valid + i};
+    resolve_shade_row_scalar(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, z + i, n_targets, rest);
+  }
 }
 
 void depth_block_neon(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,

@@ -1,4 +1,5 @@
-// The scalar twin of shade_avx2.cpp: same operations, same order.
+// The scalar twin of the shading kernels (shade_kernels.hpp: what they all compute), and the
+// scalar depth and edge kernels.
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <cmath>
@@ -6,34 +7,57 @@
 namespace terralign::raster {
 namespace {
 
-struct Acc {
-  float r, g, b, a;
+// lerp(a, b, f) of the filter's fixed point (shade_kernels.hpp).
+inline int lerp15(int a, int b, int f) { return a + (((b - a) * f + 0x4000) >> 15); }
+
+// A sample's four channels (RGBA, x128).
+struct Sample {
+  int c[4];
 };
 
-// Bilinear, alpha-weighted: texels off the level or with alpha 0 contribute nothing.
-inline Acc sample(const ShadeParams& p, int level, float u, float v) {
+// Bilinear at one level; taps outside it read as 0.
+inline Sample sample(const ShadeParams& p, int level, float x, float y) {
   const MipLevel L = p.levels[level];
-  const float ul = (u + 0.5f) * L.scale - 0.5f;
-  const float vl = (v + 0.5f) * L.scale - 0.5f;
-  const float fx0 = std::floor(ul), fy0 = std::floor(vl);
-  const float fx = ul - fx0, fy = vl - fy0;
-  const int x0 = static_cast<int>(fx0), y0 = static_cast<int>(fy0);
-  const float w[4] = {(1.0f - fx) * (1.0f - fy), fx * (1.0f - fy), (1.0f - fx) * fy, fx * fy};
-  Acc acc{0.0f, 0.0f, 0.0f, 0.0f};
-  for (int k = 0; k < 4; ++k) {
-    const int x = x0 + (k & 1), y = y0 + (k >> 1);
-    const bool inside = x >= 0 && y >= 0 && x < L.width && y < L.height;
-    const int xc = x < 0 ? 0 : (x >= L.width ? L.width - 1 : x);
-    const int yc = y < 0 ? 0 : (y >= L.height ? L.height - 1 : y);
-    const std::uint32_t t = p.texels[L.offset + yc * L.width + xc];
-    const float wk = inside ? w[k] : 0.0f;
-    const float wa = wk * static_cast<float>(t >> 24);
-    acc.r = acc.r + wa * static_cast<float>(t & 255u);
-    acc.g = acc.g + wa * static_cast<float>((t >> 8) & 255u);
-    acc.b = acc.b + wa * static_cast<float>((t >> 16) & 255u);
-    acc.a = acc.a + wa;
+  const LevelCoords& k = p.coords[level];
+  const int U = static_cast<int>(std::floor((k.a0 + k.a1 * x + k.a2 * y) * 256.0f));
+  const int V = static_cast<int>(std::floor((k.b0 + k.b1 * x + k.b2 * y) * 256.0f));
+  const int x0 = U >> 8, y0 = V >> 8, fx = (U & 255) << 7, fy = (V & 255) << 7;
+  std::uint32_t t[4];
+  for (int j = 0; j < 4; ++j) {
+    const int tx = x0 + (j & 1), ty = y0 + (j >> 1);
+    const bool inside = tx >= 0 && ty >= 0 && tx < L.width && ty < L.height;
+    t[j] = inside ? p.texels[L.offset + ty * L.width + tx] : 0u;
   }
-  return acc;
+  Sample s;
+  for (int c = 0; c < 4; ++c) {
+    int C[4];
+    for (int j = 0; j < 4; ++j) C[j] = static_cast<int>((t[j] >> (8 * c)) & 255u) << 7;
+    s.c[c] = lerp15(lerp15(C[0], C[1], fx), lerp15(C[2], C[3], fx), fy);
+  }
+  return s;
+}
+
+// One pixel that sees terrain at (x, y), or none (NaN x): 3 colour bytes and the validity byte.
+inline void shade_pixel(const ShadeParams& p, const GroupLevel& g, float x, float y, std::uint8_t* rgb, std::uint8_t* valid) {
+  Sample s{{0, 0, 0, 0}};
+  if (x == x) {
+    s = sample(p, g.l0, x, y);
+    if (g.t > 0) {
+      const Sample s1 = sample(p, g.l1, x, y);
+      for (int c = 0; c < 4; ++c) s.c[c] = lerp15(s.c[c], s1.c[c], g.t);
+    }
+  }
+  const int a = s.c[3];
+  const bool ok = a >= 16320;
+  for (int c = 0; c < 3; ++c) {
+    int o = 0;
+    if (ok) {
+      o = static_cast<int>(static_cast<float>(s.c[c] * 255) / static_cast<float>(a) + 0.5f);
+      o = o < 255 ? o : 255;
+    }
+    rgb[c] = static_cast<std::uint8_t>(o);
+  }
+  *valid = ok ? 255 : 0;
 }
 
 }  // namespace
@@ -50,66 +74,54 @@ std::vector<MipLevel> mip_chain(int width, int height, int max_levels) {
   return levels;
 }
 
+std::vector<LevelCoords> level_coords(const std::vector<MipLevel>& levels, double a0, double a1, double a2, double b0,
+                                      double b1, double b2) {
+  std::vector<LevelCoords> out;
+  for (const MipLevel& L : levels) {
+    const double s = L.scale;
+    out.push_back({static_cast<float>((a0 + 0.5) * s - 0.5), static_cast<float>(a1 * s), static_cast<float>(a2 * s),
+                   static_cast<float>((b0 + 0.5) * s - 0.5), static_cast<float>(b1 * s), static_cast<float>(b2 * s)});
+  }
+  return out;
+}
+
 void shade_row_scalar(int n, const float* wx, const float* wy, const float* log2fp,
                       std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p) {
-  const int top = p.n_levels - 1;
-  for (int i = 0; i < n; ++i) {
-    const float x = wx[i], y = wy[i];
-    Acc acc{0.0f, 0.0f, 0.0f, 0.0f};
-    if (x == x) {  // not NaN: the pixel sees terrain
-      const float u = p.a0 + p.a1 * x + p.a2 * y;
-      const float v = p.b0 + p.b1 * x + p.b2 * y;
-      float lod = log2fp[i] + p.lod_bias;
-      lod = lod > 0.0f ? lod : 0.0f;
-      lod = lod < static_cast<float>(top) ? lod : static_cast<float>(top);
-      const float fl = std::floor(lod);
-      const int l0 = static_cast<int>(fl);
-      const int l1 = l0 < top ? l0 + 1 : top;
-      const float t = lod - fl;
-      const Acc s0 = sample(p, l0, u, v);
-      // With t = 0 the second level's weight is 0 and s0 * 1 + s1 * 0 == s0 exactly.
-      const Acc s1 = t > 0.0f ? sample(p, l1, u, v) : Acc{0.0f, 0.0f, 0.0f, 0.0f};
-      const float w0 = 1.0f - t;
-      acc.r = s0.r * w0 + s1.r * t;
-      acc.g = s0.g * w0 + s1.g * t;
-      acc.b = s0.b * w0 + s1.b * t;
-      acc.a = s0.a * w0 + s1.a * t;
-    }
-    // Valid where at least half of the filter's weight lands on valid texels.
-    const bool ok = acc.a >= 127.5f;
-    const float inv = ok ? 1.0f / acc.a : 0.0f;
-    rgb[3 * i + 0] = static_cast<std::uint8_t>(static_cast<int>(acc.r * inv + 0.5f));
-    rgb[3 * i + 1] = static_cast<std::uint8_t>(static_cast<int>(acc.g * inv + 0.5f));
-    rgb[3 * i + 2] = static_cast<std::uint8_t>(static_cast<int>(acc.b * inv + 0.5f));
-    valid[i] = ok ? 255 : 0;
+  for (int g = 0; g < n; g += kShadeGroup) {
+    const int end = g + kShadeGroup < n ? g + kShadeGroup : n;
+    int first = g;
+    while (first < end && !(wx[first] == wx[first])) ++first;
+    const GroupLevel lev = group_level(first < end ? log2fp[first] : 0.0f, p);
+    for (int i = g; i < end; ++i) shade_pixel(p, lev, wx[i], wy[i], rgb + 3 * i, valid + i);
   }
 }
 
-void resolve_row_scalar(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
-                        float* z, float* log2fp) {
-  for (int i = 0; i < n; ++i) {
-    if (ids[i] < 0) {
-      wx[i] = wy[i] = z[i] = NAN;
-      log2fp[i] = 0.0f;
-      continue;
+void resolve_shade_row_scalar(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
+                              const ShadeTarget* targets) {
+  GroupLevel lev[kMaxShadeTargets];
+  for (int g = 0; g < n; g += kShadeGroup) {
+    const int end = g + kShadeGroup < n ? g + kShadeGroup : n;
+    int first = g;
+    while (first < end && ids[first] < 0) ++first;
+    const float l2 = first < end ? plane_footprint_log2(coef + 9 * static_cast<std::ptrdiff_t>(ids[first]),
+                                                        dx0 + static_cast<float>(first), dy)
+                                 : 0.0f;
+    for (int k = 0; k < n_targets; ++k) lev[k] = group_level(l2, *targets[k].params);
+    for (int i = g; i < end; ++i) {
+      float x = NAN, y = NAN;
+      if (ids[i] >= 0) {
+        const float* c = coef + 9 * static_cast<std::ptrdiff_t>(ids[i]);
+        const float dx = dx0 + static_cast<float>(i);
+        const float zz = 1.0f / ((c[0] + c[2] * dy) + c[1] * dx);
+        x = ((c[3] + c[5] * dy) + c[4] * dx) * zz;
+        y = ((c[6] + c[8] * dy) + c[7] * dx) * zz;
+        z[i] = zz;
+      } else {
+        z[i] = NAN;
+      }
+      for (int k = 0; k < n_targets; ++k)
+        shade_pixel(*targets[k].params, lev[k], x, y, targets[k].rgb + 3 * i, targets[k].valid + i);
     }
-    const float* c = coef + 9 * static_cast<std::ptrdiff_t>(ids[i]);
-    const float dx = dx0 + static_cast<float>(i);
-    const float iz = (c[0] + c[2] * dy) + c[1] * dx;
-    const float zz = 1.0f / iz;
-    const float x = ((c[3] + c[5] * dy) + c[4] * dx) * zz;
-    const float y = ((c[6] + c[8] * dy) + c[7] * dx) * zz;
-    z[i] = zz;
-    wx[i] = x;
-    wy[i] = y;
-    // The footprint from the planes' derivatives: A (per column) = c[1], c[4], c[7];
-    // B (per row) = c[2], c[5], c[8].
-    const float du_x = (c[4] - x * c[1]) * zz, du_y = (c[7] - y * c[1]) * zz;
-    const float dv_x = (c[5] - x * c[2]) * zz, dv_y = (c[8] - y * c[2]) * zz;
-    const float su = du_x * du_x + du_y * du_y, sv = dv_x * dv_x + dv_y * dv_y;
-    float d2 = su > sv ? su : sv;
-    d2 = d2 > 1e-12f ? d2 : 1e-12f;
-    log2fp[i] = 0.5f * fast_log2(d2);
   }
 }
 

@@ -7,6 +7,7 @@ namespace terralign {
 struct CpuFeatures {
   bool avx2_fma = false;  // AVX2 and FMA3
   bool avx512f = false;
+  bool avx512bw_vl = false;  // AVX-512 BW and VL as well as F
 };
 
 const CpuFeatures& cpu_features();

@@ -11,13 +11,17 @@
 //  3. Visibility: per tile, fixed-point edge functions (8 sub-pixel bits, top-left fill
 //     rule) and a depth test on 1/z give each pixel its nearest triangle.
 //  4. Resolve: per pixel, depth along the optical axis and the world (x, y) of the surface
-//     point, perspective-correct from the triangle's planes (in double).
-//  5. Shading, per requested layer: world (x, y) -> that layer's texel coordinates through
-//     its own geotransform, bilinear within a mip level chosen from the pixel's footprint
-//     (trilinear between two levels when minifying); pixels off the layer or on its no-data
-//     are invalid. Geometry (1-4) is done once per frame however many layers are shaded.
+//     point, perspective-correct from the triangle's planes (fitted in double, evaluated in
+//     float relative to the tile's corner).
+//  5. Shading, per requested layer, fused with the resolve of each tile row: world (x, y) ->
+//     that layer's texel coordinates through its own geotransform, bilinear within a mip
+//     level chosen per 16 pixels of a row from the footprint (trilinear between two levels
+//     when minifying), in integers over premultiplied texels (shade_kernels.hpp); pixels off
+//     the layer or on its no-data are invalid. Geometry (1-4) is done once per frame however
+//     many layers are shaded.
 // Cameras with distortion are rendered as a pinhole G-buffer with a margin, resampled
-// through a precomputed map per output pixel, then shaded: colour and depth stay exact.
+// through a precomputed map per output pixel (the resolve in double), then shaded: colour
+// and depth stay exact.
 //
 // Threads work on fixed screen tiles (and rows): 1 and 2 threads give the same bytes.
 #pragma once

@@ -1,8 +1,36 @@
-// Texture shading kernels: world (x, y) of each pixel -> bilinear / trilinear mip-mapped
-// RGBA sample of one layer. One kernel, a scalar build, AVX2 and AVX-512 builds (x86-64;
-// the depth kernel has no AVX-512 build) and a NEON build (aarch64), with the same float
-// operations in the same order (no FMA contraction),
-// so they agree bit for bit.
+// Texture shading kernels: the world (x, y) a pixel sees -> a bilinear / trilinear mip-mapped
+// sample of one layer, alone (shade_row, after a separate resolve) or fused with the resolve
+// of a pinhole tile row (resolve_shade_row). One kernel of each, a scalar build, AVX2 and
+// AVX-512 builds (x86-64) and a NEON build (aarch64), doing the same integer and float
+// operations in the same order (no FMA contraction), so they agree bit for bit.
+//
+// What every build computes:
+// - Texels are premultiplied RGBA8 (each colour scaled by alpha / 255, R in the low byte).
+//   The renderer's level 0 has alpha 0 (no data) or 255, so premultiplying it is exact; each
+//   coarser level is the rounded mean of the 2 x 2 texels below it. Filtering premultiplied
+//   texels weights each colour by its alpha: no-data texels do not darken their neighbours.
+// - Level of detail per group of kShadeGroup (16) pixels of a row, counted from the row's
+//   first pixel, as GPUs choose it per 2 x 2 quad: from the footprint of the group's first
+//   pixel that sees terrain (group_level()). One level pair for 16 pixels lets a vector build
+//   fetch a group's texels with row loads instead of gathers.
+// - At level l a pixel's texel coordinates (centres at integers) are ul = a0 + a1 x + a2 y,
+//   vl = b0 + b1 x + b2 y (the level's LevelCoords, float, in that order), and
+//   U = floor(ul * 256) (V likewise) gives the left tap's column U >> 8 and the column
+//   fraction F = (U & 255) << 7, eight bits of it in the 15 of the fixed point below.
+// - A channel c enters as C = c << 7 (0 .. 32640: a difference of two fits 16 bits signed), and
+//     lerp(a, b, F) = a + (((b - a) * F + 2^14) >> 15)
+//   (x86's pmulhrsw, NEON's vqrdmulh: one instruction for 16, 8 or 4 pixels' channels).
+//   Bilinear: the top taps lerped by the column fraction, the bottom taps likewise, then the
+//   two by the row fraction. Taps outside the level read as 0 (transparent). Trilinear: the
+//   samples of levels l and l + 1 lerped by the level fraction (15 bits; 0 takes level l
+//   alone, exactly what the lerp would give).
+// - The result S (RGBA, x128) is valid where S_a >= 16320: at least half of the filter's
+//   weight on valid texels. Its colour is c = min(255, (int)(float(S_c * 255) / float(S_a) +
+//   0.5f)); where S_a = 32640 (opaque, most pixels) that is exactly (S_c + 64) >> 7, the
+//   shortcut the vector builds take.
+// So the float work is the resolve and the texel coordinates; the fetches are row loads
+// where a vector's taps lie in a few texel rows (nadir views, and rows that run along the
+// texture's rows), gathers elsewhere.
 #pragma once
 
 #include <cstddef>
@@ -10,6 +38,8 @@
 #include <vector>
 
 namespace terralign::raster {
+
+constexpr int kShadeGroup = 16;  // pixels sharing a level of detail
 
 struct MipLevel {
   std::int32_t offset;  // index of the level's first texel in the texel array
@@ -28,27 +58,52 @@ inline std::size_t mip_chain_end(const std::vector<MipLevel>& levels) {
   return static_cast<std::size_t>(last.offset) + static_cast<std::size_t>(last.width) * static_cast<std::size_t>(last.height);
 }
 
-struct ShadeParams {
-  const std::uint32_t* texels;  // RGBA8 packed (R in the low byte), every level back to back,
-                                // and a readable guard texel before the first and after the last
-  const MipLevel* levels;
-  int n_levels;                 // >= 1
-  // Level-0 texel coordinates (pixel centres at integers) of a local world point:
-  // u = a0 + a1 x + a2 y, v = b0 + b1 x + b2 y.
+// A level's texel coordinates (centres at integers) of a local world point (x, y):
+// ul = a0 + a1 x + a2 y, vl = b0 + b1 x + b2 y.
+struct LevelCoords {
   float a0, a1, a2, b0, b1, b2;
+};
+
+// The coordinates of every level of `levels`, given level 0's (u0 = a0 + a1 x + a2 y, ...),
+// computed in double: ul = (u0 + 0.5) scale - 0.5.
+std::vector<LevelCoords> level_coords(const std::vector<MipLevel>& levels, double a0, double a1, double a2, double b0,
+                                      double b1, double b2);
+
+struct ShadeParams {
+  const std::uint32_t* texels;  // premultiplied RGBA8 (R in the low byte), every level back to
+                                // back, and a readable guard texel before the first and after the last
+  const MipLevel* levels;
+  const LevelCoords* coords;    // per level
+  int n_levels;                 // >= 1
   float lod_bias;               // added to log2(footprint in metres): -log2(texel size)
 };
 
-// For n pixels: wx, wy local world coordinates (NaN: no terrain), log2fp the log2 of the
-// pixel's ground footprint in metres. Writes 3 bytes of colour and one validity byte (255 /
-// 0) per pixel; colour is 0 where invalid. Reads only [0, n) of each input; no allocation.
+// A group's levels: l0 alone where t == 0, else lerped towards l1 by t (15 bits).
+struct GroupLevel {
+  int l0, l1, t;
+};
+
+// The level pair of a pixel whose ground footprint is 2^log2fp metres.
+inline GroupLevel group_level(float log2fp, const ShadeParams& p) {
+  const int top = p.n_levels - 1;
+  float lod = log2fp + p.lod_bias;
+  lod = lod > 0.0f ? lod : 0.0f;  // NaN -> 0
+  lod = lod < static_cast<float>(top) ? lod : static_cast<float>(top);
+  const int l0 = static_cast<int>(lod);  // lod >= 0: truncation is floor
+  const int t = static_cast<int>((lod - static_cast<float>(l0)) * 32768.0f);
+  return {l0, l0 < top ? l0 + 1 : top, t < 32767 ? t : 32767};
+}
+
+// For n pixels of a row: wx, wy local world coordinates (NaN: no terrain), log2fp the log2 of
+// the pixel's ground footprint in metres (read at each group's first pixel with terrain).
+// Writes 3 bytes of colour and one validity byte (255 / 0) per pixel; colour is 0 where
+// invalid. Reads only [0, n) of each input, and texels of taps inside their level or (a tap
+// pair at a level's edge) next to one, hence the guard texels; no allocation.
 void shade_row_scalar(int n, const float* wx, const float* wy, const float* log2fp,
                       std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p);
 #if defined(TERRALIGN_HAVE_AVX2)
 void shade_row_avx2(int n, const float* wx, const float* wy, const float* log2fp,
                     std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p);
-#endif
-#if defined(TERRALIGN_HAVE_AVX2)
 void shade_row_avx512(int n, const float* wx, const float* wy, const float* log2fp,
                       std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p);
 #endif
@@ -56,28 +111,44 @@ void shade_row_avx512(int n, const float* wx, const float* wy, const float* log2
 void shade_row_neon(int n, const float* wx, const float* wy, const float* log2fp,
                     std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p);
 #endif
+using ShadeRowFn = void (*)(int, const float*, const float*, const float*, std::uint8_t*,
+                            std::uint8_t*, const ShadeParams&);
 
-// One row of a tile after visibility: pixel i, dx0 + i columns right of the tile's corner and
-// dy rows below it, sees bin entry ids[i] (-1: no terrain), whose planes at the tile's corner
-// are coef[9 e .. 9 e + 8] = {q0, dq0/dx, dq0/dy, q1, dq1/dx, dq1/dy, q2, dq2/dx, dq2/dy} for
-// q0 = 1/z, q1 = x/z, q2 = y/z (local world x, y). Writes world x, y, depth z (NaN: no
-// terrain) and log2 of the ground footprint in metres (0: no terrain) for n pixels. Reads
-// coefficients only of the entries named.
-void resolve_row_scalar(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
-                        float* z, float* log2fp);
+// One layer a fused kernel shades: its parameters and the row's output. A call shades at
+// most kMaxShadeTargets layers.
+constexpr int kMaxShadeTargets = 64;
+struct ShadeTarget {
+  const ShadeParams* params;
+  std::uint8_t* rgb;    // 3 bytes a pixel
+  std::uint8_t* valid;  // 1 byte a pixel
+};
+
+// The planes of a bin entry at a tile's corner: coef[9 e .. 9 e + 8] = {q0, dq0/dx, dq0/dy,
+// q1, dq1/dx, dq1/dy, q2, dq2/dx, dq2/dy} for q0 = 1/z, q1 = x/z, q2 = y/z (local world x, y).
+// log2 of the ground footprint in metres at the pixel dx, dy from the corner: the larger of
+// the lengths of d(x, y)/du and d(x, y)/dv. Inline (below, after fast_log2), so that a vector
+// kernel computing it per group keeps its registers (a call would spill them all).
+inline float plane_footprint_log2(const float* c, float dx, float dy);
+
+// One row of a pinhole tile after visibility, resolved and shaded: pixel i, dx0 + i columns
+// right of the tile's corner and dy rows below it, sees bin entry ids[i] (-1: no terrain).
+// Per pixel, in float and in this order: iz = (q0 + dq0/dy dy) + dq0/dx dx, z = 1 / iz,
+// x = ((q1 + dq1/dy dy) + dq1/dx dx) z, y likewise; writes z (NaN: no terrain) and shades
+// every target as shade_row would with log2fp = plane_footprint_log2() of each group's first
+// pixel with terrain. Reads coefficients only of the entries named; no allocation.
+void resolve_shade_row_scalar(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
+                              const ShadeTarget* targets);
 #if defined(TERRALIGN_HAVE_AVX2)
-void resolve_row_avx2(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
-                      float* z, float* log2fp);
-#endif
-#if defined(TERRALIGN_HAVE_AVX2)
-void resolve_row_avx512(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
-                        float* z, float* log2fp);
+void resolve_shade_row_avx2(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
+                            const ShadeTarget* targets);
+void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
+                              const ShadeTarget* targets);
 #endif
 #if defined(TERRALIGN_HAVE_NEON)
-void resolve_row_neon(int n, const int* ids, const float* coef, float dx0, float dy, float* wx, float* wy,
-                      float* z, float* log2fp);
+void resolve_shade_row_neon(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
+                            const ShadeTarget* targets);
 #endif
-using ResolveRowFn = void (*)(int, const int*, const float*, float, float, float*, float*, float*, float*);
+using ResolveShadeRowFn = void (*)(int, const int*, const float*, float, float, float*, int, const ShadeTarget*);
 
 // Visibility in a block that one triangle covers wholly: rows r < h, columns i < w (w <= 8)
 // from z and id (row stride `stride`); the triangle's 1/z there is (base + B (dy + r)) +
@@ -131,10 +202,22 @@ inline float fast_log2(float x) {
   return e + ((-0.34484843f * m + 2.02466578f) * m - 0.67487759f);
 }
 
-using ShadeRowFn = void (*)(int, const float*, const float*, const float*, std::uint8_t*,
-                            std::uint8_t*, const ShadeParams&);
+inline float plane_footprint_log2(const float* c, float dx, float dy) {
+  const float iz = (c[0] + c[2] * dy) + c[1] * dx;
+  const float zz = 1.0f / iz;
+  const float x = ((c[3] + c[5] * dy) + c[4] * dx) * zz;
+  const float y = ((c[6] + c[8] * dy) + c[7] * dx) * zz;
+  // d(x, y)/du from the planes' column derivatives c[1], c[4], c[7]; d/dv from the row ones.
+  const float du_x = (c[4] - x * c[1]) * zz, du_y = (c[7] - y * c[1]) * zz;
+  const float dv_x = (c[5] - x * c[2]) * zz, dv_y = (c[8] - y * c[2]) * zz;
+  const float su = du_x * du_x + du_y * du_y, sv = dv_x * dv_x + dv_y * dv_y;
+  float d2 = su > sv ? su : sv;
+  d2 = d2 > 1e-12f ? d2 : 1e-12f;
+  return 0.5f * fast_log2(d2);
+}
 
-// True if this CPU runs the AVX2 + FMA kernels (and they were built); the AVX-512F ones.
+// True if this CPU runs the AVX2 + FMA kernels (and they were built); the AVX-512 ones
+// (F, BW and VL).
 bool cpu_has_avx2();
 bool cpu_has_avx512();
 
