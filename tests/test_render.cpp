@@ -332,13 +332,13 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   const std::vector<LevelCoords> coords = level_coords(levels, 3.0, 0.9, 0.1, 5.0, -0.05, 1.1);
   const ShadeParams p{texels.data(), levels.data(), coords.data(), static_cast<int>(levels.size()), 0.3f};
   std::uniform_real_distribution<float> pos(-2, 30), fp(-3, 6);  // a few pixels off the edges
-  const int n = 1003;  // 62 groups and a short one
+  const int n = 1003;  // vectors of every width and a tail
   std::vector<float> wx(n), wy(n), lf(n);
   for (int i = 0; i < n; ++i) {
     wx[i] = pos(rng);
     wy[i] = pos(rng);
-    lf[i] = i % 5 == 0 ? -0.3f : fp(rng);  // some groups at a whole level (fraction 0)
-    if (i % 13 == 0 || (i >= 32 && i < 48)) wx[i] = NAN;  // no terrain, a whole group of it too
+    lf[i] = i % 5 == 0 ? -0.3f : fp(rng);  // some at a whole level (fraction 0)
+    if (i % 13 == 0 || (i >= 32 && i < 48)) wx[i] = NAN;  // no terrain, a whole vector of it too
   }
   std::vector<std::uint8_t> rgb_s(3 * n), val_s(n);
   auto compare_shading = [&](const Kernels& k) {
@@ -368,7 +368,7 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   }
   CHECK(partial > 10);
   for (const Kernels& k : vector_kernels) compare_shading(k);
-  // Rows of pixels as a render has them: groups of 16 along a line, 0.05-1.4 world units
+  // Rows of pixels as a render has them: runs of 16 along a line, 0.05-1.4 world units
   // (about texels) apart in eight directions, at level 0 alone or trilinear between 0 and 1,
   // starting anywhere up to the level's far edges. Most vectors' taps then lie in a few
   // neighbouring texel rows (the kernels' row windows instead of gathers), some too far apart
@@ -404,7 +404,7 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_s.data(), val_s.data(), p);
   for (const Kernels& k : vector_kernels) compare_shading(k);
   // The same rows over an opaque texture (as most of a real layer is): the vector kernels'
-  // shortcut for groups whose every tap is opaque, (S_c + 64) >> 7.
+  // shortcut for vectors whose every tap is opaque, (S_c + 64) >> 7.
   std::vector<std::uint32_t> saved = texels;
   for (std::size_t k = 1; k + 1 < texels.size(); ++k) texels[k] = rng() | 0xff000000u;
   shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_s.data(), val_s.data(), p);
@@ -414,9 +414,8 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   for (const Kernels& k : vector_kernels) compare_shading(k);
   texels.swap(saved);  // back to the texture with no-data and transparency
 
-  // The fused kernel: a row of 93 pixels (five groups and a short one) seeing five tilted
-  // planes in runs of every length from 1 to 9, groups of one plane, of several, and of none
-  // (-1), shading two layers (the second's texel coordinates and bias differ). Each plane
+  // The fused kernel: a row of 93 pixels (vectors and a tail) seeing five tilted planes in
+  // runs of every length from 1 to 9, vectors of one plane, of several, and of none (-1), shading two layers (the second's texel coordinates and bias differ). Each plane
   // passes world (15, 10) at the row's middle and runs over the texture and off it, its
   // footprint 0.1-4 world units a pixel (levels 0-2).
   const int m = 93;
@@ -429,7 +428,7 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   std::vector<int> ids;
   for (int run = 1; static_cast<int>(ids.size()) < m; ++run)
     for (int i = 0; i < run % 10 && static_cast<int>(ids.size()) < m; ++i) ids.push_back(run % 6 - 1);
-  for (int i = 16; i < 32; ++i) ids[static_cast<std::size_t>(i)] = 3;  // one plane over a whole group
+  for (int i = 16; i < 32; ++i) ids[static_cast<std::size_t>(i)] = 3;  // one plane over a whole vector
   for (int i = 32; i < 48; ++i) ids[static_cast<std::size_t>(i)] = -1;  // and no terrain over one
   const std::vector<LevelCoords> coords2 = level_coords(levels, 1.5, 0.7, -0.2, 2.0, 0.1, 0.8);
   const ShadeParams p2{texels.data(), levels.data(), coords2.data(), static_cast<int>(levels.size()), -0.4f};
@@ -472,8 +471,9 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
       CHECK(rgb == ref.rgb[k]);
       CHECK(val == ref.valid[k]);
     }
-    int levels_seen = 0;  // the groups' levels differ (the planes' footprints span levels)
-    for (int g = 0; g + 16 <= m; g += 16) levels_seen |= 1 << group_level(l2[static_cast<std::size_t>(g)], p).l0;
+    int levels_seen = 0;  // the pixels' levels differ (the planes' footprints span levels)
+    for (int i = 0; i < m; ++i)
+      if (ids[static_cast<std::size_t>(i)] >= 0) levels_seen |= 1 << pixel_level(l2[static_cast<std::size_t>(i)], p).l0;
     CHECK(__builtin_popcount(static_cast<unsigned>(levels_seen)) >= 2);
     int shown = 0;
     for (auto v : ref.valid[0]) shown += v != 0;

@@ -1,9 +1,9 @@
-// AVX2 build of the shading kernels: a group of 16 pixels as two vectors of 8, the filter of
-// shade_kernels.hpp in 16-bit lanes (R and B words, G and A words of each pixel's 32 bits), so
-// the output matches shade_scalar.cpp bit for bit. A group's pixels share a level, so texels
-// come from row loads and permutes where a vector's taps lie in a window of a few texel rows
-// and 8 columns (window_taps), from gathers elsewhere. A row's last group, if short, runs the
-// scalar kernel. Also the AVX2 depth and edge kernels.
+// AVX2 build of the shading kernels: 8 pixels a vector, the filter of shade_kernels.hpp in
+// 16-bit lanes (R and B words, G and A words of each pixel's 32 bits), so the output matches
+// shade_scalar.cpp bit for bit. Where a vector's lanes share a level (most vectors), its
+// texels come from row loads and permutes where its taps lie in a window of a few texel rows
+// and 8 columns (window_taps), from gathers elsewhere. A row's tail (n % 8) runs the scalar
+// kernel. Also the AVX2 depth and edge kernels.
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <cmath>
@@ -194,18 +194,52 @@ TL_INLINE void output8(Sample8 s, std::uint8_t* rgb, std::uint8_t* valid) {
   _mm_storel_epi64(reinterpret_cast<__m128i*>(valid), _mm_unpacklo_epi32(_mm256_castsi256_si128(v8), _mm256_extracti128_si256(v8, 1)));
 }
 
-// Up to kChunkGroups groups (two vectors each) of a row processed together.
-constexpr int kChunkGroups = 4;
-constexpr int kChunkVectors = 2 * kChunkGroups;
+// Up to kChunkVectors vectors of a row processed together.
+constexpr int kChunkVectors = 8;
+
+// Lanes' level pairs: l0 and the 15-bit fraction t (in both halves of each lane), and the
+// least and greatest l0 of the lanes with terrain.
+struct Levels8 {
+  __m256i l0, t;
+  int lo, hi;
+};
+
+// pixel_level() lane by lane, the same operations.
+TL_INLINE Levels8 levels8(const ShadeParams& p, __m256 log2fp, __m256 terrain) {
+  const __m256 zero = _mm256_setzero_ps(), ftop = _mm256_set1_ps(static_cast<float>(p.n_levels - 1));
+  __m256 lod = _mm256_add_ps(log2fp, _mm256_set1_ps(p.lod_bias));
+  lod = _mm256_blendv_ps(zero, lod, _mm256_cmp_ps(lod, zero, _CMP_GT_OQ));  // NaN -> 0
+  lod = _mm256_blendv_ps(ftop, lod, _mm256_cmp_ps(lod, ftop, _CMP_LT_OQ));
+  Levels8 v;
+  v.l0 = _mm256_cvttps_epi32(lod);  // lod >= 0: truncation is floor
+  const __m256i t = _mm256_min_epi32(
+      _mm256_cvttps_epi32(_mm256_mul_ps(_mm256_sub_ps(lod, _mm256_cvtepi32_ps(v.l0)), _mm256_set1_ps(32768.0f))),
+      _mm256_set1_epi32(32767));
+  v.t = _mm256_or_si256(t, _mm256_slli_epi32(t, 16));
+  const int bits = _mm256_movemask_ps(terrain);
+  alignas(32) int l[8];
+  _mm256_store_si256(reinterpret_cast<__m256i*>(l), v.l0);
+  v.lo = v.hi = bits ? l[__builtin_ctz(static_cast<unsigned>(bits))] : 0;
+  const int same = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(v.l0, _mm256_set1_epi32(v.lo))));
+  if ((bits & ~same) != 0)
+    for (int k = 0; k < 8; ++k)
+      if (bits >> k & 1) {
+        v.lo = l[k] < v.lo ? l[k] : v.lo;
+        v.hi = l[k] > v.hi ? l[k] : v.hi;
+      }
+  return v;
+}
 
 // Shades `vectors` consecutive vectors of one layer: vector v's pixels see world (x[v], y[v])
-// where terrain[v] is all ones, at the levels of its group, lev[(v / 2) * lev_stride]. Each
-// step is taken for every vector before the next: a vector's work is one long chain
-// (coordinates, the window's bounds, its loads, the filter, the packing), and the vectors'
-// chains are independent, so the core overlaps them instead of waiting on each.
-TL_INLINE void shade_chunk(const ShadeParams& p, const GroupLevel* lev, int lev_stride, int vectors, const __m256* x,
-                           const __m256* y, const __m256* terrain, std::uint8_t* rgb, std::uint8_t* valid) {
+// where terrain[v] is all ones, with footprints log2fp[v]. Each step is taken for every
+// vector before the next: a vector's work is one long chain (coordinates, the window's
+// bounds, its loads, the filter, the packing), and the vectors' chains are independent, so
+// the core overlaps them instead of waiting on each.
+TL_INLINE void shade_chunk(const ShadeParams& p, int vectors, const __m256* x, const __m256* y, const __m256* log2fp,
+                           const __m256* terrain, std::uint8_t* rgb, std::uint8_t* valid) {
+  const int top = p.n_levels - 1;
   __m256 xs[kChunkVectors], ys[kChunkVectors];
+  Levels8 lv[kChunkVectors];
   Fetched f[kChunkVectors];
   Sample8 s[kChunkVectors];
   bool any[kChunkVectors];
@@ -214,19 +248,37 @@ TL_INLINE void shade_chunk(const ShadeParams& p, const GroupLevel* lev, int lev_
     any[v] = _mm256_movemask_ps(terrain[v]) != 0;
     xs[v] = _mm256_and_ps(x[v], terrain[v]);
     ys[v] = _mm256_and_ps(y[v], terrain[v]);
+    lv[v] = levels8(p, log2fp[v], terrain[v]);
+    s[v] = {_mm256_setzero_si256(), _mm256_setzero_si256()};
   }
+  // Vectors whose lanes share a level (most): that level's sample for all lanes ...
   for (int v = 0; v < vectors; ++v)
-    if (any[v]) f[v] = fetch8(p, lev[(v / 2) * lev_stride].l0, xs[v], ys[v]);
+    if (any[v] && lv[v].lo == lv[v].hi) f[v] = fetch8(p, lv[v].lo, xs[v], ys[v]);
   for (int v = 0; v < vectors; ++v)
-    s[v] = any[v] ? filter8(f[v]) : Sample8{_mm256_setzero_si256(), _mm256_setzero_si256()};
-  // Trilinear groups: the next level's sample, lerped in by the level fraction.
+    if (any[v] && lv[v].lo == lv[v].hi) s[v] = filter8(f[v]);
   for (int v = 0; v < vectors; ++v) {
-    const GroupLevel& l = lev[(v / 2) * lev_stride];
-    if (!any[v] || l.t == 0) continue;
-    const Sample8 s1 = filter8(fetch8(p, l.l1, xs[v], ys[v]));
-    const __m256i t = _mm256_set1_epi16(static_cast<short>(l.t));
-    s[v].rb = lerp15(s[v].rb, s1.rb, t);
-    s[v].ga = lerp15(s[v].ga, s1.ga, t);
+    if (!any[v]) continue;
+    const Levels8& l = lv[v];
+    if (l.lo == l.hi) {
+      // ... and the next level's, lerped in by each lane's fraction (a lane's fraction of 0
+      // keeps the first sample exactly).
+      if (_mm256_testz_si256(_mm256_and_si256(l.t, _mm256_castps_si256(terrain[v])), l.t)) continue;
+      const Sample8 s1 = filter8(fetch8(p, l.lo < top ? l.lo + 1 : top, xs[v], ys[v]));
+      s[v] = {lerp15(s[v].rb, s1.rb, l.t), lerp15(s[v].ga, s1.ga, l.t)};
+      continue;
+    }
+    // Lanes at different levels: every level from the least l0 to the greatest l1, each lane
+    // taking its own two.
+    const __m256i l1 = _mm256_min_epi32(_mm256_add_epi32(l.l0, _mm256_set1_epi32(1)), _mm256_set1_epi32(top));
+    Sample8 s0{_mm256_setzero_si256(), _mm256_setzero_si256()}, s1 = s0;
+    for (int level = l.lo; level <= (l.hi < top ? l.hi + 1 : top); ++level) {
+      const Sample8 at = filter8(fetch8(p, level, xs[v], ys[v]));
+      const __m256i first = _mm256_cmpeq_epi32(l.l0, _mm256_set1_epi32(level));
+      const __m256i second = _mm256_cmpeq_epi32(l1, _mm256_set1_epi32(level));
+      s0 = {_mm256_blendv_epi8(s0.rb, at.rb, first), _mm256_blendv_epi8(s0.ga, at.ga, first)};
+      s1 = {_mm256_blendv_epi8(s1.rb, at.rb, second), _mm256_blendv_epi8(s1.ga, at.ga, second)};
+    }
+    s[v] = {lerp15(s0.rb, s1.rb, l.t), lerp15(s0.ga, s1.ga, l.t)};
   }
   for (int v = 0; v < vectors; ++v) {
     const __m256i in = _mm256_castps_si256(terrain[v]);
@@ -234,11 +286,11 @@ TL_INLINE void shade_chunk(const ShadeParams& p, const GroupLevel* lev, int lev_
   }
 }
 
-// A vector's planes per lane, with each row's part summed: iz = r0 + c1 dx, x z = r3 + c4 dx,
-// y z = r6 + c7 dx, where r0 = q0 + dq0/dy dy (and r3, r6 likewise) is formed in scalar, the
-// same IEEE operation as lane by lane.
+// A vector's planes per lane: the column and row derivatives c[1], c[2], c[4], c[5], c[7],
+// c[8], and each row's part summed, r0 = q0 + dq0/dy dy (r3, r6 likewise), formed in scalar,
+// the same IEEE operation as lane by lane: iz = r0 + c1 dx, x z = r3 + c4 dx, y z = r6 + c7 dx.
 struct Planes8 {
-  __m256 r0, c1, r3, c4, r6, c7;
+  __m256 r0, c1, c2, r3, c4, c5, r6, c7, c8;
 };
 
 // The planes of the triangles the lanes in `seen` (bits) see: broadcast when it is one
@@ -247,22 +299,49 @@ TL_INLINE Planes8 planes8(__m256i id, unsigned seen, const int* ids, const float
   auto row = [dy](const float* c, int q) { return c[3 * q] + c[3 * q + 2] * dy; };
   const int e0 = ids[__builtin_ctz(seen)];
   const float* c = coef + 9 * static_cast<std::ptrdiff_t>(e0);
-  Planes8 P{_mm256_set1_ps(row(c, 0)), _mm256_set1_ps(c[1]), _mm256_set1_ps(row(c, 1)),
-            _mm256_set1_ps(c[4]), _mm256_set1_ps(row(c, 2)), _mm256_set1_ps(c[7])};
+  Planes8 P{_mm256_set1_ps(row(c, 0)), _mm256_set1_ps(c[1]), _mm256_set1_ps(c[2]),
+            _mm256_set1_ps(row(c, 1)), _mm256_set1_ps(c[4]), _mm256_set1_ps(c[5]),
+            _mm256_set1_ps(row(c, 2)), _mm256_set1_ps(c[7]), _mm256_set1_ps(c[8])};
   unsigned left = seen & ~static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(id, _mm256_set1_epi32(e0)))));
   while (left != 0) {
     const int e = ids[__builtin_ctz(left)];
     const __m256 these = _mm256_castsi256_ps(_mm256_cmpeq_epi32(id, _mm256_set1_epi32(e)));
     c = coef + 9 * static_cast<std::ptrdiff_t>(e);
-    P.r0 = _mm256_blendv_ps(P.r0, _mm256_set1_ps(row(c, 0)), these);
-    P.c1 = _mm256_blendv_ps(P.c1, _mm256_set1_ps(c[1]), these);
-    P.r3 = _mm256_blendv_ps(P.r3, _mm256_set1_ps(row(c, 1)), these);
-    P.c4 = _mm256_blendv_ps(P.c4, _mm256_set1_ps(c[4]), these);
-    P.r6 = _mm256_blendv_ps(P.r6, _mm256_set1_ps(row(c, 2)), these);
-    P.c7 = _mm256_blendv_ps(P.c7, _mm256_set1_ps(c[7]), these);
+    auto put = [these](__m256& v, float value) { v = _mm256_blendv_ps(v, _mm256_set1_ps(value), these); };
+    put(P.r0, row(c, 0));
+    put(P.c1, c[1]);
+    put(P.c2, c[2]);
+    put(P.r3, row(c, 1));
+    put(P.c4, c[4]);
+    put(P.c5, c[5]);
+    put(P.r6, row(c, 2));
+    put(P.c7, c[7]);
+    put(P.c8, c[8]);
     left &= ~static_cast<unsigned>(_mm256_movemask_ps(these));
   }
   return P;
+}
+
+// plane_footprint_log2() lane by lane, the same operations, given x, y and z from the planes.
+TL_INLINE __m256 footprint8(const Planes8& P, __m256 x, __m256 y, __m256 zz) {
+  const __m256 du_x = _mm256_mul_ps(_mm256_sub_ps(P.c4, _mm256_mul_ps(x, P.c1)), zz);
+  const __m256 du_y = _mm256_mul_ps(_mm256_sub_ps(P.c7, _mm256_mul_ps(y, P.c1)), zz);
+  const __m256 dv_x = _mm256_mul_ps(_mm256_sub_ps(P.c5, _mm256_mul_ps(x, P.c2)), zz);
+  const __m256 dv_y = _mm256_mul_ps(_mm256_sub_ps(P.c8, _mm256_mul_ps(y, P.c2)), zz);
+  const __m256 su = _mm256_add_ps(_mm256_mul_ps(du_x, du_x), _mm256_mul_ps(du_y, du_y));
+  const __m256 sv = _mm256_add_ps(_mm256_mul_ps(dv_x, dv_x), _mm256_mul_ps(dv_y, dv_y));
+  const __m256 tiny = _mm256_set1_ps(1e-12f);
+  __m256 d2 = _mm256_blendv_ps(sv, su, _mm256_cmp_ps(su, sv, _CMP_GT_OQ));
+  d2 = _mm256_blendv_ps(tiny, d2, _mm256_cmp_ps(d2, tiny, _CMP_GT_OQ));
+  // fast_log2: the exponent plus a quadratic in the mantissa.
+  const __m256i bits = _mm256_castps_si256(d2);
+  const __m256 e = _mm256_cvtepi32_ps(_mm256_sub_epi32(_mm256_srli_epi32(bits, 23), _mm256_set1_epi32(127)));
+  const __m256 m = _mm256_castsi256_ps(_mm256_or_si256(_mm256_and_si256(bits, _mm256_set1_epi32(0x7fffff)),
+                                                       _mm256_set1_epi32(0x3f800000)));
+  const __m256 poly = _mm256_sub_ps(
+      _mm256_mul_ps(_mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(-0.34484843f), m), _mm256_set1_ps(2.02466578f)), m),
+      _mm256_set1_ps(0.67487759f));
+  return _mm256_mul_ps(_mm256_set1_ps(0.5f), _mm256_add_ps(e, poly));
 }
 
 // The depth test of one row of a block where `in` (all-ones lanes) marks the covered pixels:
@@ -278,24 +357,18 @@ inline void depth_row(__m256i in, __m256 iz, float* z, int* id, __m256i ve) {
 
 void shade_row_avx2(int n, const float* wx, const float* wy, const float* log2fp,
                     std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p) {
-  GroupLevel lev[kChunkGroups];
-  __m256 x[kChunkVectors], y[kChunkVectors], terrain[kChunkVectors];
+  __m256 x[kChunkVectors], y[kChunkVectors], l2[kChunkVectors], terrain[kChunkVectors];
   int i = 0;
-  while (i + kShadeGroup <= n) {
-    const int groups = (n - i) / kShadeGroup < kChunkGroups ? (n - i) / kShadeGroup : kChunkGroups;
-    for (int g = 0; g < groups; ++g) {
-      const int at = i + g * kShadeGroup;
-      unsigned seen = 0;
-      for (int h = 0; h < 2; ++h) {
-        x[2 * g + h] = _mm256_loadu_ps(wx + at + 8 * h);
-        y[2 * g + h] = _mm256_loadu_ps(wy + at + 8 * h);
-        terrain[2 * g + h] = _mm256_cmp_ps(x[2 * g + h], x[2 * g + h], _CMP_ORD_Q);
-        seen |= static_cast<unsigned>(_mm256_movemask_ps(terrain[2 * g + h])) << (8 * h);
-      }
-      lev[g] = group_level(seen ? log2fp[at + __builtin_ctz(seen)] : 0.0f, p);
+  while (i + 8 <= n) {
+    const int vectors = (n - i) / 8 < kChunkVectors ? (n - i) / 8 : kChunkVectors;
+    for (int v = 0; v < vectors; ++v) {
+      x[v] = _mm256_loadu_ps(wx + i + 8 * v);
+      y[v] = _mm256_loadu_ps(wy + i + 8 * v);
+      l2[v] = _mm256_loadu_ps(log2fp + i + 8 * v);
+      terrain[v] = _mm256_cmp_ps(x[v], x[v], _CMP_ORD_Q);
     }
-    shade_chunk(p, lev, 1, 2 * groups, x, y, terrain, rgb + 3 * i, valid + i);
-    i += groups * kShadeGroup;
+    shade_chunk(p, vectors, x, y, l2, terrain, rgb + 3 * i, valid + i);
+    i += 8 * vectors;
   }
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
 }
@@ -304,29 +377,18 @@ void resolve_shade_row_avx2(int n, const int* ids, const float* coef, float dx0,
                             const ShadeTarget* targets) {
   const __m256 lane = _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7);
   const __m256 one = _mm256_set1_ps(1.0f), nan = _mm256_set1_ps(NAN);
-  // Chunks of up to kChunkGroups groups: the chunk's levels (a chain of scalar work per group,
-  // on which its texel coordinates wait), its resolve, then its shading, each for every group
-  // of the chunk in turn.
-  GroupLevel lev[kChunkGroups][kMaxShadeTargets];
-  __m256 x[kChunkVectors], y[kChunkVectors], in[kChunkVectors];
+  // Chunks of up to kChunkVectors vectors: the chunk's resolve, then its shading.
+  __m256 x[kChunkVectors], y[kChunkVectors], l2[kChunkVectors], in[kChunkVectors];
   int i = 0;
-  while (i + kShadeGroup <= n) {
-    const int groups = (n - i) / kShadeGroup < kChunkGroups ? (n - i) / kShadeGroup : kChunkGroups;
-    for (int g = 0; g < groups; ++g) {
-      const int at = i + g * kShadeGroup;
-      int first = at;
-      while (first < at + kShadeGroup && ids[first] < 0) ++first;
-      const float l2 = first < at + kShadeGroup
-                           ? plane_footprint_log2(coef + 9 * static_cast<std::ptrdiff_t>(ids[first]), dx0 + static_cast<float>(first), dy)
-                           : 0.0f;
-      for (int k = 0; k < n_targets; ++k) lev[g][k] = group_level(l2, *targets[k].params);
-    }
-    for (int v = 0; v < 2 * groups; ++v) {
+  while (i + 8 <= n) {
+    const int vectors = (n - i) / 8 < kChunkVectors ? (n - i) / 8 : kChunkVectors;
+    for (int v = 0; v < vectors; ++v) {
       const int at = i + 8 * v;
       const __m256i id = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(ids + at));
       in[v] = _mm256_castsi256_ps(_mm256_cmpgt_epi32(id, _mm256_set1_epi32(-1)));
       const unsigned seen = static_cast<unsigned>(_mm256_movemask_ps(in[v]));
       x[v] = y[v] = nan;
+      l2[v] = _mm256_setzero_ps();
       if (seen == 0) {
         _mm256_storeu_ps(z + at, nan);
         continue;
@@ -337,12 +399,12 @@ void resolve_shade_row_avx2(int n, const int* ids, const float* coef, float dx0,
       const __m256 zz = _mm256_div_ps(one, _mm256_add_ps(P.r0, _mm256_mul_ps(P.c1, dx)));
       x[v] = _mm256_mul_ps(_mm256_add_ps(P.r3, _mm256_mul_ps(P.c4, dx)), zz);
       y[v] = _mm256_mul_ps(_mm256_add_ps(P.r6, _mm256_mul_ps(P.c7, dx)), zz);
+      l2[v] = footprint8(P, x[v], y[v], zz);
       _mm256_storeu_ps(z + at, _mm256_blendv_ps(nan, zz, in[v]));
     }
     for (int k = 0; k < n_targets; ++k)
-      shade_chunk(*targets[k].params, &lev[0][k], kMaxShadeTargets, 2 * groups, x, y, in, targets[k].rgb + 3 * i,
-                  targets[k].valid + i);
-    i += groups * kShadeGroup;
+      shade_chunk(*targets[k].params, vectors, x, y, l2, in, targets[k].rgb + 3 * i, targets[k].valid + i);
+    i += 8 * vectors;
   }
   if (i < n) {
     ShadeTarget rest[kMaxShadeTargets];

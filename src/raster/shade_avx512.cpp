@@ -1,8 +1,9 @@
-// AVX-512 (F, BW, VL) build of the shading kernels: one group of 16 pixels a step, the filter of
+// AVX-512 (F, BW, VL) build of the shading kernels: 16 pixels a vector, the filter of
 // shade_kernels.hpp in 16-bit lanes (R and B words, G and A words of each pixel's 32 bits), so
-// the output matches shade_scalar.cpp bit for bit. A group's pixels share a level, so texels
-// come from row loads and permutes where its taps lie in a window of a few texel rows and at
-// most 32 columns, from gathers elsewhere. A row's last group, if short, runs the scalar kernel.
+// the output matches shade_scalar.cpp bit for bit. Where a vector's lanes share a level (most
+// vectors), its texels come from row loads and permutes where its taps lie in a window of a
+// few texel rows and at most 32 columns, from gathers elsewhere. A row's tail (n % 16) runs
+// the scalar kernel.
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <immintrin.h>
@@ -203,91 +204,166 @@ TL_INLINE void output16(Sample16 s, std::uint8_t* rgb, std::uint8_t* valid) {
   _mm_storeu_si128(reinterpret_cast<__m128i*>(valid), _mm_movm_epi8(ok));
 }
 
-// Up to kChunkGroups groups of a row processed together.
+// Up to kChunkGroups vectors of a row processed together.
 constexpr int kChunkGroups = 4;
 
-// Shades `groups` consecutive groups of one layer: group g's pixels see world (x[g], y[g])
-// where terrain[g] is set, at levels lev[g * lev_stride]. Each step is taken for every group
-// before the next: a group's work is one long chain (coordinates, the window's bounds, its
-// loads, the filter, the packing), and the groups' chains are independent, so the core
+// Lanes' level pairs: l0 and the 15-bit fraction t (in both halves of each lane), and the
+// least and greatest l0 of the lanes with terrain.
+struct Levels16 {
+  __m512i l0, t;
+  int lo, hi;
+};
+
+// pixel_level() lane by lane, the same operations.
+TL_INLINE Levels16 levels16(const ShadeParams& p, __m512 log2fp, __mmask16 terrain) {
+  const __m512 zero = _mm512_setzero_ps(), ftop = _mm512_set1_ps(static_cast<float>(p.n_levels - 1));
+  __m512 lod = _mm512_add_ps(log2fp, _mm512_set1_ps(p.lod_bias));
+  lod = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(lod, zero, _CMP_GT_OQ), zero, lod);  // NaN -> 0
+  lod = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(lod, ftop, _CMP_LT_OQ), ftop, lod);
+  Levels16 v;
+  v.l0 = _mm512_cvttps_epi32(lod);  // lod >= 0: truncation is floor
+  const __m512i t = _mm512_min_epi32(
+      _mm512_cvttps_epi32(_mm512_mul_ps(_mm512_sub_ps(lod, _mm512_cvtepi32_ps(v.l0)), _mm512_set1_ps(32768.0f))),
+      _mm512_set1_epi32(32767));
+  v.t = _mm512_or_si512(t, _mm512_slli_epi32(t, 16));
+  v.lo = v.hi = terrain ? _mm_cvtsi128_si32(_mm512_castsi512_si128(_mm512_permutexvar_epi32(
+                              _mm512_set1_epi32(__builtin_ctz(terrain)), v.l0)))
+                        : 0;
+  if (_mm512_mask_cmpneq_epi32_mask(terrain, v.l0, _mm512_set1_epi32(v.lo)) != 0) {
+    v.lo = _mm512_mask_reduce_min_epi32(terrain, v.l0);
+    v.hi = _mm512_mask_reduce_max_epi32(terrain, v.l0);
+  }
+  return v;
+}
+
+// Shades `groups` consecutive vectors of one layer: vector g's pixels see world (x[g], y[g])
+// where terrain[g] is set, with footprints log2fp[g]. Each step is taken for every vector
+// before the next: a vector's work is one long chain (coordinates, the window's bounds, its
+// loads, the filter, the packing), and the vectors' chains are independent, so the core
 // overlaps them instead of waiting on each.
-TL_INLINE void shade_chunk(const ShadeParams& p, const GroupLevel* lev, int lev_stride, int groups, const __m512* x,
-                           const __m512* y, const __mmask16* terrain, std::uint8_t* rgb, std::uint8_t* valid) {
+TL_INLINE void shade_chunk(const ShadeParams& p, int groups, const __m512* x, const __m512* y, const __m512* log2fp,
+                           const __mmask16* terrain, std::uint8_t* rgb, std::uint8_t* valid) {
+  const int top = p.n_levels - 1;
   __m512 xs[kChunkGroups], ys[kChunkGroups];
+  Levels16 lv[kChunkGroups];
   Fetched f[kChunkGroups];
   Sample16 s[kChunkGroups];
   // Lanes without terrain compute on (0, 0) and are cleared at the end.
   for (int g = 0; g < groups; ++g) {
     xs[g] = _mm512_maskz_mov_ps(terrain[g], x[g]);
     ys[g] = _mm512_maskz_mov_ps(terrain[g], y[g]);
+    lv[g] = levels16(p, log2fp[g], terrain[g]);
+    s[g] = {_mm512_setzero_si512(), _mm512_setzero_si512()};
   }
+  // Vectors whose lanes share a level (most): that level's sample for all lanes ...
   for (int g = 0; g < groups; ++g)
-    if (terrain[g] != 0) f[g] = fetch16(p, lev[g * lev_stride].l0, xs[g], ys[g]);
-  for (int g = 0; g < groups; ++g) s[g] = filter16(f[g]);
-  // Trilinear groups: the next level's sample, lerped in by the level fraction.
+    if (terrain[g] != 0 && lv[g].lo == lv[g].hi) f[g] = fetch16(p, lv[g].lo, xs[g], ys[g]);
+  for (int g = 0; g < groups; ++g)
+    if (terrain[g] != 0 && lv[g].lo == lv[g].hi) s[g] = filter16(f[g]);
   for (int g = 0; g < groups; ++g) {
-    const GroupLevel& l = lev[g * lev_stride];
-    if (terrain[g] == 0 || l.t == 0) continue;
-    const Sample16 s1 = filter16(fetch16(p, l.l1, xs[g], ys[g]));
-    const __m512i t = _mm512_set1_epi16(static_cast<short>(l.t));
-    s[g].rb = lerp15(s[g].rb, s1.rb, t);
-    s[g].ga = lerp15(s[g].ga, s1.ga, t);
+    if (terrain[g] == 0) continue;
+    const Levels16& l = lv[g];
+    if (l.lo == l.hi) {
+      // ... and the next level's, lerped in by each lane's fraction (a lane's fraction of 0
+      // keeps the first sample exactly).
+      if (_mm512_mask_test_epi32_mask(terrain[g], l.t, l.t) == 0) continue;
+      const Sample16 s1 = filter16(fetch16(p, l.lo < top ? l.lo + 1 : top, xs[g], ys[g]));
+      s[g] = {lerp15(s[g].rb, s1.rb, l.t), lerp15(s[g].ga, s1.ga, l.t)};
+      continue;
+    }
+    // Lanes at different levels: every level from the least l0 to the greatest l1, each lane
+    // taking its own two.
+    const __m512i l1 = _mm512_min_epi32(_mm512_add_epi32(l.l0, _mm512_set1_epi32(1)), _mm512_set1_epi32(top));
+    Sample16 s0{}, s1{};
+    for (int level = l.lo; level <= (l.hi < top ? l.hi + 1 : top); ++level) {
+      const Sample16 at = filter16(fetch16(p, level, xs[g], ys[g]));
+      const __mmask16 first = _mm512_cmpeq_epi32_mask(l.l0, _mm512_set1_epi32(level));
+      const __mmask16 second = _mm512_cmpeq_epi32_mask(l1, _mm512_set1_epi32(level));
+      s0 = {_mm512_mask_mov_epi32(s0.rb, first, at.rb), _mm512_mask_mov_epi32(s0.ga, first, at.ga)};
+      s1 = {_mm512_mask_mov_epi32(s1.rb, second, at.rb), _mm512_mask_mov_epi32(s1.ga, second, at.ga)};
+    }
+    s[g] = {lerp15(s0.rb, s1.rb, l.t), lerp15(s0.ga, s1.ga, l.t)};
   }
   for (int g = 0; g < groups; ++g)
     output16({_mm512_maskz_mov_epi32(terrain[g], s[g].rb), _mm512_maskz_mov_epi32(terrain[g], s[g].ga)},
-             rgb + 3 * kShadeGroup * g, valid + kShadeGroup * g);
+             rgb + 48 * g, valid + 16 * g);
 }
 
-// A group's planes per lane, with each row's part summed: iz = r0 + c1 dx, x z = r3 + c4 dx,
-// y z = r6 + c7 dx, where r0 = q0 + dq0/dy dy (and r3, r6 likewise) is formed in scalar, the
-// same IEEE operation as lane by lane.
+// A vector's planes per lane: the column and row derivatives c[1], c[2], c[4], c[5], c[7],
+// c[8], and each row's part summed, r0 = q0 + dq0/dy dy (r3, r6 likewise), formed in scalar,
+// the same IEEE operation as lane by lane: iz = r0 + c1 dx, x z = r3 + c4 dx, y z = r6 + c7 dx.
 struct Planes16 {
-  __m512 r0, c1, r3, c4, r6, c7;
+  __m512 r0, c1, c2, r3, c4, c5, r6, c7, c8;
 };
 
 // The planes of the triangles the lanes in `seen` see: broadcast when it is one triangle (most
-// groups), else each triangle's blended into the lanes that see it.
+// vectors), else each triangle's blended into the lanes that see it.
 TL_INLINE Planes16 planes16(__m512i id, __mmask16 seen, const int* ids, const float* coef, float dy) {
   auto row = [dy](const float* c, int q) { return c[3 * q] + c[3 * q + 2] * dy; };
   const int e0 = ids[__builtin_ctz(seen)];
   const float* c = coef + 9 * static_cast<std::ptrdiff_t>(e0);
-  Planes16 P{_mm512_set1_ps(row(c, 0)), _mm512_set1_ps(c[1]), _mm512_set1_ps(row(c, 1)),
-             _mm512_set1_ps(c[4]), _mm512_set1_ps(row(c, 2)), _mm512_set1_ps(c[7])};
+  Planes16 P{_mm512_set1_ps(row(c, 0)), _mm512_set1_ps(c[1]), _mm512_set1_ps(c[2]),
+             _mm512_set1_ps(row(c, 1)), _mm512_set1_ps(c[4]), _mm512_set1_ps(c[5]),
+             _mm512_set1_ps(row(c, 2)), _mm512_set1_ps(c[7]), _mm512_set1_ps(c[8])};
   __mmask16 left = static_cast<__mmask16>(seen & ~_mm512_mask_cmpeq_epi32_mask(seen, id, _mm512_set1_epi32(e0)));
   while (left != 0) {
     const int e = ids[__builtin_ctz(left)];
     const __mmask16 these = _mm512_mask_cmpeq_epi32_mask(left, id, _mm512_set1_epi32(e));
     c = coef + 9 * static_cast<std::ptrdiff_t>(e);
-    P.r0 = _mm512_mask_mov_ps(P.r0, these, _mm512_set1_ps(row(c, 0)));
-    P.c1 = _mm512_mask_mov_ps(P.c1, these, _mm512_set1_ps(c[1]));
-    P.r3 = _mm512_mask_mov_ps(P.r3, these, _mm512_set1_ps(row(c, 1)));
-    P.c4 = _mm512_mask_mov_ps(P.c4, these, _mm512_set1_ps(c[4]));
-    P.r6 = _mm512_mask_mov_ps(P.r6, these, _mm512_set1_ps(row(c, 2)));
-    P.c7 = _mm512_mask_mov_ps(P.c7, these, _mm512_set1_ps(c[7]));
+    auto put = [these](__m512& v, float value) { v = _mm512_mask_mov_ps(v, these, _mm512_set1_ps(value)); };
+    put(P.r0, row(c, 0));
+    put(P.c1, c[1]);
+    put(P.c2, c[2]);
+    put(P.r3, row(c, 1));
+    put(P.c4, c[4]);
+    put(P.c5, c[5]);
+    put(P.r6, row(c, 2));
+    put(P.c7, c[7]);
+    put(P.c8, c[8]);
     left = static_cast<__mmask16>(left & ~these);
   }
   return P;
+}
+
+// plane_footprint_log2() lane by lane, the same operations, given x, y and z from the planes.
+TL_INLINE __m512 footprint16(const Planes16& P, __m512 x, __m512 y, __m512 zz) {
+  const __m512 du_x = _mm512_mul_ps(_mm512_sub_ps(P.c4, _mm512_mul_ps(x, P.c1)), zz);
+  const __m512 du_y = _mm512_mul_ps(_mm512_sub_ps(P.c7, _mm512_mul_ps(y, P.c1)), zz);
+  const __m512 dv_x = _mm512_mul_ps(_mm512_sub_ps(P.c5, _mm512_mul_ps(x, P.c2)), zz);
+  const __m512 dv_y = _mm512_mul_ps(_mm512_sub_ps(P.c8, _mm512_mul_ps(y, P.c2)), zz);
+  const __m512 su = _mm512_add_ps(_mm512_mul_ps(du_x, du_x), _mm512_mul_ps(du_y, du_y));
+  const __m512 sv = _mm512_add_ps(_mm512_mul_ps(dv_x, dv_x), _mm512_mul_ps(dv_y, dv_y));
+  const __m512 tiny = _mm512_set1_ps(1e-12f);
+  __m512 d2 = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(su, sv, _CMP_GT_OQ), sv, su);
+  d2 = _mm512_mask_blend_ps(_mm512_cmp_ps_mask(d2, tiny, _CMP_GT_OQ), tiny, d2);
+  // fast_log2: the exponent plus a quadratic in the mantissa.
+  const __m512i bits = _mm512_castps_si512(d2);
+  const __m512 e = _mm512_cvtepi32_ps(_mm512_sub_epi32(_mm512_srli_epi32(bits, 23), _mm512_set1_epi32(127)));
+  const __m512 m = _mm512_castsi512_ps(_mm512_or_si512(_mm512_and_si512(bits, _mm512_set1_epi32(0x7fffff)),
+                                                       _mm512_set1_epi32(0x3f800000)));
+  const __m512 poly = _mm512_sub_ps(
+      _mm512_mul_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_set1_ps(-0.34484843f), m), _mm512_set1_ps(2.02466578f)), m),
+      _mm512_set1_ps(0.67487759f));
+  return _mm512_mul_ps(_mm512_set1_ps(0.5f), _mm512_add_ps(e, poly));
 }
 
 }  // namespace
 
 void shade_row_avx512(int n, const float* wx, const float* wy, const float* log2fp, std::uint8_t* rgb,
                       std::uint8_t* valid, const ShadeParams& p) {
-  GroupLevel lev[kChunkGroups];
-  __m512 x[kChunkGroups], y[kChunkGroups];
+  __m512 x[kChunkGroups], y[kChunkGroups], l2[kChunkGroups];
   __mmask16 terrain[kChunkGroups];
   int i = 0;
-  while (i + kShadeGroup <= n) {
-    const int groups = (n - i) / kShadeGroup < kChunkGroups ? (n - i) / kShadeGroup : kChunkGroups;
+  while (i + 16 <= n) {
+    const int groups = (n - i) / 16 < kChunkGroups ? (n - i) / 16 : kChunkGroups;
     for (int g = 0; g < groups; ++g) {
-      const int at = i + g * kShadeGroup;
-      x[g] = _mm512_loadu_ps(wx + at);
-      y[g] = _mm512_loadu_ps(wy + at);
+      x[g] = _mm512_loadu_ps(wx + i + 16 * g);
+      y[g] = _mm512_loadu_ps(wy + i + 16 * g);
+      l2[g] = _mm512_loadu_ps(log2fp + i + 16 * g);
       terrain[g] = _mm512_cmp_ps_mask(x[g], x[g], _CMP_ORD_Q);
-      lev[g] = group_level(terrain[g] ? log2fp[at + __builtin_ctz(terrain[g])] : 0.0f, p);
     }
-    shade_chunk(p, lev, 1, groups, x, y, terrain, rgb + 3 * i, valid + i);
-    i += groups * kShadeGroup;
+    shade_chunk(p, groups, x, y, l2, terrain, rgb + 3 * i, valid + i);
+    i += 16 * groups;
   }
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
 }
@@ -296,29 +372,18 @@ void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx
                               const ShadeTarget* targets) {
   const __m512 lane = _mm512_setr_ps(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   const __m512 one = _mm512_set1_ps(1.0f), nan = _mm512_set1_ps(NAN);
-  // Chunks of up to kChunkGroups groups: the chunk's levels (a chain of scalar work per group,
-  // on which its texel coordinates wait), its resolve, then its shading, each for every group
-  // of the chunk in turn.
-  GroupLevel lev[kChunkGroups][kMaxShadeTargets];
-  __m512 x[kChunkGroups], y[kChunkGroups];
+  // Chunks of up to kChunkGroups vectors: the chunk's resolve, then its shading.
+  __m512 x[kChunkGroups], y[kChunkGroups], l2[kChunkGroups];
   __mmask16 seen[kChunkGroups];
   int i = 0;
-  while (i + kShadeGroup <= n) {
-    const int groups = (n - i) / kShadeGroup < kChunkGroups ? (n - i) / kShadeGroup : kChunkGroups;
+  while (i + 16 <= n) {
+    const int groups = (n - i) / 16 < kChunkGroups ? (n - i) / 16 : kChunkGroups;
     for (int g = 0; g < groups; ++g) {
-      const int at = i + g * kShadeGroup;
-      int first = at;
-      while (first < at + kShadeGroup && ids[first] < 0) ++first;
-      const float l2 = first < at + kShadeGroup
-                           ? plane_footprint_log2(coef + 9 * static_cast<std::ptrdiff_t>(ids[first]), dx0 + static_cast<float>(first), dy)
-                           : 0.0f;
-      for (int k = 0; k < n_targets; ++k) lev[g][k] = group_level(l2, *targets[k].params);
-    }
-    for (int g = 0; g < groups; ++g) {
-      const int at = i + g * kShadeGroup;
+      const int at = i + 16 * g;
       const __m512i id = _mm512_loadu_si512(ids + at);
       seen[g] = _mm512_cmpgt_epi32_mask(id, _mm512_set1_epi32(-1));
       x[g] = y[g] = nan;
+      l2[g] = _mm512_setzero_ps();
       if (seen[g] == 0) {
         _mm512_storeu_ps(z + at, nan);
         continue;
@@ -329,12 +394,12 @@ void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx
       const __m512 zz = _mm512_div_ps(one, _mm512_add_ps(P.r0, _mm512_mul_ps(P.c1, dx)));
       x[g] = _mm512_mul_ps(_mm512_add_ps(P.r3, _mm512_mul_ps(P.c4, dx)), zz);
       y[g] = _mm512_mul_ps(_mm512_add_ps(P.r6, _mm512_mul_ps(P.c7, dx)), zz);
+      l2[g] = footprint16(P, x[g], y[g], zz);
       _mm512_storeu_ps(z + at, _mm512_mask_blend_ps(seen[g], nan, zz));
     }
     for (int k = 0; k < n_targets; ++k)
-      shade_chunk(*targets[k].params, &lev[0][k], kMaxShadeTargets, groups, x, y, seen, targets[k].rgb + 3 * i,
-                  targets[k].valid + i);
-    i += groups * kShadeGroup;
+      shade_chunk(*targets[k].params, groups, x, y, l2, seen, targets[k].rgb + 3 * i, targets[k].valid + i);
+    i += 16 * groups;
   }
   if (i < n) {
     ShadeTarget rest[kMaxShadeTargets];

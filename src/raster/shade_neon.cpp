@@ -1,9 +1,9 @@
-// NEON (aarch64) build of the shading kernels: a group of 16 pixels as four vectors of 4, the
-// filter of shade_kernels.hpp in 16-bit lanes (R and B words, G and A words of each pixel's 32
+// NEON (aarch64) build of the shading kernels: 4 pixels a vector, the filter of
+// shade_kernels.hpp in 16-bit lanes (R and B words, G and A words of each pixel's 32
 // bits; vqrdmulh is the lerp's rounding multiply), texels fetched lane by lane (NEON has no
 // gather). The same integer and float operations in the same order as shade_scalar.cpp (the
-// raster target compiles with -ffp-contract=off), so the output matches it bit for bit. A
-// row's last group, if short, runs the scalar kernel. Also the NEON depth kernel.
+// raster target compiles with -ffp-contract=off), so the output matches it bit for bit. The
+// tail (n % 4) runs the scalar kernel. Also the NEON depth kernel.
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <arm_neon.h>
@@ -89,23 +89,47 @@ inline Sample4 sample4(const ShadeParams& p, int level, float32x4_t x, float32x4
   return {lerp15(top.rb, bottom.rb, fy), lerp15(top.ga, bottom.ga, fy)};
 }
 
-// Shades 4 pixels at world (x, y) where `terrain` is all ones (elsewhere colour 0, invalid).
-inline void shade4(const ShadeParams& p, const GroupLevel& lev, uint32x4_t terrain, float32x4_t x, float32x4_t y,
+// Shades 4 pixels at world (x, y) where `terrain` is all ones (elsewhere colour 0, invalid),
+// with footprints log2fp: each lane's level pair is pixel_level()'s.
+inline void shade4(const ShadeParams& p, uint32x4_t terrain, float32x4_t x, float32x4_t y, const float* log2fp,
                    std::uint8_t* rgb, std::uint8_t* valid) {
   Sample4 s{vdupq_n_s16(0), vdupq_n_s16(0)};
+  std::uint32_t in[4];
+  vst1q_u32(in, terrain);
   if (vmaxvq_u32(terrain) != 0) {
     // Lanes without terrain compute on (0, 0) and are cleared below.
     const float32x4_t xs = vreinterpretq_f32_u32(vandq_u32(vreinterpretq_u32_f32(x), terrain));
     const float32x4_t ys = vreinterpretq_f32_u32(vandq_u32(vreinterpretq_u32_f32(y), terrain));
-    s = sample4(p, lev.l0, xs, ys);
-    if (lev.t > 0) {
-      const Sample4 s1 = sample4(p, lev.l1, xs, ys);
-      const int16x8_t t = vdupq_n_s16(static_cast<std::int16_t>(lev.t));
-      s.rb = lerp15(s.rb, s1.rb, t);
-      s.ga = lerp15(s.ga, s1.ga, t);
+    LevelPair lev[4];
+    std::int32_t l0[4], l1[4];
+    std::uint32_t t[4];
+    int lo = 1 << 30, hi = -1, hi1 = -1;
+    for (int k = 0; k < 4; ++k) {
+      lev[k] = pixel_level(log2fp[k], p);
+      l0[k] = lev[k].l0;
+      l1[k] = lev[k].l1;
+      t[k] = static_cast<std::uint32_t>(lev[k].t) | static_cast<std::uint32_t>(lev[k].t) << 16;
+      if (!in[k]) continue;
+      lo = l0[k] < lo ? l0[k] : lo;
+      hi = l0[k] > hi ? l0[k] : hi;
+      hi1 = l1[k] > hi1 ? l1[k] : hi1;
     }
-    s.rb = vreinterpretq_s16_u32(vandq_u32(vreinterpretq_u32_s16(s.rb), terrain));
-    s.ga = vreinterpretq_s16_u32(vandq_u32(vreinterpretq_u32_s16(s.ga), terrain));
+    const int16x8_t tv = vreinterpretq_s16_u32(vandq_u32(vld1q_u32(t), terrain));
+    // Every level from the least l0 to the greatest l1, each lane taking its own two (one
+    // level and, where some lane's fraction is not 0, the next, when all share l0).
+    const int32x4_t vl0 = vld1q_s32(l0), vl1 = vld1q_s32(l1);
+    Sample4 s0 = s, s1 = s;
+    const bool blend = vmaxvq_u32(vreinterpretq_u32_s16(tv)) != 0;
+    for (int level = lo; level <= (blend ? hi1 : hi); ++level) {
+      const Sample4 at = sample4(p, level, xs, ys);
+      const uint32x4_t first = vceqq_s32(vl0, vdupq_n_s32(level)), second = vceqq_s32(vl1, vdupq_n_s32(level));
+      s0.rb = vbslq_s16(vreinterpretq_u16_u32(first), at.rb, s0.rb);
+      s0.ga = vbslq_s16(vreinterpretq_u16_u32(first), at.ga, s0.ga);
+      s1.rb = vbslq_s16(vreinterpretq_u16_u32(second), at.rb, s1.rb);
+      s1.ga = vbslq_s16(vreinterpretq_u16_u32(second), at.ga, s1.ga);
+    }
+    s.rb = vreinterpretq_s16_u32(vandq_u32(vreinterpretq_u32_s16(lerp15(s0.rb, s1.rb, tv)), terrain));
+    s.ga = vreinterpretq_s16_u32(vandq_u32(vreinterpretq_u32_s16(lerp15(s0.ga, s1.ga, tv)), terrain));
   }
   const uint32x4_t rb = vreinterpretq_u32_s16(s.rb), ga = vreinterpretq_u32_s16(s.ga);
   const uint32x4_t sa = vshrq_n_u32(ga, 16);
@@ -143,56 +167,43 @@ inline void shade4(const ShadeParams& p, const GroupLevel& lev, uint32x4_t terra
 void shade_row_neon(int n, const float* wx, const float* wy, const float* log2fp, std::uint8_t* rgb,
                     std::uint8_t* valid, const ShadeParams& p) {
   int i = 0;
-  for (; i + kShadeGroup <= n; i += kShadeGroup) {
-    int first = i;
-    while (first < i + kShadeGroup && !(wx[first] == wx[first])) ++first;
-    const GroupLevel lev = group_level(first < i + kShadeGroup ? log2fp[first] : 0.0f, p);
-    for (int v = i; v < i + kShadeGroup; v += 4) {
-      const float32x4_t x = vld1q_f32(wx + v);
-      shade4(p, lev, vceqq_f32(x, x), x, vld1q_f32(wy + v), rgb + 3 * v, valid + v);
-    }
+  for (; i + 4 <= n; i += 4) {
+    const float32x4_t x = vld1q_f32(wx + i);
+    shade4(p, vceqq_f32(x, x), x, vld1q_f32(wy + i), log2fp + i, rgb + 3 * i, valid + i);
   }
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
 }
 
 void resolve_shade_row_neon(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
                             const ShadeTarget* targets) {
-  GroupLevel lev[kMaxShadeTargets];
   static const float lanes[4] = {0, 1, 2, 3};
   const float32x4_t one = vdupq_n_f32(1.0f);
   int i = 0;
-  for (; i + kShadeGroup <= n; i += kShadeGroup) {
-    int first = i;
-    while (first < i + kShadeGroup && ids[first] < 0) ++first;
-    const float l2 = first < i + kShadeGroup
-                         ? plane_footprint_log2(coef + 9 * static_cast<std::ptrdiff_t>(ids[first]), dx0 + static_cast<float>(first), dy)
-                         : 0.0f;
-    for (int k = 0; k < n_targets; ++k) lev[k] = group_level(l2, *targets[k].params);
-    for (int v = i; v < i + kShadeGroup; v += 4) {
-      // Each lane's planes with the row's part summed (r = q + dq/dy dy, the scalar twin's
-      // first operation), loaded lane by lane; lanes with no terrain compute on zeros.
-      float pl[6][4];
-      std::uint32_t seen[4];
-      for (int l = 0; l < 4; ++l) {
-        const int e = ids[v + l];
-        seen[l] = e >= 0 ? 0xFFFFFFFFu : 0u;
-        const float* c = coef + 9 * static_cast<std::ptrdiff_t>(e < 0 ? 0 : e);
-        pl[0][l] = e < 0 ? 0.0f : c[0] + c[2] * dy;
-        pl[1][l] = e < 0 ? 0.0f : c[1];
-        pl[2][l] = e < 0 ? 0.0f : c[3] + c[5] * dy;
-        pl[3][l] = e < 0 ? 0.0f : c[4];
-        pl[4][l] = e < 0 ? 0.0f : c[6] + c[8] * dy;
-        pl[5][l] = e < 0 ? 0.0f : c[7];
-      }
-      const uint32x4_t in = vld1q_u32(seen);
-      const float32x4_t dx = vaddq_f32(vdupq_n_f32(dx0 + static_cast<float>(v)), vld1q_f32(lanes));
-      const float32x4_t zz = vdivq_f32(one, vaddq_f32(vld1q_f32(pl[0]), vmulq_f32(vld1q_f32(pl[1]), dx)));
-      const float32x4_t x = vmulq_f32(vaddq_f32(vld1q_f32(pl[2]), vmulq_f32(vld1q_f32(pl[3]), dx)), zz);
-      const float32x4_t y = vmulq_f32(vaddq_f32(vld1q_f32(pl[4]), vmulq_f32(vld1q_f32(pl[5]), dx)), zz);
-      vst1q_f32(z + v, vbslq_f32(in, zz, vdupq_n_f32(NAN)));
-      for (int k = 0; k < n_targets; ++k)
-        shade4(*targets[k].params, lev[k], in, x, y, targets[k].rgb + 3 * v, targets[k].valid + v);
+  for (; i + 4 <= n; i += 4) {
+    // Each lane's planes with the row's part summed (r = q + dq/dy dy, the scalar twin's
+    // first operation), loaded lane by lane; lanes with no terrain compute on zeros. The
+    // footprint per lane is the scalar plane_footprint_log2().
+    float pl[6][4], l2[4];
+    std::uint32_t seen[4];
+    for (int l = 0; l < 4; ++l) {
+      const int e = ids[i + l];
+      seen[l] = e >= 0 ? 0xFFFFFFFFu : 0u;
+      const float* c = coef + 9 * static_cast<std::ptrdiff_t>(e < 0 ? 0 : e);
+      pl[0][l] = e < 0 ? 0.0f : c[0] + c[2] * dy;
+      pl[1][l] = e < 0 ? 0.0f : c[1];
+      pl[2][l] = e < 0 ? 0.0f : c[3] + c[5] * dy;
+      pl[3][l] = e < 0 ? 0.0f : c[4];
+      pl[4][l] = e < 0 ? 0.0f : c[6] + c[8] * dy;
+      pl[5][l] = e < 0 ? 0.0f : c[7];
+      l2[l] = e < 0 ? 0.0f : plane_footprint_log2(c, dx0 + static_cast<float>(i + l), dy);
     }
+    const uint32x4_t in = vld1q_u32(seen);
+    const float32x4_t dx = vaddq_f32(vdupq_n_f32(dx0 + static_cast<float>(i)), vld1q_f32(lanes));
+    const float32x4_t zz = vdivq_f32(one, vaddq_f32(vld1q_f32(pl[0]), vmulq_f32(vld1q_f32(pl[1]), dx)));
+    const float32x4_t x = vmulq_f32(vaddq_f32(vld1q_f32(pl[2]), vmulq_f32(vld1q_f32(pl[3]), dx)), zz);
+    const float32x4_t y = vmulq_f32(vaddq_f32(vld1q_f32(pl[4]), vmulq_f32(vld1q_f32(pl[5]), dx)), zz);
+    vst1q_f32(z + i, vbslq_f32(in, zz, vdupq_n_f32(NAN)));
+    for (int k = 0; k < n_targets; ++k) shade4(*targets[k].params, in, x, y, l2, targets[k].rgb + 3 * i, targets[k].valid + i);
   }
   if (i < n) {
     ShadeTarget rest[kMaxShadeTargets];

@@ -38,9 +38,10 @@ inline Sample sample(const ShadeParams& p, int level, float x, float y) {
 }
 
 // One pixel that sees terrain at (x, y), or none (NaN x): 3 colour bytes and the validity byte.
-inline void shade_pixel(const ShadeParams& p, const GroupLevel& g, float x, float y, std::uint8_t* rgb, std::uint8_t* valid) {
+inline void shade_pixel(const ShadeParams& p, float log2fp, float x, float y, std::uint8_t* rgb, std::uint8_t* valid) {
   Sample s{{0, 0, 0, 0}};
   if (x == x) {
+    const LevelPair g = pixel_level(log2fp, p);
     s = sample(p, g.l0, x, y);
     if (g.t > 0) {
       const Sample s1 = sample(p, g.l1, x, y);
@@ -87,41 +88,25 @@ std::vector<LevelCoords> level_coords(const std::vector<MipLevel>& levels, doubl
 
 void shade_row_scalar(int n, const float* wx, const float* wy, const float* log2fp,
                       std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p) {
-  for (int g = 0; g < n; g += kShadeGroup) {
-    const int end = g + kShadeGroup < n ? g + kShadeGroup : n;
-    int first = g;
-    while (first < end && !(wx[first] == wx[first])) ++first;
-    const GroupLevel lev = group_level(first < end ? log2fp[first] : 0.0f, p);
-    for (int i = g; i < end; ++i) shade_pixel(p, lev, wx[i], wy[i], rgb + 3 * i, valid + i);
-  }
+  for (int i = 0; i < n; ++i) shade_pixel(p, log2fp[i], wx[i], wy[i], rgb + 3 * i, valid + i);
 }
 
 void resolve_shade_row_scalar(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
                               const ShadeTarget* targets) {
-  GroupLevel lev[kMaxShadeTargets];
-  for (int g = 0; g < n; g += kShadeGroup) {
-    const int end = g + kShadeGroup < n ? g + kShadeGroup : n;
-    int first = g;
-    while (first < end && ids[first] < 0) ++first;
-    const float l2 = first < end ? plane_footprint_log2(coef + 9 * static_cast<std::ptrdiff_t>(ids[first]),
-                                                        dx0 + static_cast<float>(first), dy)
-                                 : 0.0f;
-    for (int k = 0; k < n_targets; ++k) lev[k] = group_level(l2, *targets[k].params);
-    for (int i = g; i < end; ++i) {
-      float x = NAN, y = NAN;
-      if (ids[i] >= 0) {
-        const float* c = coef + 9 * static_cast<std::ptrdiff_t>(ids[i]);
-        const float dx = dx0 + static_cast<float>(i);
-        const float zz = 1.0f / ((c[0] + c[2] * dy) + c[1] * dx);
-        x = ((c[3] + c[5] * dy) + c[4] * dx) * zz;
-        y = ((c[6] + c[8] * dy) + c[7] * dx) * zz;
-        z[i] = zz;
-      } else {
-        z[i] = NAN;
-      }
-      for (int k = 0; k < n_targets; ++k)
-        shade_pixel(*targets[k].params, lev[k], x, y, targets[k].rgb + 3 * i, targets[k].valid + i);
+  for (int i = 0; i < n; ++i) {
+    float x = NAN, y = NAN, l2 = 0.0f;
+    z[i] = NAN;
+    if (ids[i] >= 0) {
+      const float* c = coef + 9 * static_cast<std::ptrdiff_t>(ids[i]);
+      const float dx = dx0 + static_cast<float>(i);
+      const float zz = 1.0f / ((c[0] + c[2] * dy) + c[1] * dx);
+      x = ((c[3] + c[5] * dy) + c[4] * dx) * zz;
+      y = ((c[6] + c[8] * dy) + c[7] * dx) * zz;
+      z[i] = zz;
+      l2 = plane_footprint_log2(c, dx, dy);
     }
+    for (int k = 0; k < n_targets; ++k)
+      shade_pixel(*targets[k].params, l2, x, y, targets[k].rgb + 3 * i, targets[k].valid + i);
   }
 }
 

@@ -9,10 +9,8 @@
 //   The renderer's level 0 has alpha 0 (no data) or 255, so premultiplying it is exact; each
 //   coarser level is the rounded mean of the 2 x 2 texels below it. Filtering premultiplied
 //   texels weights each colour by its alpha: no-data texels do not darken their neighbours.
-// - Level of detail per group of kShadeGroup (16) pixels of a row, counted from the row's
-//   first pixel, as GPUs choose it per 2 x 2 quad: from the footprint of the group's first
-//   pixel that sees terrain (group_level()). One level pair for 16 pixels lets a vector build
-//   fetch a group's texels with row loads instead of gathers.
+// - Level of detail per pixel, from its ground footprint (pixel_level()): level l0 = floor(lod)
+//   and the next, lod = log2(footprint / texel), clamped to the chain.
 // - At level l a pixel's texel coordinates (centres at integers) are ul = a0 + a1 x + a2 y,
 //   vl = b0 + b1 x + b2 y (the level's LevelCoords, float, in that order), and
 //   U = floor(ul * 256) (V likewise) gives the left tap's column U >> 8 and the column
@@ -28,9 +26,10 @@
 //   weight on valid texels. Its colour is c = min(255, (int)(float(S_c * 255) / float(S_a) +
 //   0.5f)); where S_a = 32640 (opaque, most pixels) that is exactly (S_c + 64) >> 7, the
 //   shortcut the vector builds take.
-// So the float work is the resolve and the texel coordinates; the fetches are row loads
-// where a vector's taps lie in a few texel rows (nadir views, and rows that run along the
-// texture's rows), gathers elsewhere.
+// So the float work is the resolve, the footprint and the texel coordinates. A vector's lanes
+// mostly share a level; its fetches are then row loads where its taps lie in a few texel rows
+// (nadir views, and rows that run along the texture's rows), gathers elsewhere. Where its
+// lanes need different levels, it samples each of them and picks per lane.
 #pragma once
 
 #include <cstddef>
@@ -38,8 +37,6 @@
 #include <vector>
 
 namespace terralign::raster {
-
-constexpr int kShadeGroup = 16;  // pixels sharing a level of detail
 
 struct MipLevel {
   std::int32_t offset;  // index of the level's first texel in the texel array
@@ -78,13 +75,13 @@ struct ShadeParams {
   float lod_bias;               // added to log2(footprint in metres): -log2(texel size)
 };
 
-// A group's levels: l0 alone where t == 0, else lerped towards l1 by t (15 bits).
-struct GroupLevel {
+// A pixel's levels: l0 alone where t == 0, else lerped towards l1 by t (15 bits).
+struct LevelPair {
   int l0, l1, t;
 };
 
 // The level pair of a pixel whose ground footprint is 2^log2fp metres.
-inline GroupLevel group_level(float log2fp, const ShadeParams& p) {
+inline LevelPair pixel_level(float log2fp, const ShadeParams& p) {
   const int top = p.n_levels - 1;
   float lod = log2fp + p.lod_bias;
   lod = lod > 0.0f ? lod : 0.0f;  // NaN -> 0
@@ -94,11 +91,11 @@ inline GroupLevel group_level(float log2fp, const ShadeParams& p) {
   return {l0, l0 < top ? l0 + 1 : top, t < 32767 ? t : 32767};
 }
 
-// For n pixels of a row: wx, wy local world coordinates (NaN: no terrain), log2fp the log2 of
-// the pixel's ground footprint in metres (read at each group's first pixel with terrain).
-// Writes 3 bytes of colour and one validity byte (255 / 0) per pixel; colour is 0 where
-// invalid. Reads only [0, n) of each input, and texels of taps inside their level or (a tap
-// pair at a level's edge) next to one, hence the guard texels; no allocation.
+// For n pixels: wx, wy local world coordinates (NaN: no terrain), log2fp the log2 of the
+// pixel's ground footprint in metres. Writes 3 bytes of colour and one validity byte (255 /
+// 0) per pixel; colour is 0 where invalid. Reads only [0, n) of each input, and texels of taps
+// inside their level or (a tap pair at a level's edge) next to one, hence the guard texels;
+// no allocation.
 void shade_row_scalar(int n, const float* wx, const float* wy, const float* log2fp,
                       std::uint8_t* rgb, std::uint8_t* valid, const ShadeParams& p);
 #if defined(TERRALIGN_HAVE_AVX2)
@@ -126,16 +123,17 @@ struct ShadeTarget {
 // The planes of a bin entry at a tile's corner: coef[9 e .. 9 e + 8] = {q0, dq0/dx, dq0/dy,
 // q1, dq1/dx, dq1/dy, q2, dq2/dx, dq2/dy} for q0 = 1/z, q1 = x/z, q2 = y/z (local world x, y).
 // log2 of the ground footprint in metres at the pixel dx, dy from the corner: the larger of
-// the lengths of d(x, y)/du and d(x, y)/dv. Inline (below, after fast_log2), so that a vector
-// kernel computing it per group keeps its registers (a call would spill them all).
+// the lengths of d(x, y)/du and d(x, y)/dv. Inline (below, after fast_log2): the NEON kernel
+// calls it per lane, and a call from vector code would spill every vector register; the AVX2
+// and AVX-512 kernels do the same operations lane by lane.
 inline float plane_footprint_log2(const float* c, float dx, float dy);
 
 // One row of a pinhole tile after visibility, resolved and shaded: pixel i, dx0 + i columns
 // right of the tile's corner and dy rows below it, sees bin entry ids[i] (-1: no terrain).
 // Per pixel, in float and in this order: iz = (q0 + dq0/dy dy) + dq0/dx dx, z = 1 / iz,
 // x = ((q1 + dq1/dy dy) + dq1/dx dx) z, y likewise; writes z (NaN: no terrain) and shades
-// every target as shade_row would with log2fp = plane_footprint_log2() of each group's first
-// pixel with terrain. Reads coefficients only of the entries named; no allocation.
+// every target as shade_row would with log2fp = plane_footprint_log2() of the pixel. dx0 is
+// a whole number. Reads coefficients only of the entries named; no allocation.
 void resolve_shade_row_scalar(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
                               const ShadeTarget* targets);
 #if defined(TERRALIGN_HAVE_AVX2)
