@@ -50,7 +50,7 @@ fi
 cmake -S . -B "$build" -DCMAKE_TOOLCHAIN_FILE=cmake/toolchains/aarch64-linux-gnu.cmake \
   -DCMAKE_BUILD_TYPE=Release -DTERRALIGN_WERROR=ON -DTERRALIGN_BUILD_BENCH=OFF "${static[@]}" >/dev/null
 cmake --build "$build" -j "$jobs"
-THREADED_TESTS='abuse|learned tracker: the C|learned tracker: same bytes|rendered|no texture|1 and 2 threads|allocates nothing|parity with PyTorch|depth is the analytic|no cracks|ortho texel|bad poses|unknown layer|ray-caster|registration|flight|track reports|dataset|cli_render'
+THREADED_TESTS='abuse|no-data texels|learned tracker: the C|learned tracker: same bytes|rendered|no texture|1 and 2 threads|allocates nothing|parity with PyTorch|depth is the analytic|no cracks|ortho texel|bad poses|unknown layer|ray-caster|registration|flight|track reports|dataset|cli_render'
 if [ ${#static[@]} -gt 0 ]; then
   ctest --test-dir "$build" --output-on-failure -j "$jobs" --timeout 1800
 else
