@@ -167,6 +167,30 @@ TEST_CASE("one ortho texel east moves a nadir image by exactly f * texel / heigh
   CHECK(worst <= 1);  // float rounding of texel coordinates may flip one level
 }
 
+TEST_CASE("the level of detail is log2(ground footprint / texel): a footprint of 4 texels takes level 2") {
+  // fast_log2 within 0.005 of log2 (a quadratic in the mantissa; the bound is its fit's
+  // error, 0.00494) over 40 octaves.
+  double worst = 0;
+  for (double x = 1e-6; x < 1e6; x *= 1.001) worst = std::max(worst, std::abs(fast_log2(static_cast<float>(x)) - std::log2(x)));
+  CHECK(worst < 0.005);
+  // A nadir plane 250 m below (1/z = 1/250) whose pixels step 2 m east and 2 m south: the
+  // footprint is 2 m a pixel, log2 = 1 (planes as the fused kernel takes them, at the tile's
+  // corner: x = (x0/z + 2/z dx) z).
+  const float iz = 1.0f / 250.0f;
+  const float c[9] = {iz, 0.0f, 0.0f, 100.0f * iz, 2.0f * iz, 0.0f, 50.0f * iz, 0.0f, -2.0f * iz};
+  for (float dx : {0.0f, 13.0f, 63.0f})
+    for (float dy : {0.0f, 31.0f}) CHECK(plane_footprint_log2(c, dx, dy) == doctest::Approx(1.0).epsilon(0.005));
+  // Texels of 0.5 m (lod_bias = -log2(0.5) = 1): lod = 2, so level 2 with (almost) no blend
+  // towards level 3. A footprint taken half a level too large would blend in level 3 halfway.
+  const std::vector<MipLevel> levels = mip_chain(64, 64, 16);
+  const std::vector<LevelCoords> coords = level_coords(levels, 0, 2, 0, 0, 0, -2);
+  std::vector<std::uint32_t> texels(mip_chain_end(levels) + 1, 0xff808080u);
+  const ShadeParams p{texels.data(), levels.data(), coords.data(), static_cast<int>(levels.size()), 1.0f};
+  const LevelPair g = pixel_level(plane_footprint_log2(c, 5.0f, 5.0f), p);
+  CHECK(g.l0 == 2);
+  CHECK(g.t < 32768 / 100);  // within 0.01 of a level
+}
+
 TEST_CASE("no-data texels do not darken their neighbours, at any level of detail") {
   // One colour over 1 m texels, with 8 x 8 blocks of no-data on a diagonal lattice; seen from
   // heights where the filter magnifies, takes level 1 and blends levels 2 and 3. The mip chain

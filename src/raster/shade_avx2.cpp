@@ -340,7 +340,7 @@ TL_INLINE __m256 footprint8(const Planes8& P, __m256 x, __m256 y, __m256 zz) {
                                                        _mm256_set1_epi32(0x3f800000)));
   const __m256 poly = _mm256_sub_ps(
       _mm256_mul_ps(_mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(-0.34484843f), m), _mm256_set1_ps(2.02466578f)), m),
-      _mm256_set1_ps(0.67487759f));
+      _mm256_set1_ps(1.67487759f));
   return _mm256_mul_ps(_mm256_set1_ps(0.5f), _mm256_add_ps(e, poly));
 }
 

@@ -343,7 +343,7 @@ TL_INLINE __m512 footprint16(const Planes16& P, __m512 x, __m512 y, __m512 zz) {
                                                        _mm512_set1_epi32(0x3f800000)));
   const __m512 poly = _mm512_sub_ps(
       _mm512_mul_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_set1_ps(-0.34484843f), m), _mm512_set1_ps(2.02466578f)), m),
-      _mm512_set1_ps(0.67487759f));
+      _mm512_set1_ps(1.67487759f));
   return _mm512_mul_ps(_mm512_set1_ps(0.5f), _mm512_add_ps(e, poly));
 }
 

@@ -197,7 +197,7 @@ inline float fast_log2(float x) {
   const std::uint32_t mi = (i & 0x7fffffu) | 0x3f800000u;
   float m;
   __builtin_memcpy(&m, &mi, 4);
-  return e + ((-0.34484843f * m + 2.02466578f) * m - 0.67487759f);
+  return e + ((-0.34484843f * m + 2.02466578f) * m - 1.67487759f);
 }
 
 inline float plane_footprint_log2(const float* c, float dx, float dy) {
