@@ -191,6 +191,58 @@ TEST_CASE("the level of detail is log2(ground footprint / texel): a footprint of
   CHECK(g.t < 32768 / 100);  // within 0.01 of a level
 }
 
+TEST_CASE("a triangle's footprint bound holds at every pixel of its box in the tile, and is tight seen nadir") {
+  // Seeded random planes as a tile sees them: 1/z 1/2000 .. 1/50 at the corner, changing by
+  // up to 2 % a pixel (steep oblique views), and x/z, y/z whose footprints are 0.01-20 m a
+  // pixel, in any direction; random boxes inside the 64 x 32 tile. The kernels take level 0
+  // without a footprint where the bound says so (entry_magnified), so a pixel above its bound
+  // would be shaded at the wrong level.
+  std::mt19937 rng(99);
+  std::uniform_real_distribution<float> u(-1, 1), unit(0, 1);
+  int finite = 0, cases = 0;
+  float worst_excess = -INFINITY;  // the largest pixel footprint minus its bound (must be < 0)
+  for (; cases < 3000; ++cases) {
+    const float iz = 1.0f / (50.0f + 1950.0f * unit(rng));
+    const float scale = iz * std::pow(10.0f, -2.0f + 3.3f * unit(rng));
+    const float c[9] = {iz,
+                        0.02f * iz * u(rng),
+                        0.02f * iz * u(rng),
+                        iz * 500 * u(rng),
+                        scale * u(rng),
+                        scale * u(rng),
+                        iz * 500 * u(rng),
+                        scale * u(rng),
+                        scale * u(rng)};
+    int x0 = static_cast<int>(rng() % 64), x1 = static_cast<int>(rng() % 64);
+    int y0 = static_cast<int>(rng() % 32), y1 = static_cast<int>(rng() % 32);
+    if (x0 > x1) std::swap(x0, x1);
+    if (y0 > y1) std::swap(y0, y1);
+    const float bound = plane_footprint_bound_log2(c, static_cast<float>(x0), static_cast<float>(x1), static_cast<float>(y0),
+                                                   static_cast<float>(y1));
+    if (!std::isfinite(bound)) {
+      // Only where 1/z is not positive at some corner of the box.
+      const float lo = std::min(std::min(c[0] + c[1] * x0 + c[2] * y0, c[0] + c[1] * x1 + c[2] * y0),
+                                std::min(c[0] + c[1] * x0 + c[2] * y1, c[0] + c[1] * x1 + c[2] * y1));
+      CHECK(lo <= 1e-6f * iz);
+      continue;
+    }
+    ++finite;
+    for (int y = y0; y <= y1; ++y)
+      for (int x = x0; x <= x1; ++x)
+        worst_excess = std::max(worst_excess, plane_footprint_log2(c, static_cast<float>(x), static_cast<float>(y)) - bound);
+  }
+  CHECK(finite > cases * 3 / 4);
+  CHECK(worst_excess < 0.0f);
+  MESSAGE("footprint bound: largest pixel minus bound " << worst_excess << " (log2 units) over " << finite << " boxes");
+  // Seen nadir the footprint is the same at every pixel: the bound is it plus the margin
+  // (1/64) and at most fast_log2's error (0.005).
+  const float iz = 1.0f / 250.0f;
+  const float nadir[9] = {iz, 0.0f, 0.0f, 100.0f * iz, 2.0f * iz, 0.0f, 50.0f * iz, 0.0f, -2.0f * iz};
+  const float b = plane_footprint_bound_log2(nadir, 0, 63, 0, 31);
+  CHECK(b > 1.0f);
+  CHECK(b < 1.0f + 1.0f / 64 + 0.005f);
+}
+
 TEST_CASE("no-data texels do not darken their neighbours, at any level of detail") {
   // One colour over 1 m texels, with 8 x 8 blocks of no-data on a diagonal lattice; seen from
   // heights where the filter magnifies, takes level 1 and blends levels 2 and 3. The mip chain
@@ -441,21 +493,32 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   // The fused kernel: a row of 93 pixels (vectors and a tail) seeing five tilted planes in
   // runs of every length from 1 to 9, vectors of one plane, of several, and of none (-1), shading two layers (the second's texel coordinates and bias differ). Each plane
   // passes world (15, 10) at the row's middle and runs over the texture and off it, its
-  // footprint 0.1-4 world units a pixel (levels 0-2).
+  // footprint 0.1-4 world units a pixel (levels 0-2). The entries' footprint bounds (c[9])
+  // take every path: none (+inf, NaN), the true bound over the row, and values that make an
+  // entry magnified for both layers (entry 5, plane 2's twin) or for the second only (entry
+  // 2; the layers' biases are 0.3 and 0.1): the kernels follow c[9] as given, whether or not
+  // it bounds the pixels, and plane 2 seen here would take levels 0-1 by its own footprint.
   const int m = 93;
   std::vector<float> coef;
   for (int e = 0; e < 5; ++e) {
     const float s = std::array<float, 5>{10, 40, 100, 200, 400}[static_cast<std::size_t>(e)];
     const float q0 = 0.002f, ax = 2e-5f * s, bx = -1e-5f * s;
     for (float v : {q0, -1.3e-6f, 2.1e-6f, 15 * q0 - 50 * ax, ax, 1e-5f * s, 10 * q0 - 50 * bx, bx, 2e-5f * s}) coef.push_back(v);
+    coef.push_back(INFINITY);
   }
+  coef[kPlaneFloats * 1 + 9] = NAN;
+  coef[kPlaneFloats * 3 + 9] = plane_footprint_bound_log2(coef.data() + 3 * kPlaneFloats, 5.0f, 5.0f + m, 7.0f, 7.0f);
+  for (int k = 0; k < kPlaneFloats; ++k) coef.push_back(coef[static_cast<std::size_t>(2 * kPlaneFloats + k)]);
+  coef[kPlaneFloats * 2 + 9] = -0.2f;  // magnified for the second layer only
+  coef[kPlaneFloats * 5 + 9] = -1.0f;  // for both
   std::vector<int> ids;
   for (int run = 1; static_cast<int>(ids.size()) < m; ++run)
     for (int i = 0; i < run % 10 && static_cast<int>(ids.size()) < m; ++i) ids.push_back(run % 6 - 1);
   for (int i = 16; i < 32; ++i) ids[static_cast<std::size_t>(i)] = 3;  // one plane over a whole vector
   for (int i = 32; i < 48; ++i) ids[static_cast<std::size_t>(i)] = -1;  // and no terrain over one
+  for (int i = 48; i < 64; ++i) ids[static_cast<std::size_t>(i)] = i % 4 < 2 ? 5 : 2;  // where planes 2 and 5 are seen
   const std::vector<LevelCoords> coords2 = level_coords(levels, 1.5, 0.7, -0.2, 2.0, 0.1, 0.8);
-  const ShadeParams p2{texels.data(), levels.data(), coords2.data(), static_cast<int>(levels.size()), -0.4f};
+  const ShadeParams p2{texels.data(), levels.data(), coords2.data(), static_cast<int>(levels.size()), 0.1f};
   struct Fused {
     std::vector<float> z;
     std::vector<std::uint8_t> rgb[2], valid[2];
@@ -479,7 +542,7 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
       x[static_cast<std::size_t>(i)] = y[static_cast<std::size_t>(i)] = z[static_cast<std::size_t>(i)] = NAN;
       l2[static_cast<std::size_t>(i)] = 0.0f;
       if (ids[static_cast<std::size_t>(i)] < 0) continue;
-      const float* c = coef.data() + 9 * ids[static_cast<std::size_t>(i)];
+      const float* c = coef.data() + kPlaneFloats * ids[static_cast<std::size_t>(i)];
       const float dx = 5.0f + static_cast<float>(i), dy = 7.0f;
       const float zz = 1.0f / ((c[0] + c[2] * dy) + c[1] * dx);
       z[static_cast<std::size_t>(i)] = zz;
@@ -489,12 +552,32 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
     }
     CHECK(std::memcmp(z.data(), ref.z.data(), z.size() * sizeof(float)) == 0);
     const ShadeParams* ps[2] = {&p, &p2};
+    int magnified[2] = {0, 0};
     for (int k = 0; k < 2; ++k) {
+      // Level 0 alone (log2fp = -inf) where the entry's bound says this layer is magnified.
+      std::vector<float> l2k = l2;
+      for (int i = 0; i < m; ++i) {
+        const int e = ids[static_cast<std::size_t>(i)];
+        if (e >= 0 && entry_magnified(coef[static_cast<std::size_t>(kPlaneFloats * e + 9)], ps[k]->lod_bias)) {
+          l2k[static_cast<std::size_t>(i)] = -INFINITY;
+          ++magnified[k];
+        }
+      }
       std::vector<std::uint8_t> rgb(3 * static_cast<std::size_t>(m)), val(static_cast<std::size_t>(m));
-      shade_row_scalar(m, x.data(), y.data(), l2.data(), rgb.data(), val.data(), *ps[k]);
+      shade_row_scalar(m, x.data(), y.data(), l2k.data(), rgb.data(), val.data(), *ps[k]);
       CHECK(rgb == ref.rgb[k]);
       CHECK(val == ref.valid[k]);
+      // The rule changes shown pixels (their own footprints would take coarser levels).
+      std::vector<std::uint8_t> rgb_own(rgb.size()), val_own(val.size());
+      shade_row_scalar(m, x.data(), y.data(), l2.data(), rgb_own.data(), val_own.data(), *ps[k]);
+      int changed = 0;
+      for (int i = 0; i < m; ++i)
+        changed += val[static_cast<std::size_t>(i)] != 0 &&
+                   std::memcmp(&rgb[3 * static_cast<std::size_t>(i)], &rgb_own[3 * static_cast<std::size_t>(i)], 3) != 0;
+      CHECK(changed >= 4);
     }
+    CHECK(magnified[0] >= 8);             // entry 5's
+    CHECK(magnified[1] > magnified[0]);   // and entry 2's, for the second layer only
     int levels_seen = 0;  // the pixels' levels differ (the planes' footprints span levels)
     for (int i = 0; i < m; ++i)
       if (ids[static_cast<std::size_t>(i)] >= 0) levels_seen |= 1 << pixel_level(l2[static_cast<std::size_t>(i)], p).l0;

@@ -19,6 +19,7 @@ constexpr double kGuardPx = 2048.0;      // guard band beyond the image, pixels
 constexpr int kMaxClipVerts = 9;
 constexpr int kMaxTileEntries = 1 << 16;  // triangles binned into one tile, at most
 constexpr int kPrefetchAhead = 8;         // bin entries
+constexpr long kBoundMinPixels = 32;     // an entry covering fewer has no footprint bound
 
 using Clock = std::chrono::steady_clock;
 
@@ -105,7 +106,7 @@ struct Renderer::Impl {
   std::vector<std::uint8_t> drawn;        // per chunk: 1 while it is in the draw list
   std::vector<int> tile_count, tile_start;  // per tile: bin entries, first entry
   std::vector<long> tile_fragments;
-  std::vector<std::vector<float>> tile_coef;  // per thread: 9 floats per bin entry of a tile
+  std::vector<std::vector<float>> tile_coef;  // per thread: kPlaneFloats per bin entry of a tile
   int max_tile_entries = 0;                    // bin entries one tile may hold
   std::unique_ptr<int[]> bin_entries;     // likewise not zeroed
   std::size_t bin_capacity = 0;
@@ -308,7 +309,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   // renderer, with a small max_triangles, stays small).
   m.max_tile_entries = std::min(kMaxTileEntries, options.max_triangles);
   m.tile_coef.resize(static_cast<std::size_t>(options.threads));
-  for (auto& coef : m.tile_coef) coef.resize(9 * static_cast<std::size_t>(m.max_tile_entries));
+  for (auto& coef : m.tile_coef) coef.resize(kPlaneFloats * static_cast<std::size_t>(m.max_tile_entries));
   m.bin_capacity = static_cast<std::size_t>(options.max_triangles) * 4 + tiles * 256;
   m.bin_entries.reset(new int[m.bin_capacity]);
   const std::size_t vpx = static_cast<std::size_t>(m.vw) * static_cast<std::size_t>(m.vh);
@@ -786,12 +787,19 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
       }
     }
     if (resolve_here && frags > frags_before) {
-      float* c = coef + 9 * e;
+      float* c = coef + kPlaneFloats * e;
       for (int q = 0; q < 3; ++q) {
         c[3 * q + 0] = static_cast<float>(t.A[q] * x0 + t.B[q] * y0 + t.C[q]);
         c[3 * q + 1] = static_cast<float>(t.A[q]);
         c[3 * q + 2] = static_cast<float>(t.B[q]);
       }
+      // The footprint's bound over the entry's box in the tile: where it shows a layer
+      // magnified, its pixels skip their own footprints. It costs about what a few pixels'
+      // footprints do, so small triangles (most of a view over a detailed DEM) go without.
+      c[9] = frags - frags_before >= kBoundMinPixels
+                 ? plane_footprint_bound_log2(c, static_cast<float>(bx0 - x0), static_cast<float>(bx1 - x0),
+                                              static_cast<float>(by0 - y0), static_cast<float>(by1 - y0))
+                 : INFINITY;
     }
   }
   tile_fragments[static_cast<std::size_t>(tile)] = frags;

@@ -231,12 +231,13 @@ TL_INLINE Levels8 levels8(const ShadeParams& p, __m256 log2fp, __m256 terrain) {
 }
 
 // Shades `vectors` consecutive vectors of one layer: vector v's pixels see world (x[v], y[v])
-// where terrain[v] is all ones, with footprints log2fp[v]. Each step is taken for every
+// where terrain[v] is all ones, with footprints log2fp[v], or level 0 where their entries'
+// bounds bound[v] (if given) say the layer is magnified (entry_magnified()). Each step is taken for every
 // vector before the next: a vector's work is one long chain (coordinates, the window's
 // bounds, its loads, the filter, the packing), and the vectors' chains are independent, so
 // the core overlaps them instead of waiting on each.
 TL_INLINE void shade_chunk(const ShadeParams& p, int vectors, const __m256* x, const __m256* y, const __m256* log2fp,
-                           const __m256* terrain, std::uint8_t* rgb, std::uint8_t* valid) {
+                           const __m256* terrain, const __m256* bound, std::uint8_t* rgb, std::uint8_t* valid) {
   const int top = p.n_levels - 1;
   __m256 xs[kChunkVectors], ys[kChunkVectors];
   Levels8 lv[kChunkVectors];
@@ -248,7 +249,13 @@ TL_INLINE void shade_chunk(const ShadeParams& p, int vectors, const __m256* x, c
     any[v] = _mm256_movemask_ps(terrain[v]) != 0;
     xs[v] = _mm256_and_ps(x[v], terrain[v]);
     ys[v] = _mm256_and_ps(y[v], terrain[v]);
-    lv[v] = levels8(p, log2fp[v], terrain[v]);
+    const __m256 magnified =
+        bound ? _mm256_and_ps(terrain[v], _mm256_cmp_ps(_mm256_add_ps(bound[v], _mm256_set1_ps(p.lod_bias)), _mm256_setzero_ps(), _CMP_LE_OQ))
+              : _mm256_setzero_ps();
+    if (_mm256_movemask_ps(magnified) == _mm256_movemask_ps(terrain[v]))  // every lane at level 0 alone
+      lv[v] = {_mm256_setzero_si256(), _mm256_setzero_si256(), 0, 0};
+    else
+      lv[v] = levels8(p, _mm256_blendv_ps(log2fp[v], _mm256_set1_ps(-INFINITY), magnified), terrain[v]);
     s[v] = {_mm256_setzero_si256(), _mm256_setzero_si256()};
   }
   // Vectors whose lanes share a level (most): that level's sample for all lanes ...
@@ -290,7 +297,7 @@ TL_INLINE void shade_chunk(const ShadeParams& p, int vectors, const __m256* x, c
 // c[8], and each row's part summed, r0 = q0 + dq0/dy dy (r3, r6 likewise), formed in scalar,
 // the same IEEE operation as lane by lane: iz = r0 + c1 dx, x z = r3 + c4 dx, y z = r6 + c7 dx.
 struct Planes8 {
-  __m256 r0, c1, c2, r3, c4, c5, r6, c7, c8;
+  __m256 r0, c1, c2, r3, c4, c5, r6, c7, c8, bound;
 };
 
 // The planes of the triangles the lanes in `seen` (bits) see: broadcast when it is one
@@ -298,15 +305,16 @@ struct Planes8 {
 TL_INLINE Planes8 planes8(__m256i id, unsigned seen, const int* ids, const float* coef, float dy) {
   auto row = [dy](const float* c, int q) { return c[3 * q] + c[3 * q + 2] * dy; };
   const int e0 = ids[__builtin_ctz(seen)];
-  const float* c = coef + 9 * static_cast<std::ptrdiff_t>(e0);
+  const float* c = coef + kPlaneFloats * static_cast<std::ptrdiff_t>(e0);
   Planes8 P{_mm256_set1_ps(row(c, 0)), _mm256_set1_ps(c[1]), _mm256_set1_ps(c[2]),
             _mm256_set1_ps(row(c, 1)), _mm256_set1_ps(c[4]), _mm256_set1_ps(c[5]),
-            _mm256_set1_ps(row(c, 2)), _mm256_set1_ps(c[7]), _mm256_set1_ps(c[8])};
+            _mm256_set1_ps(row(c, 2)), _mm256_set1_ps(c[7]), _mm256_set1_ps(c[8]),
+            _mm256_set1_ps(c[9])};
   unsigned left = seen & ~static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(id, _mm256_set1_epi32(e0)))));
   while (left != 0) {
     const int e = ids[__builtin_ctz(left)];
     const __m256 these = _mm256_castsi256_ps(_mm256_cmpeq_epi32(id, _mm256_set1_epi32(e)));
-    c = coef + 9 * static_cast<std::ptrdiff_t>(e);
+    c = coef + kPlaneFloats * static_cast<std::ptrdiff_t>(e);
     auto put = [these](__m256& v, float value) { v = _mm256_blendv_ps(v, _mm256_set1_ps(value), these); };
     put(P.r0, row(c, 0));
     put(P.c1, c[1]);
@@ -317,6 +325,7 @@ TL_INLINE Planes8 planes8(__m256i id, unsigned seen, const int* ids, const float
     put(P.r6, row(c, 2));
     put(P.c7, c[7]);
     put(P.c8, c[8]);
+    put(P.bound, c[9]);
     left &= ~static_cast<unsigned>(_mm256_movemask_ps(these));
   }
   return P;
@@ -367,7 +376,7 @@ void shade_row_avx2(int n, const float* wx, const float* wy, const float* log2fp
       l2[v] = _mm256_loadu_ps(log2fp + i + 8 * v);
       terrain[v] = _mm256_cmp_ps(x[v], x[v], _CMP_ORD_Q);
     }
-    shade_chunk(p, vectors, x, y, l2, terrain, rgb + 3 * i, valid + i);
+    shade_chunk(p, vectors, x, y, l2, terrain, nullptr, rgb + 3 * i, valid + i);
     i += 8 * vectors;
   }
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
@@ -377,8 +386,10 @@ void resolve_shade_row_avx2(int n, const int* ids, const float* coef, float dx0,
                             const ShadeTarget* targets) {
   const __m256 lane = _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7);
   const __m256 one = _mm256_set1_ps(1.0f), nan = _mm256_set1_ps(NAN);
+  float max_bias = -INFINITY;  // footprints are needed only where some target is not magnified
+  for (int k = 0; k < n_targets; ++k) max_bias = max_bias > targets[k].params->lod_bias ? max_bias : targets[k].params->lod_bias;
   // Chunks of up to kChunkVectors vectors: the chunk's resolve, then its shading.
-  __m256 x[kChunkVectors], y[kChunkVectors], l2[kChunkVectors], in[kChunkVectors];
+  __m256 x[kChunkVectors], y[kChunkVectors], l2[kChunkVectors], in[kChunkVectors], bound[kChunkVectors];
   int i = 0;
   while (i + 8 <= n) {
     const int vectors = (n - i) / 8 < kChunkVectors ? (n - i) / 8 : kChunkVectors;
@@ -389,6 +400,7 @@ void resolve_shade_row_avx2(int n, const int* ids, const float* coef, float dx0,
       const unsigned seen = static_cast<unsigned>(_mm256_movemask_ps(in[v]));
       x[v] = y[v] = nan;
       l2[v] = _mm256_setzero_ps();
+      bound[v] = _mm256_set1_ps(INFINITY);
       if (seen == 0) {
         _mm256_storeu_ps(z + at, nan);
         continue;
@@ -399,11 +411,13 @@ void resolve_shade_row_avx2(int n, const int* ids, const float* coef, float dx0,
       const __m256 zz = _mm256_div_ps(one, _mm256_add_ps(P.r0, _mm256_mul_ps(P.c1, dx)));
       x[v] = _mm256_mul_ps(_mm256_add_ps(P.r3, _mm256_mul_ps(P.c4, dx)), zz);
       y[v] = _mm256_mul_ps(_mm256_add_ps(P.r6, _mm256_mul_ps(P.c7, dx)), zz);
-      l2[v] = footprint8(P, x[v], y[v], zz);
+      bound[v] = P.bound;
+      const __m256 need = _mm256_cmp_ps(_mm256_add_ps(P.bound, _mm256_set1_ps(max_bias)), _mm256_setzero_ps(), _CMP_NLE_UQ);
+      if (_mm256_movemask_ps(_mm256_and_ps(need, in[v])) != 0) l2[v] = footprint8(P, x[v], y[v], zz);
       _mm256_storeu_ps(z + at, _mm256_blendv_ps(nan, zz, in[v]));
     }
     for (int k = 0; k < n_targets; ++k)
-      shade_chunk(*targets[k].params, vectors, x, y, l2, in, targets[k].rgb + 3 * i, targets[k].valid + i);
+      shade_chunk(*targets[k].params, vectors, x, y, l2, in, bound, targets[k].rgb + 3 * i, targets[k].valid + i);
     i += 8 * vectors;
   }
   if (i < n) {

@@ -237,12 +237,13 @@ TL_INLINE Levels16 levels16(const ShadeParams& p, __m512 log2fp, __mmask16 terra
 }
 
 // Shades `groups` consecutive vectors of one layer: vector g's pixels see world (x[g], y[g])
-// where terrain[g] is set, with footprints log2fp[g]. Each step is taken for every vector
+// where terrain[g] is set, with footprints log2fp[g], or level 0 where their entries' bounds
+// bound[g] (if given) say the layer is magnified (entry_magnified()). Each step is taken for every vector
 // before the next: a vector's work is one long chain (coordinates, the window's bounds, its
 // loads, the filter, the packing), and the vectors' chains are independent, so the core
 // overlaps them instead of waiting on each.
 TL_INLINE void shade_chunk(const ShadeParams& p, int groups, const __m512* x, const __m512* y, const __m512* log2fp,
-                           const __mmask16* terrain, std::uint8_t* rgb, std::uint8_t* valid) {
+                           const __mmask16* terrain, const __m512* bound, std::uint8_t* rgb, std::uint8_t* valid) {
   const int top = p.n_levels - 1;
   __m512 xs[kChunkGroups], ys[kChunkGroups];
   Levels16 lv[kChunkGroups];
@@ -252,7 +253,13 @@ TL_INLINE void shade_chunk(const ShadeParams& p, int groups, const __m512* x, co
   for (int g = 0; g < groups; ++g) {
     xs[g] = _mm512_maskz_mov_ps(terrain[g], x[g]);
     ys[g] = _mm512_maskz_mov_ps(terrain[g], y[g]);
-    lv[g] = levels16(p, log2fp[g], terrain[g]);
+    const __mmask16 magnified =
+        bound ? _mm512_mask_cmp_ps_mask(terrain[g], _mm512_add_ps(bound[g], _mm512_set1_ps(p.lod_bias)), _mm512_setzero_ps(), _CMP_LE_OQ)
+              : 0;
+    if (magnified == terrain[g])  // every lane at level 0 alone, no footprint needed
+      lv[g] = {_mm512_setzero_si512(), _mm512_setzero_si512(), 0, 0};
+    else
+      lv[g] = levels16(p, _mm512_mask_mov_ps(log2fp[g], magnified, _mm512_set1_ps(-INFINITY)), terrain[g]);
     s[g] = {_mm512_setzero_si512(), _mm512_setzero_si512()};
   }
   // Vectors whose lanes share a level (most): that level's sample for all lanes ...
@@ -293,7 +300,7 @@ TL_INLINE void shade_chunk(const ShadeParams& p, int groups, const __m512* x, co
 // c[8], and each row's part summed, r0 = q0 + dq0/dy dy (r3, r6 likewise), formed in scalar,
 // the same IEEE operation as lane by lane: iz = r0 + c1 dx, x z = r3 + c4 dx, y z = r6 + c7 dx.
 struct Planes16 {
-  __m512 r0, c1, c2, r3, c4, c5, r6, c7, c8;
+  __m512 r0, c1, c2, r3, c4, c5, r6, c7, c8, bound;
 };
 
 // The planes of the triangles the lanes in `seen` see: broadcast when it is one triangle (most
@@ -301,15 +308,16 @@ struct Planes16 {
 TL_INLINE Planes16 planes16(__m512i id, __mmask16 seen, const int* ids, const float* coef, float dy) {
   auto row = [dy](const float* c, int q) { return c[3 * q] + c[3 * q + 2] * dy; };
   const int e0 = ids[__builtin_ctz(seen)];
-  const float* c = coef + 9 * static_cast<std::ptrdiff_t>(e0);
+  const float* c = coef + kPlaneFloats * static_cast<std::ptrdiff_t>(e0);
   Planes16 P{_mm512_set1_ps(row(c, 0)), _mm512_set1_ps(c[1]), _mm512_set1_ps(c[2]),
              _mm512_set1_ps(row(c, 1)), _mm512_set1_ps(c[4]), _mm512_set1_ps(c[5]),
-             _mm512_set1_ps(row(c, 2)), _mm512_set1_ps(c[7]), _mm512_set1_ps(c[8])};
+             _mm512_set1_ps(row(c, 2)), _mm512_set1_ps(c[7]), _mm512_set1_ps(c[8]),
+             _mm512_set1_ps(c[9])};
   __mmask16 left = static_cast<__mmask16>(seen & ~_mm512_mask_cmpeq_epi32_mask(seen, id, _mm512_set1_epi32(e0)));
   while (left != 0) {
     const int e = ids[__builtin_ctz(left)];
     const __mmask16 these = _mm512_mask_cmpeq_epi32_mask(left, id, _mm512_set1_epi32(e));
-    c = coef + 9 * static_cast<std::ptrdiff_t>(e);
+    c = coef + kPlaneFloats * static_cast<std::ptrdiff_t>(e);
     auto put = [these](__m512& v, float value) { v = _mm512_mask_mov_ps(v, these, _mm512_set1_ps(value)); };
     put(P.r0, row(c, 0));
     put(P.c1, c[1]);
@@ -320,6 +328,7 @@ TL_INLINE Planes16 planes16(__m512i id, __mmask16 seen, const int* ids, const fl
     put(P.r6, row(c, 2));
     put(P.c7, c[7]);
     put(P.c8, c[8]);
+    put(P.bound, c[9]);
     left = static_cast<__mmask16>(left & ~these);
   }
   return P;
@@ -362,7 +371,7 @@ void shade_row_avx512(int n, const float* wx, const float* wy, const float* log2
       l2[g] = _mm512_loadu_ps(log2fp + i + 16 * g);
       terrain[g] = _mm512_cmp_ps_mask(x[g], x[g], _CMP_ORD_Q);
     }
-    shade_chunk(p, groups, x, y, l2, terrain, rgb + 3 * i, valid + i);
+    shade_chunk(p, groups, x, y, l2, terrain, nullptr, rgb + 3 * i, valid + i);
     i += 16 * groups;
   }
   if (i < n) shade_row_scalar(n - i, wx + i, wy + i, log2fp + i, rgb + 3 * i, valid + i, p);
@@ -372,8 +381,10 @@ void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx
                               const ShadeTarget* targets) {
   const __m512 lane = _mm512_setr_ps(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   const __m512 one = _mm512_set1_ps(1.0f), nan = _mm512_set1_ps(NAN);
+  float max_bias = -INFINITY;  // footprints are needed only where some target is not magnified
+  for (int k = 0; k < n_targets; ++k) max_bias = max_bias > targets[k].params->lod_bias ? max_bias : targets[k].params->lod_bias;
   // Chunks of up to kChunkGroups vectors: the chunk's resolve, then its shading.
-  __m512 x[kChunkGroups], y[kChunkGroups], l2[kChunkGroups];
+  __m512 x[kChunkGroups], y[kChunkGroups], l2[kChunkGroups], bound[kChunkGroups];
   __mmask16 seen[kChunkGroups];
   int i = 0;
   while (i + 16 <= n) {
@@ -384,6 +395,7 @@ void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx
       seen[g] = _mm512_cmpgt_epi32_mask(id, _mm512_set1_epi32(-1));
       x[g] = y[g] = nan;
       l2[g] = _mm512_setzero_ps();
+      bound[g] = _mm512_set1_ps(INFINITY);
       if (seen[g] == 0) {
         _mm512_storeu_ps(z + at, nan);
         continue;
@@ -394,11 +406,13 @@ void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx
       const __m512 zz = _mm512_div_ps(one, _mm512_add_ps(P.r0, _mm512_mul_ps(P.c1, dx)));
       x[g] = _mm512_mul_ps(_mm512_add_ps(P.r3, _mm512_mul_ps(P.c4, dx)), zz);
       y[g] = _mm512_mul_ps(_mm512_add_ps(P.r6, _mm512_mul_ps(P.c7, dx)), zz);
-      l2[g] = footprint16(P, x[g], y[g], zz);
+      bound[g] = P.bound;
+      if (_mm512_mask_cmp_ps_mask(seen[g], _mm512_add_ps(P.bound, _mm512_set1_ps(max_bias)), _mm512_setzero_ps(), _CMP_NLE_UQ))
+        l2[g] = footprint16(P, x[g], y[g], zz);
       _mm512_storeu_ps(z + at, _mm512_mask_blend_ps(seen[g], nan, zz));
     }
     for (int k = 0; k < n_targets; ++k)
-      shade_chunk(*targets[k].params, groups, x, y, l2, seen, targets[k].rgb + 3 * i, targets[k].valid + i);
+      shade_chunk(*targets[k].params, groups, x, y, l2, seen, bound, targets[k].rgb + 3 * i, targets[k].valid + i);
     i += 16 * groups;
   }
   if (i < n) {

@@ -178,24 +178,27 @@ void resolve_shade_row_neon(int n, const int* ids, const float* coef, float dx0,
                             const ShadeTarget* targets) {
   static const float lanes[4] = {0, 1, 2, 3};
   const float32x4_t one = vdupq_n_f32(1.0f);
+  float max_bias = -INFINITY;  // footprints are needed only where some target is not magnified
+  for (int k = 0; k < n_targets; ++k) max_bias = max_bias > targets[k].params->lod_bias ? max_bias : targets[k].params->lod_bias;
   int i = 0;
   for (; i + 4 <= n; i += 4) {
     // Each lane's planes with the row's part summed (r = q + dq/dy dy, the scalar twin's
     // first operation), loaded lane by lane; lanes with no terrain compute on zeros. The
-    // footprint per lane is the scalar plane_footprint_log2().
-    float pl[6][4], l2[4];
+    // footprint per lane is the scalar plane_footprint_log2(), where some target needs it.
+    float pl[6][4], l2[4], bound[4];
     std::uint32_t seen[4];
     for (int l = 0; l < 4; ++l) {
       const int e = ids[i + l];
       seen[l] = e >= 0 ? 0xFFFFFFFFu : 0u;
-      const float* c = coef + 9 * static_cast<std::ptrdiff_t>(e < 0 ? 0 : e);
+      const float* c = coef + kPlaneFloats * static_cast<std::ptrdiff_t>(e < 0 ? 0 : e);
       pl[0][l] = e < 0 ? 0.0f : c[0] + c[2] * dy;
       pl[1][l] = e < 0 ? 0.0f : c[1];
       pl[2][l] = e < 0 ? 0.0f : c[3] + c[5] * dy;
       pl[3][l] = e < 0 ? 0.0f : c[4];
       pl[4][l] = e < 0 ? 0.0f : c[6] + c[8] * dy;
       pl[5][l] = e < 0 ? 0.0f : c[7];
-      l2[l] = e < 0 ? 0.0f : plane_footprint_log2(c, dx0 + static_cast<float>(i + l), dy);
+      bound[l] = e < 0 ? INFINITY : c[9];
+      l2[l] = e < 0 || entry_magnified(bound[l], max_bias) ? 0.0f : plane_footprint_log2(c, dx0 + static_cast<float>(i + l), dy);
     }
     const uint32x4_t in = vld1q_u32(seen);
     const float32x4_t dx = vaddq_f32(vdupq_n_f32(dx0 + static_cast<float>(i)), vld1q_f32(lanes));
@@ -203,7 +206,12 @@ void resolve_shade_row_neon(int n, const int* ids, const float* coef, float dx0,
     const float32x4_t x = vmulq_f32(vaddq_f32(vld1q_f32(pl[2]), vmulq_f32(vld1q_f32(pl[3]), dx)), zz);
     const float32x4_t y = vmulq_f32(vaddq_f32(vld1q_f32(pl[4]), vmulq_f32(vld1q_f32(pl[5]), dx)), zz);
     vst1q_f32(z + i, vbslq_f32(in, zz, vdupq_n_f32(NAN)));
-    for (int k = 0; k < n_targets; ++k) shade4(*targets[k].params, in, x, y, l2, targets[k].rgb + 3 * i, targets[k].valid + i);
+    for (int k = 0; k < n_targets; ++k) {
+      const ShadeParams& p = *targets[k].params;
+      float l2k[4];
+      for (int l = 0; l < 4; ++l) l2k[l] = entry_magnified(bound[l], p.lod_bias) ? -INFINITY : l2[l];
+      shade4(p, in, x, y, l2k, targets[k].rgb + 3 * i, targets[k].valid + i);
+    }
   }
   if (i < n) {
     ShadeTarget rest[kMaxShadeTargets];

@@ -2,6 +2,7 @@
 // scalar depth and edge kernels.
 #include <terralign/raster/shade_kernels.hpp>
 
+#include <algorithm>
 #include <cmath>
 
 namespace terralign::raster {
@@ -93,21 +94,49 @@ void shade_row_scalar(int n, const float* wx, const float* wy, const float* log2
 
 void resolve_shade_row_scalar(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
                               const ShadeTarget* targets) {
+  float max_bias = -INFINITY;  // footprints are needed only where some target is not magnified
+  for (int k = 0; k < n_targets; ++k) max_bias = std::max(max_bias, targets[k].params->lod_bias);
   for (int i = 0; i < n; ++i) {
-    float x = NAN, y = NAN, l2 = 0.0f;
+    float x = NAN, y = NAN, l2 = 0.0f, bound = INFINITY;
     z[i] = NAN;
     if (ids[i] >= 0) {
-      const float* c = coef + 9 * static_cast<std::ptrdiff_t>(ids[i]);
+      const float* c = coef + kPlaneFloats * static_cast<std::ptrdiff_t>(ids[i]);
       const float dx = dx0 + static_cast<float>(i);
       const float zz = 1.0f / ((c[0] + c[2] * dy) + c[1] * dx);
       x = ((c[3] + c[5] * dy) + c[4] * dx) * zz;
       y = ((c[6] + c[8] * dy) + c[7] * dx) * zz;
       z[i] = zz;
-      l2 = plane_footprint_log2(c, dx, dy);
+      bound = c[9];
+      if (!entry_magnified(bound, max_bias)) l2 = plane_footprint_log2(c, dx, dy);
     }
-    for (int k = 0; k < n_targets; ++k)
-      shade_pixel(*targets[k].params, l2, x, y, targets[k].rgb + 3 * i, targets[k].valid + i);
+    for (int k = 0; k < n_targets; ++k) {
+      const ShadeParams& p = *targets[k].params;
+      shade_pixel(p, entry_magnified(bound, p.lod_bias) ? -INFINITY : l2, x, y, targets[k].rgb + 3 * i, targets[k].valid + i);
+    }
   }
+}
+
+float plane_footprint_bound_log2(const float* c, float dx0, float dx1, float dy0, float dy1) {
+  const double q[9] = {c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7], c[8]};
+  auto iz = [&](double dx, double dy) { return q[0] + q[1] * dx + q[2] * dy; };
+  const double iz_min = std::min(std::min(iz(dx0, dy0), iz(dx1, dy0)), std::min(iz(dx0, dy1), iz(dx1, dy1)));
+  if (!(iz_min > 0)) return INFINITY;
+  // The numerators of d(x, y)/du (affine in dy) and d(x, y)/dv (affine in dx); each squared
+  // length is convex along its variable, so its larger end is its largest.
+  auto su = [&](double dy) {
+    const double nx = (q[4] * q[0] - q[1] * q[3]) + (q[4] * q[2] - q[1] * q[5]) * dy;
+    const double ny = (q[7] * q[0] - q[1] * q[6]) + (q[7] * q[2] - q[1] * q[8]) * dy;
+    return nx * nx + ny * ny;
+  };
+  auto sv = [&](double dx) {
+    const double nx = (q[5] * q[0] - q[2] * q[3]) + (q[5] * q[1] - q[2] * q[4]) * dx;
+    const double ny = (q[8] * q[0] - q[2] * q[6]) + (q[8] * q[1] - q[2] * q[7]) * dx;
+    return nx * nx + ny * ny;
+  };
+  const double iz2 = iz_min * iz_min;
+  const double d2 = std::max(std::max(su(dy0), su(dy1)), std::max(sv(dx0), sv(dx1))) / (iz2 * iz2);
+  if (!(d2 < 1e30)) return INFINITY;
+  return 0.5f * fast_log2(std::max(static_cast<float>(d2), 1e-12f)) + 1.0f / 64.0f;
 }
 
 void depth_block_scalar(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,

@@ -10,7 +10,10 @@
 //   coarser level is the rounded mean of the 2 x 2 texels below it. Filtering premultiplied
 //   texels weights each colour by its alpha: no-data texels do not darken their neighbours.
 // - Level of detail per pixel, from its ground footprint (pixel_level()): level l0 = floor(lod)
-//   and the next, lod = log2(footprint / texel), clamped to the chain.
+//   and the next, lod = log2(footprint / texel), clamped to the chain. The fused kernels
+//   take level 0 without computing the footprint where a bound over the pixel's triangle in
+//   its tile shows the texture magnified there (entry_magnified(): most pixels of views from
+//   a few hundred metres over 0.3-5 m orthophotos).
 // - At level l a pixel's texel coordinates (centres at integers) are ul = a0 + a1 x + a2 y,
 //   vl = b0 + b1 x + b2 y (the level's LevelCoords, float, in that order), and
 //   U = floor(ul * 256) (V likewise) gives the left tap's column U >> 8 and the column
@@ -120,20 +123,37 @@ struct ShadeTarget {
   std::uint8_t* valid;  // 1 byte a pixel
 };
 
-// The planes of a bin entry at a tile's corner: coef[9 e .. 9 e + 8] = {q0, dq0/dx, dq0/dy,
-// q1, dq1/dx, dq1/dy, q2, dq2/dx, dq2/dy} for q0 = 1/z, q1 = x/z, q2 = y/z (local world x, y).
+// A bin entry's planes at a tile's corner, kPlaneFloats floats: c[0 .. 8] = {q0, dq0/dx,
+// dq0/dy, q1, dq1/dx, dq1/dy, q2, dq2/dx, dq2/dy} for q0 = 1/z, q1 = x/z, q2 = y/z (local
+// world x, y), and c[9] an upper bound of plane_footprint_log2() over the pixels the entry
+// covers in the tile (plane_footprint_bound_log2(); +inf where none is known).
+constexpr int kPlaneFloats = 10;
+
 // log2 of the ground footprint in metres at the pixel dx, dy from the corner: the larger of
 // the lengths of d(x, y)/du and d(x, y)/dv. Inline (below, after fast_log2): the NEON kernel
 // calls it per lane, and a call from vector code would spill every vector register; the AVX2
 // and AVX-512 kernels do the same operations lane by lane.
 inline float plane_footprint_log2(const float* c, float dx, float dy);
 
+// An upper bound of plane_footprint_log2(c, dx, dy) over the box dx0 <= dx <= dx1, dy0 <= dy
+// <= dy1 (c[0 .. 8] as above): d(x, y)/du is (a + b dy) z^2 and d(x, y)/dv is (a' + b' dx)
+// z^2 with a, b, a', b' fixed by the planes, so the box's corners bound the numerators and
+// its nearest corner z. Computed in double, with 1/64 added for fast_log2's error and float
+// rounding; +inf where 1/z is not positive over the whole box.
+float plane_footprint_bound_log2(const float* c, float dx0, float dx1, float dy0, float dy1);
+
+// A pixel whose entry's bound says the layer is magnified there, bound + lod_bias <= 0 (its
+// footprint is at most a level-0 texel), takes level 0 alone: exactly what its own footprint
+// would give, and the fused kernels skip computing it. A NaN or +inf bound never qualifies.
+inline bool entry_magnified(float bound, float lod_bias) { return bound + lod_bias <= 0.0f; }
+
 // One row of a pinhole tile after visibility, resolved and shaded: pixel i, dx0 + i columns
 // right of the tile's corner and dy rows below it, sees bin entry ids[i] (-1: no terrain).
 // Per pixel, in float and in this order: iz = (q0 + dq0/dy dy) + dq0/dx dx, z = 1 / iz,
 // x = ((q1 + dq1/dy dy) + dq1/dx dx) z, y likewise; writes z (NaN: no terrain) and shades
-// every target as shade_row would with log2fp = plane_footprint_log2() of the pixel. dx0 is
-// a whole number. Reads coefficients only of the entries named; no allocation.
+// every target as shade_row would with log2fp = plane_footprint_log2() of the pixel, or -inf
+// (level 0) where entry_magnified(c[9], the target's lod_bias). dx0 is a whole number.
+// Reads coefficients only of the entries named; no allocation.
 void resolve_shade_row_scalar(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
                               const ShadeTarget* targets);
 #if defined(TERRALIGN_HAVE_AVX2)
