@@ -21,6 +21,9 @@ namespace {
 // A row window holds the taps of lanes spread over at most this many texel rows.
 constexpr int kWindowRows = 6;
 
+// A vector seeing more runs of triangles than this gathers its planes lane by lane.
+constexpr int kBlendRuns = 2;
+
 struct Taps {
   __m256i t00, t10, t01, t11;  // top-left, top-right, bottom-left, bottom-right
 };
@@ -304,6 +307,20 @@ struct Planes8 {
 // triangle (most vectors), else each triangle's blended into the lanes that see it.
 TL_INLINE Planes8 planes8(__m256i id, unsigned seen, const int* ids, const float* coef, float dy) {
   auto row = [dy](const float* c, int q) { return c[3 * q] + c[3 * q + 2] * dy; };
+  // Lanes where the entry changes from the lane before: runs of one triangle.
+  const __m256i before = _mm256_blend_epi32(_mm256_permutevar8x32_epi32(id, _mm256_setr_epi32(0, 0, 1, 2, 3, 4, 5, 6)),
+                                            _mm256_set1_epi32(-2), 1);
+  const unsigned starts = seen & ~static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(id, before))));
+  if (__builtin_popcount(starts) > kBlendRuns) {
+    // Many small triangles: each lane gathers its entry's planes.
+    const __m256 in = _mm256_castsi256_ps(_mm256_cmpgt_epi32(id, _mm256_set1_epi32(-1)));
+    const __m256i at = _mm256_mullo_epi32(_mm256_and_si256(id, _mm256_castps_si256(in)), _mm256_set1_epi32(kPlaneFloats));
+    auto g = [&](int k) { return _mm256_mask_i32gather_ps(_mm256_setzero_ps(), coef + k, at, in, 4); };
+    const __m256 vdy = _mm256_set1_ps(dy);
+    const __m256 c2 = g(2), c5 = g(5), c8 = g(8);
+    return {_mm256_add_ps(g(0), _mm256_mul_ps(c2, vdy)), g(1), c2, _mm256_add_ps(g(3), _mm256_mul_ps(c5, vdy)), g(4), c5,
+            _mm256_add_ps(g(6), _mm256_mul_ps(c8, vdy)), g(7), c8, g(9)};
+  }
   const int e0 = ids[__builtin_ctz(seen)];
   const float* c = coef + kPlaneFloats * static_cast<std::ptrdiff_t>(e0);
   Planes8 P{_mm256_set1_ps(row(c, 0)), _mm256_set1_ps(c[1]), _mm256_set1_ps(c[2]),

@@ -19,6 +19,9 @@ namespace {
 // pixels along a texel row: 2; turned a little, or minified, a few more); beyond, gathers.
 constexpr int kWindowRows = 6;
 
+// A vector seeing more runs of triangles than this gathers its planes lane by lane.
+constexpr int kBlendRuns = 2;
+
 // The four taps of 16 lanes: top-left, top-right, bottom-left, bottom-right.
 struct Taps {
   __m512i t00, t10, t01, t11;
@@ -307,6 +310,17 @@ struct Planes16 {
 // vectors), else each triangle's blended into the lanes that see it.
 TL_INLINE Planes16 planes16(__m512i id, __mmask16 seen, const int* ids, const float* coef, float dy) {
   auto row = [dy](const float* c, int q) { return c[3 * q] + c[3 * q + 2] * dy; };
+  // Lanes where the entry changes from the lane before: runs of one triangle.
+  const __mmask16 starts = _mm512_mask_cmpneq_epi32_mask(seen, id, _mm512_alignr_epi32(id, _mm512_set1_epi32(-2), 15));
+  if (__builtin_popcount(starts) > kBlendRuns) {
+    // Many small triangles: each lane gathers its entry's planes.
+    const __m512i at = _mm512_mullo_epi32(_mm512_maskz_mov_epi32(seen, id), _mm512_set1_epi32(kPlaneFloats));
+    auto g = [&](int k) { return _mm512_mask_i32gather_ps(_mm512_setzero_ps(), seen, at, coef + k, 4); };
+    const __m512 vdy = _mm512_set1_ps(dy);
+    const __m512 c2 = g(2), c5 = g(5), c8 = g(8);
+    return {_mm512_add_ps(g(0), _mm512_mul_ps(c2, vdy)), g(1), c2, _mm512_add_ps(g(3), _mm512_mul_ps(c5, vdy)), g(4), c5,
+            _mm512_add_ps(g(6), _mm512_mul_ps(c8, vdy)), g(7), c8, g(9)};
+  }
   const int e0 = ids[__builtin_ctz(seen)];
   const float* c = coef + kPlaneFloats * static_cast<std::ptrdiff_t>(e0);
   Planes16 P{_mm512_set1_ps(row(c, 0)), _mm512_set1_ps(c[1]), _mm512_set1_ps(c[2]),
