@@ -541,13 +541,9 @@ bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool
   }
   for (int o : out)
     if (o == 8) return false;
-  // Screen-space error from the nearest point of the box.
-  const float dx = std::max({c.min_x - t_local.x(), 0.0f, t_local.x() - c.max_x});
-  const float dy = std::max({c.min_y - t_local.y(), 0.0f, t_local.y() - c.max_y});
-  const float dz = std::max({c.min_z - t_local.z(), 0.0f, t_local.z() - c.max_z});
-  const float d = std::sqrt(dx * dx + dy * dy + dz * dz);
   const float f = static_cast<float>(std::max(pinhole.fx, pinhole.fy));
-  refine = c.level > 0 && c.error * f > static_cast<float>(options.lod_error_px) * d;
+  refine = c.level > 0 &&
+           !(chunk_screen_error_px(c, c.error, R_C_W, t_local, f, static_cast<float>(options.near_m)) <= static_cast<float>(options.lod_error_px));
   return true;
 }
 

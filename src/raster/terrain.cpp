@@ -5,6 +5,21 @@
 
 namespace terralign::raster {
 
+float chunk_screen_error_px(const TerrainChunk& c, float error, const Eigen::Matrix3f& R_C_W, const Eigen::Vector3f& t_local,
+                            float f, float near_m) {
+  const Eigen::Vector3f up = R_C_W.col(2);
+  float n2_max = 0.0f, z_min = INFINITY;
+  for (int k = 0; k < 8; ++k) {
+    const Eigen::Vector3f p =
+        R_C_W * (Eigen::Vector3f(k & 1 ? c.max_x : c.min_x, k & 2 ? c.max_y : c.min_y, k & 4 ? c.max_z : c.min_z) - t_local);
+    const float nx = up.x() * p.z() - p.x() * up.z(), ny = up.y() * p.z() - p.y() * up.z();
+    n2_max = std::max(n2_max, nx * nx + ny * ny);
+    z_min = std::min(z_min, p.z());
+  }
+  if (!(z_min > near_m)) return INFINITY;
+  return error * f * std::sqrt(n2_max) / (z_min * z_min);
+}
+
 Terrain Terrain::build(const geo::Map& map, double ox, double oy, double oz) {
   Terrain t;
   if (map.dem.constant) {

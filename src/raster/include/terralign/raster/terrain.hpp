@@ -11,6 +11,8 @@
 #include <cstdint>
 #include <vector>
 
+#include <Eigen/Core>
+
 #include <terralign/geo/map.hpp>
 
 namespace terralign::raster {
@@ -25,6 +27,16 @@ struct TerrainChunk {
   float min_x, min_y, min_z, max_x, max_y, max_z;  // local bounding box
   int child[4];          // -1 where none
 };
+
+// The most a point of chunk c's box moves on screen, in pixels of a pinhole camera with focal
+// f, when moved up or down by `error` metres (chunk errors are vertical): f e |N| / z^2 to
+// first order, N = (u_x z - x u_z, u_y z - y u_z) for the point's camera-frame position
+// (x, y, z) and the camera-frame up u = R_C_W (0, 0, 1). |N| is convex in the point, so the
+// box's corners bound it, and its least depth bounds 1 / z^2. Seen straight down, N is the
+// point's offset from the optical axis: a vertical error shows only off the axis. +inf where
+// the box reaches nearer than near_m. t_local: the camera's position.
+float chunk_screen_error_px(const TerrainChunk& c, float error, const Eigen::Matrix3f& R_C_W, const Eigen::Vector3f& t_local,
+                            float f, float near_m);
 
 class Terrain {
  public:
