@@ -14,6 +14,7 @@ namespace terralign::raster {
 namespace {
 
 constexpr int kTileW = 64, kTileH = 32;
+constexpr int kVisStride = kTileW + 8;   // a visibility buffer's row (see Impl::zbuf)
 constexpr int kSubBits = 8;              // sub-pixel bits of the fixed-point screen positions
 constexpr double kGuardPx = 2048.0;      // guard band beyond the image, pixels
 constexpr int kMaxClipVerts = 9;
@@ -110,10 +111,12 @@ struct Renderer::Impl {
   int max_tile_entries = 0;                    // bin entries one tile may hold
   std::unique_ptr<int[]> bin_entries;     // likewise not zeroed
   std::size_t bin_capacity = 0;
-  // Visibility: 1/z of the nearest triangle so far (0: none) and its bin entry (-1: none).
-  // A pinhole camera resolves each tile as soon as it is rasterized, so each thread keeps
-  // one tile's worth (kTileW a row: 16 KB, which stays in L1 from tile to tile); a distorted
-  // camera resolves after every tile is done and keeps the whole view's.
+  // Visibility: 1/z of the nearest triangle so far (0: none) and its bin entry (-1: none),
+  // a tile's worth at a time (kTileH rows of kVisStride). A pinhole camera resolves each
+  // tile as soon as it is rasterized, so each thread keeps one (18 KB, which stays in L1
+  // from tile to tile); a distorted camera resolves after every tile is done and keeps one
+  // per tile. Rows hold 8 pixels more than a tile's: the depth kernels read and write back
+  // 8 columns from a block's first (shade_kernels.hpp), which stay inside the tile's own.
   std::vector<float> zbuf;
   std::vector<int> idbuf;
   std::vector<float> remap_u, remap_v;    // per output pixel, pinhole position (distortion)
@@ -316,8 +319,8 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   for (auto& coef : m.tile_coef) coef.resize(kPlaneFloats * static_cast<std::size_t>(m.max_tile_entries));
   m.bin_capacity = static_cast<std::size_t>(options.max_triangles) * 4 + tiles * 256;
   m.bin_entries.reset(new int[m.bin_capacity]);
-  const std::size_t vpx = m.remap_u.empty() ? static_cast<std::size_t>(options.threads) * kTileW * kTileH
-                                            : static_cast<std::size_t>(m.vw) * static_cast<std::size_t>(m.vh);
+  const std::size_t vpx = static_cast<std::size_t>(kTileH * kVisStride) *
+                          (m.remap_u.empty() ? static_cast<std::size_t>(options.threads) : static_cast<std::size_t>(tiles));
   m.zbuf.resize(vpx);
   m.idbuf.resize(vpx);
   if (!m.remap_u.empty()) {
@@ -707,9 +710,8 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   const int x1 = std::min(x0 + kTileW, vw) - 1, y1 = std::min(y0 + kTileH, vh) - 1;
   const bool resolve_here = remap_u.empty();
   // The tile's visibility buffers: pixel (x, y) at (y - y0) stride + x - x0.
-  const std::ptrdiff_t stride = resolve_here ? kTileW : vw;
-  const std::ptrdiff_t origin = resolve_here ? static_cast<std::ptrdiff_t>(thread) * kTileW * kTileH
-                                             : static_cast<std::ptrdiff_t>(y0) * vw + x0;
+  const std::ptrdiff_t stride = kVisStride;
+  const std::ptrdiff_t origin = static_cast<std::ptrdiff_t>(resolve_here ? thread : tile) * kTileH * kVisStride;
   float* const tz = zbuf.data() + origin;
   int* const tid = idbuf.data() + origin;
   for (int r = 0; r <= y1 - y0; ++r) {
@@ -813,9 +815,9 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   tile_fragments[static_cast<std::size_t>(tile)] = frags;
   if (!resolve_here) {
     // Distorted camera: resolve_rows() reads this tile later; it needs triangle indices.
-    for (int y = y0; y <= y1; ++y) {
-      int* irow = idbuf.data() + static_cast<std::ptrdiff_t>(y) * vw;
-      for (int x = x0; x <= x1; ++x)
+    for (int r = 0; r <= y1 - y0; ++r) {
+      int* irow = tid + r * stride;
+      for (int x = 0; x <= x1 - x0; ++x)
         if (irow[x] >= 0) irow[x] = bin_entries[static_cast<std::size_t>(first + irow[x])];
     }
     return;
@@ -852,7 +854,9 @@ void Renderer::Impl::resolve_rows(int row0, int row1) {
       gx[k] = gy[k] = gz[k] = NAN;
       log2fp[k] = 0.0f;
       if (!(px > -0.5 && py > -0.5 && px < vw - 0.5 && py < vh - 0.5)) continue;
-      const int id = idbuf[static_cast<std::size_t>(std::lround(py)) * static_cast<std::size_t>(vw) + static_cast<std::size_t>(std::lround(px))];
+      const int ix = static_cast<int>(std::lround(px)), iy = static_cast<int>(std::lround(py));
+      const int id = idbuf[static_cast<std::size_t>(((iy / kTileH) * tiles_x + ix / kTileW) * kTileH + iy % kTileH) * kVisStride +
+                           static_cast<std::size_t>(ix % kTileW)];
       if (id < 0) continue;
       // The pinhole pixel nearest to this output pixel's ray names the triangle; its planes
       // are evaluated at the ray's exact pinhole position.

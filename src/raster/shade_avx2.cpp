@@ -371,12 +371,15 @@ TL_INLINE __m256 footprint8(const Planes8& P, __m256 x, __m256 y, __m256 zz) {
 }
 
 // The depth test of one row of a block where `in` (all-ones lanes) marks the covered pixels:
-// where the triangle's 1/z `iz` is larger (nearer), it replaces z and id becomes `ve`.
+// where the triangle's 1/z `iz` is larger (nearer), it replaces z and id becomes `ve`. All 8
+// columns are loaded and stored back (the row stride holds them, shade_kernels.hpp): masked
+// stores (vmaskmov) cost tens of cycles on some cores, AMD's among them.
 inline void depth_row(__m256i in, __m256 iz, float* z, int* id, __m256i ve) {
-  const __m256 old = _mm256_maskload_ps(z, in);
-  const __m256i nearer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(iz, old, _CMP_GT_OQ)), in);
-  _mm256_maskstore_ps(z, nearer, iz);
-  _mm256_maskstore_epi32(id, nearer, ve);
+  const __m256 old = _mm256_loadu_ps(z);
+  const __m256 nearer = _mm256_and_ps(_mm256_cmp_ps(iz, old, _CMP_GT_OQ), _mm256_castsi256_ps(in));
+  _mm256_storeu_ps(z, _mm256_blendv_ps(old, iz, nearer));
+  const __m256i oid = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(id));
+  _mm256_storeu_si256(reinterpret_cast<__m256i*>(id), _mm256_blendv_epi8(oid, ve, _mm256_castps_si256(nearer)));
 }
 
 }  // namespace
@@ -449,25 +452,9 @@ void depth_block_avx2(int w, int h, float base, float A, float B, int dx, int dy
   const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
   const __m256 ax = _mm256_mul_ps(_mm256_set1_ps(A), _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(dx), lane)));
   const __m256i ve = _mm256_set1_epi32(e);
-  if (w == 8) {  // the usual block: plain loads and stores
-    for (int r = 0; r < h; ++r, z += stride, id += stride) {
-      const __m256 iz = _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax);
-      const __m256 old = _mm256_loadu_ps(z);
-      const __m256 nearer = _mm256_cmp_ps(iz, old, _CMP_GT_OQ);
-      _mm256_storeu_ps(z, _mm256_blendv_ps(old, iz, nearer));
-      const __m256i oid = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(id));
-      _mm256_storeu_si256(reinterpret_cast<__m256i*>(id), _mm256_blendv_epi8(oid, ve, _mm256_castps_si256(nearer)));
-    }
-    return;
-  }
   const __m256i cols = _mm256_cmpgt_epi32(_mm256_set1_epi32(w), lane);
-  for (int r = 0; r < h; ++r, z += stride, id += stride) {
-    const __m256 iz = _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax);
-    const __m256 old = _mm256_maskload_ps(z, cols);
-    const __m256i nearer = _mm256_and_si256(_mm256_castps_si256(_mm256_cmp_ps(iz, old, _CMP_GT_OQ)), cols);
-    _mm256_maskstore_ps(z, nearer, iz);
-    _mm256_maskstore_epi32(id, nearer, ve);
-  }
+  for (int r = 0; r < h; ++r, z += stride, id += stride)
+    depth_row(cols, _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax), z, id, ve);
 }
 
 long edge_block_avx2(int w, int h, const std::int64_t* E, const std::int64_t* dEx, const std::int64_t* dEy, float base,

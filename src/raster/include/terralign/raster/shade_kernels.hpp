@@ -171,7 +171,9 @@ using ResolveShadeRowFn = void (*)(int, const int*, const float*, float, float, 
 // Visibility in a block that one triangle covers wholly: rows r < h, columns i < w (w <= 8)
 // from z and id (row stride `stride`); the triangle's 1/z there is (base + B (dy + r)) +
 // A (dx + i), in that order; where it is larger than z (nearer), it replaces z and id
-// becomes e. The block's rows and ids are the only memory read or written.
+// becomes e. Only the block's pixels change; the vector builds read and write back (unchanged)
+// the 8 columns from each row's first whatever w is, so every row must have 8 columns of
+// memory that no other thread writes meanwhile (the renderer pads its rows by 8).
 void depth_block_scalar(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
                         std::ptrdiff_t stride, int e);
 #if defined(TERRALIGN_HAVE_AVX2)
