@@ -760,10 +760,23 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     // 1/z relative to the box corner, in float (exact enough for the depth test only).
     const float A = static_cast<float>(t.A[0]), B = static_cast<float>(t.B[0]);
     const float base = static_cast<float>(t.A[0] * bx0 + t.B[0] * by0 + t.C[0]);
+    // A triangle within one block (most triangles over a detailed DEM cover a few pixels):
+    // straight to the edge kernel, its values bounded by |E| + 7 |dEx| + 7 |dEy| per edge.
+    bool one_block = edge_block32 && bx1 - bx0 < 8 && by1 - by0 < 8;
+    if (one_block) {
+      std::int64_t reach = 0;
+      for (int k = 0; k < 3; ++k) reach = std::max(reach, std::abs(E[k]) + 7 * (std::abs(dEx[k]) + std::abs(dEy[k])));
+      one_block = reach <= std::numeric_limits<std::int32_t>::max();
+    }
+    if (one_block) {
+      const std::int32_t c32[3] = {static_cast<std::int32_t>(E[0]), static_cast<std::int32_t>(E[1]), static_cast<std::int32_t>(E[2])};
+      const std::ptrdiff_t at = (by0 - y0) * stride + (bx0 - x0);
+      frags += edge_block32(bx1 - bx0 + 1, by1 - by0 + 1, c32, dx32, dy32, base, A, B, 0, 0, tz + at, tid + at, stride, e);
+    }
     // 8 x 8 blocks: the edge functions are linear, so their values at a block's corners say
     // whether the block is wholly inside (no per-pixel test), wholly outside one edge
     // (skipped), or crossed (tested per pixel, in the edge kernel).
-    for (int by = by0; by <= by1; by += 8) {
+    for (int by = by0; by <= by1 && !one_block; by += 8) {
       const int ey1 = std::min(by + 7, by1);
       for (int bx = bx0; bx <= bx1; bx += 8) {
         const int ex1 = std::min(bx + 7, bx1);
