@@ -449,12 +449,13 @@ void Renderer::Impl::emit_triangle(GeomPart& g, const ProjVert& a, const ProjVer
     std::swap(t.X[1], t.X[2]);
     std::swap(t.Y[1], t.Y[2]);
   }
-  const double minx = std::min({sx[0], sx[1], sx[2]}), maxx = std::max({sx[0], sx[1], sx[2]});
-  const double miny = std::min({sy[0], sy[1], sy[2]}), maxy = std::max({sy[0], sy[1], sy[2]});
-  t.bx0 = std::max(0, static_cast<int>(std::floor(minx)));
-  t.by0 = std::max(0, static_cast<int>(std::floor(miny)));
-  t.bx1 = std::min(vw - 1, static_cast<int>(std::ceil(maxx)));
-  t.by1 = std::min(vh - 1, static_cast<int>(std::ceil(maxy)));
+  // The pixels whose centres (whole coordinates) lie within the snapped corners' box: only
+  // they can be covered. A triangle of a few pixels often holds no centre at all.
+  constexpr std::int32_t kHalfUp = (1 << kSubBits) - 1;
+  t.bx0 = std::max(0, (std::min({t.X[0], t.X[1], t.X[2]}) + kHalfUp) >> kSubBits);
+  t.by0 = std::max(0, (std::min({t.Y[0], t.Y[1], t.Y[2]}) + kHalfUp) >> kSubBits);
+  t.bx1 = std::min(vw - 1, std::max({t.X[0], t.X[1], t.X[2]}) >> kSubBits);
+  t.by1 = std::min(vh - 1, std::max({t.Y[0], t.Y[1], t.Y[2]}) >> kSubBits);
   if (t.bx0 > t.bx1 || t.by0 > t.by1) return;
   // Planes from the unsnapped positions, in double: exact depth whatever the snapping.
   const double x0 = sx[0], y0 = sy[0];
