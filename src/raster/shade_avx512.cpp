@@ -314,12 +314,24 @@ TL_INLINE Planes16 planes16(__m512i id, __mmask16 seen, const int* ids, const fl
   const __mmask16 starts = _mm512_mask_cmpneq_epi32_mask(seen, id, _mm512_alignr_epi32(id, _mm512_set1_epi32(-2), 15));
   if (__builtin_popcount(starts) > kBlendRuns) {
     // Many small triangles: each lane gathers its entry's planes.
+    // Each lane's planes, two neighbouring floats a 64-bit element (half the elements of
+    // 32-bit gathers), then split into the even and the odd one.
     const __m512i at = _mm512_mullo_epi32(_mm512_maskz_mov_epi32(seen, id), _mm512_set1_epi32(kPlaneFloats));
-    auto g = [&](int k) { return _mm512_mask_i32gather_ps(_mm512_setzero_ps(), seen, at, coef + k, 4); };
+    const __m256i at_lo = _mm512_castsi512_si256(at), at_hi = _mm512_extracti64x4_epi64(at, 1);
+    const __mmask8 seen_lo = static_cast<__mmask8>(seen), seen_hi = static_cast<__mmask8>(seen >> 8);
+    const __m512i even = _mm512_set_epi32(30, 28, 26, 24, 22, 20, 18, 16, 14, 12, 10, 8, 6, 4, 2, 0);
+    const __m512i odd = _mm512_add_epi32(even, _mm512_set1_epi32(1));
+    __m512 c[kPlaneFloats];
+    for (int k = 0; k < kPlaneFloats; k += 2) {
+      const long long* base = reinterpret_cast<const long long*>(coef + k);
+      const __m512i lo = _mm512_mask_i32gather_epi64(_mm512_setzero_si512(), seen_lo, at_lo, base, 4);
+      const __m512i hi = _mm512_mask_i32gather_epi64(_mm512_setzero_si512(), seen_hi, at_hi, base, 4);
+      c[k] = _mm512_castsi512_ps(_mm512_permutex2var_epi32(lo, even, hi));
+      c[k + 1] = _mm512_castsi512_ps(_mm512_permutex2var_epi32(lo, odd, hi));
+    }
     const __m512 vdy = _mm512_set1_ps(dy);
-    const __m512 c2 = g(2), c5 = g(5), c8 = g(8);
-    return {_mm512_add_ps(g(0), _mm512_mul_ps(c2, vdy)), g(1), c2, _mm512_add_ps(g(3), _mm512_mul_ps(c5, vdy)), g(4), c5,
-            _mm512_add_ps(g(6), _mm512_mul_ps(c8, vdy)), g(7), c8, g(9)};
+    return {_mm512_add_ps(c[0], _mm512_mul_ps(c[2], vdy)), c[1], c[2], _mm512_add_ps(c[3], _mm512_mul_ps(c[5], vdy)), c[4], c[5],
+            _mm512_add_ps(c[6], _mm512_mul_ps(c[8], vdy)), c[7], c[8], c[9]};
   }
   const int e0 = ids[__builtin_ctz(seen)];
   const float* c = coef + kPlaneFloats * static_cast<std::ptrdiff_t>(e0);
