@@ -243,7 +243,7 @@ TEST_CASE("the level of detail is log2(ground footprint / texel): a footprint of
 TEST_CASE("a triangle's footprint bound holds at every pixel of its box in the tile, and is tight seen nadir") {
   // Seeded random planes as a tile sees them: 1/z 1/2000 .. 1/50 at the corner, changing by
   // up to 2 % a pixel (steep oblique views), and x/z, y/z whose footprints are 0.01-20 m a
-  // pixel, in any direction; random boxes inside the 64 x 32 tile. The kernels take level 0
+  // pixel, in any direction; random boxes inside a 64 x 32 tile. The kernels take level 0
   // without a footprint where the bound says so (entry_magnified), so a pixel above its bound
   // would be shaded at the wrong level.
   std::mt19937 rng(99);

@@ -207,8 +207,8 @@ TL_INLINE void output16(Sample16 s, std::uint8_t* rgb, std::uint8_t* valid) {
   _mm_storeu_si128(reinterpret_cast<__m128i*>(valid), _mm_movm_epi8(ok));
 }
 
-// Up to kChunkGroups vectors of a row processed together.
-constexpr int kChunkGroups = 4;
+// Up to kChunkGroups vectors of a row processed together (a 128-pixel tile row is eight).
+constexpr int kChunkGroups = 8;
 
 // Lanes' level pairs: l0 and the 15-bit fraction t (in both halves of each lane), and the
 // least and greatest l0 of the lanes with terrain.
