@@ -52,6 +52,28 @@ TL_INLINE Sample8 lerp_row(__m256i left, __m256i right, __m256i fx) {
 // terrain maps to a curve whose extremes are mostly at its ends), and every lane is checked
 // to be inside it. Returns false, having read nothing, when the taps do not fit.
 TL_INLINE bool window_taps(const MipLevel& L, const int* texels, __m256i x0, __m256i y0, Taps& t) {
+  // Most often (a row of pixels along a texel row, magnified) every lane's taps lie in one
+  // pair of texel rows and 8 columns: one plain load a row (the 8 columns inside it).
+  const __m256i y_first = _mm256_broadcastd_epi32(_mm256_castsi256_si128(y0));
+  const __m256i x_least = _mm256_min_epi32(_mm256_broadcastd_epi32(_mm256_castsi256_si128(x0)),
+                                           _mm256_permutevar8x32_epi32(x0, _mm256_set1_epi32(7)));
+  const __m256i cx = _mm256_sub_epi32(x0, x_least);
+  const __m256i six = _mm256_set1_epi32(6);
+  const __m256i one_row = _mm256_and_si256(_mm256_cmpeq_epi32(y0, y_first), _mm256_cmpeq_epi32(_mm256_max_epu32(cx, six), six));
+  if (_mm256_movemask_epi8(one_row) == -1) {
+    const int xlo = _mm256_cvtsi256_si32(x_least);
+    if (xlo <= L.width - 8) {
+      const int* row = texels + L.offset + _mm256_cvtsi256_si32(y0) * L.width + xlo;
+      const __m256i top = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(row));
+      const __m256i bottom = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(row + L.width));
+      const __m256i cx1 = _mm256_add_epi32(cx, _mm256_set1_epi32(1));
+      t.t00 = _mm256_permutevar8x32_epi32(top, cx);
+      t.t10 = _mm256_permutevar8x32_epi32(top, cx1);
+      t.t01 = _mm256_permutevar8x32_epi32(bottom, cx);
+      t.t11 = _mm256_permutevar8x32_epi32(bottom, cx1);
+      return true;
+    }
+  }
   const int xa = _mm256_cvtsi256_si32(x0), xb = _mm256_extract_epi32(x0, 7);
   const int ya = _mm256_cvtsi256_si32(y0), yb = _mm256_extract_epi32(y0, 7);
   const int xlo = xa < xb ? xa : xb, xspan = (xa < xb ? xb : xa) - xlo;

@@ -67,6 +67,25 @@ TL_INLINE Sample16 lerp_row(__m512i left, __m512i right, __m512i fx) {
 // its ends), and every lane is checked to be inside it. Returns false, having read nothing,
 // when the taps do not fit.
 TL_INLINE bool window_taps(const MipLevel& L, const int* texels, __m512i x0, __m512i y0, Taps& t) {
+  // Most often (a row of pixels along a texel row, magnified) every lane's taps lie in one
+  // pair of texel rows and 16 columns: one plain load a row (the 16 columns inside it) and a
+  // single-source permute a tap, the bounds kept in vector registers.
+  const __m512i y_first = _mm512_broadcastd_epi32(_mm512_castsi512_si128(y0));
+  const __m512i x_least = _mm512_broadcastd_epi32(_mm512_castsi512_si128(_mm512_min_epi32(x0, _mm512_alignr_epi32(x0, x0, 15))));
+  const __m512i cx = _mm512_sub_epi32(x0, x_least);
+  if ((_mm512_cmpeq_epi32_mask(y0, y_first) & _mm512_cmple_epu32_mask(cx, _mm512_set1_epi32(14))) == 0xFFFF) {
+    const int xlo = _mm_cvtsi128_si32(_mm512_castsi512_si128(x_least));
+    if (xlo <= L.width - 16) {
+      const int* row = texels + L.offset + lane0(y0) * L.width + xlo;
+      const __m512i top = _mm512_loadu_si512(row), bottom = _mm512_loadu_si512(row + L.width);
+      const __m512i cx1 = _mm512_add_epi32(cx, _mm512_set1_epi32(1));
+      t.t00 = _mm512_permutexvar_epi32(cx, top);
+      t.t10 = _mm512_permutexvar_epi32(cx1, top);
+      t.t01 = _mm512_permutexvar_epi32(cx, bottom);
+      t.t11 = _mm512_permutexvar_epi32(cx1, bottom);
+      return true;
+    }
+  }
   const int xa = lane0(x0), xb = lane15(x0), ya = lane0(y0), yb = lane15(y0);
   const int xlo = xa < xb ? xa : xb, xspan = (xa < xb ? xb : xa) - xlo;
   const int ylo = ya < yb ? ya : yb, yspan = (ya < yb ? yb : ya) - ylo;
