@@ -778,37 +778,62 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     }
     // 8 x 8 blocks: the edge functions are linear, so their values at a block's corners say
     // whether the block is wholly inside (no per-pixel test), wholly outside one edge
-    // (skipped), or crossed (tested per pixel, in the edge kernel).
-    for (int by = by0; by <= by1 && !one_block; by += 8) {
-      const int ey1 = std::min(by + 7, by1);
-      for (int bx = bx0; bx <= bx1; bx += 8) {
-        const int ex1 = std::min(bx + 7, bx1);
-        bool outside = false, inside = true, fits32 = true;
-        std::int64_t corner[3] = {0, 0, 0};
-        for (int k = 0; k < 3 && !outside; ++k) {
-          const std::int64_t c00 = E[k] + dEx[k] * (bx - bx0) + dEy[k] * (by - by0);
-          const std::int64_t c10 = c00 + dEx[k] * (ex1 - bx), c01 = c00 + dEy[k] * (ey1 - by);
-          const std::int64_t c11 = c10 + dEy[k] * (ey1 - by);
-          const std::int64_t lo = std::min(std::min(c00, c10), std::min(c01, c11));
-          const std::int64_t hi = std::max(std::max(c00, c10), std::max(c01, c11));
-          corner[k] = c00;
-          outside = hi < 0;
-          inside = inside && lo >= 0;
-          fits32 = fits32 && lo >= std::numeric_limits<std::int32_t>::min() && hi <= std::numeric_limits<std::int32_t>::max();
-        }
-        if (outside) continue;
-        const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by - y0) * stride + (bx - x0);
-        if (inside) {
-          depth_block(ex1 - bx + 1, ey1 - by + 1, base, A, B, bx - bx0, by - by0, tz + at, tid + at, stride, e);
-          frags += static_cast<long>(ex1 - bx + 1) * (ey1 - by + 1);
-        } else if (fits32 && edge_block32) {
-          const std::int32_t c32[3] = {static_cast<std::int32_t>(corner[0]), static_cast<std::int32_t>(corner[1]),
-                                       static_cast<std::int32_t>(corner[2])};
-          frags += edge_block32(ex1 - bx + 1, ey1 - by + 1, c32, dx32, dy32, base, A, B, bx - bx0, by - by0, tz + at,
-                                tid + at, stride, e);
-        } else {
-          frags += edge_block(ex1 - bx + 1, ey1 - by + 1, corner, dEx, dEy, base, A, B, bx - bx0, by - by0, tz + at,
-                              tid + at, stride, e);
+    // (skipped), or crossed (tested per pixel, in the edge kernel). Blocks are taken 4 x 4 at
+    // a time, and the group's corners first: a large triangle covers or misses most groups
+    // wholly, whose blocks then need no test of their own.
+    struct Corners {
+      bool outside = false, inside = true, fits32 = true;
+      std::int64_t c00[3] = {0, 0, 0};
+    };
+    auto classify = [&](int cx0, int cy0, int cx1, int cy1) {
+      Corners q;
+      for (int k = 0; k < 3 && !q.outside; ++k) {
+        const std::int64_t c00 = E[k] + dEx[k] * (cx0 - bx0) + dEy[k] * (cy0 - by0);
+        const std::int64_t c10 = c00 + dEx[k] * (cx1 - cx0), c01 = c00 + dEy[k] * (cy1 - cy0);
+        const std::int64_t c11 = c10 + dEy[k] * (cy1 - cy0);
+        const std::int64_t lo = std::min(std::min(c00, c10), std::min(c01, c11));
+        const std::int64_t hi = std::max(std::max(c00, c10), std::max(c01, c11));
+        q.c00[k] = c00;
+        q.outside = hi < 0;
+        q.inside = q.inside && lo >= 0;
+        q.fits32 = q.fits32 && lo >= std::numeric_limits<std::int32_t>::min() && hi <= std::numeric_limits<std::int32_t>::max();
+      }
+      return q;
+    };
+    auto covered_block = [&](int bx, int by, int ex1, int ey1) {
+      const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by - y0) * stride + (bx - x0);
+      depth_block(ex1 - bx + 1, ey1 - by + 1, base, A, B, bx - bx0, by - by0, tz + at, tid + at, stride, e);
+      frags += static_cast<long>(ex1 - bx + 1) * (ey1 - by + 1);
+    };
+    for (int qy0 = by0; qy0 <= by1 && !one_block; qy0 += 32) {
+      const int qy1 = std::min(qy0 + 31, by1);
+      for (int qx0 = bx0; qx0 <= bx1; qx0 += 32) {
+        const int qx1 = std::min(qx0 + 31, bx1);
+        const Corners group = classify(qx0, qy0, qx1, qy1);
+        if (group.outside) continue;
+        for (int by = qy0; by <= qy1; by += 8) {
+          const int ey1 = std::min(by + 7, qy1);
+          for (int bx = qx0; bx <= qx1; bx += 8) {
+            const int ex1 = std::min(bx + 7, qx1);
+            if (group.inside) {
+              covered_block(bx, by, ex1, ey1);
+              continue;
+            }
+            const Corners q = classify(bx, by, ex1, ey1);
+            if (q.outside) continue;
+            const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by - y0) * stride + (bx - x0);
+            if (q.inside) {
+              covered_block(bx, by, ex1, ey1);
+            } else if (q.fits32 && edge_block32) {
+              const std::int32_t c32[3] = {static_cast<std::int32_t>(q.c00[0]), static_cast<std::int32_t>(q.c00[1]),
+                                           static_cast<std::int32_t>(q.c00[2])};
+              frags += edge_block32(ex1 - bx + 1, ey1 - by + 1, c32, dx32, dy32, base, A, B, bx - bx0, by - by0, tz + at,
+                                    tid + at, stride, e);
+            } else {
+              frags += edge_block(ex1 - bx + 1, ey1 - by + 1, q.c00, dEx, dEy, base, A, B, bx - bx0, by - by0, tz + at,
+                                  tid + at, stride, e);
+            }
+          }
         }
       }
     }
