@@ -454,10 +454,11 @@ void Renderer::Impl::emit_triangle(GeomPart& g, const ProjVert& a, const ProjVer
   // The pixels whose centres (whole coordinates) lie within the snapped corners' box: only
   // they can be covered. A triangle of a few pixels often holds no centre at all.
   constexpr std::int32_t kHalfUp = (1 << kSubBits) - 1;
-  t.bx0 = std::max(0, (std::min({t.X[0], t.X[1], t.X[2]}) + kHalfUp) >> kSubBits);
-  t.by0 = std::max(0, (std::min({t.Y[0], t.Y[1], t.Y[2]}) + kHalfUp) >> kSubBits);
-  t.bx1 = std::min(vw - 1, std::max({t.X[0], t.X[1], t.X[2]}) >> kSubBits);
-  t.by1 = std::min(vh - 1, std::max({t.Y[0], t.Y[1], t.Y[2]}) >> kSubBits);
+  // (int casts: std::int32_t is long on some targets, arm-none-eabi's among them.)
+  t.bx0 = std::max(0, static_cast<int>((std::min({t.X[0], t.X[1], t.X[2]}) + kHalfUp) >> kSubBits));
+  t.by0 = std::max(0, static_cast<int>((std::min({t.Y[0], t.Y[1], t.Y[2]}) + kHalfUp) >> kSubBits));
+  t.bx1 = std::min(vw - 1, static_cast<int>(std::max({t.X[0], t.X[1], t.X[2]}) >> kSubBits));
+  t.by1 = std::min(vh - 1, static_cast<int>(std::max({t.Y[0], t.Y[1], t.Y[2]}) >> kSubBits));
   if (t.bx0 > t.bx1 || t.by0 > t.by1) return;
   // Planes from the unsnapped positions, in double: exact depth whatever the snapping.
   const double x0 = sx[0], y0 = sy[0];
