@@ -428,8 +428,7 @@ void resolve_shade_row_avx2(int n, const int* ids, const float* coef, float dx0,
                             const ShadeTarget* targets) {
   const __m256 lane = _mm256_setr_ps(0, 1, 2, 3, 4, 5, 6, 7);
   const __m256 one = _mm256_set1_ps(1.0f), nan = _mm256_set1_ps(NAN);
-  float max_bias = -INFINITY;  // footprints are needed only where some target is not magnified
-  for (int k = 0; k < n_targets; ++k) max_bias = max_bias > targets[k].params->lod_bias ? max_bias : targets[k].params->lod_bias;
+  const float max_bias = max_lod_bias(n_targets, targets);
   // Chunks of up to kChunkVectors vectors: the chunk's resolve, then its shading.
   __m256 x[kChunkVectors], y[kChunkVectors], l2[kChunkVectors], in[kChunkVectors], bound[kChunkVectors];
   int i = 0;

@@ -426,8 +426,7 @@ void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx
                               const ShadeTarget* targets) {
   const __m512 lane = _mm512_setr_ps(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   const __m512 one = _mm512_set1_ps(1.0f), nan = _mm512_set1_ps(NAN);
-  float max_bias = -INFINITY;  // footprints are needed only where some target is not magnified
-  for (int k = 0; k < n_targets; ++k) max_bias = max_bias > targets[k].params->lod_bias ? max_bias : targets[k].params->lod_bias;
+  const float max_bias = max_lod_bias(n_targets, targets);
   // Chunks of up to kChunkGroups vectors: the chunk's resolve, then its shading.
   __m512 x[kChunkGroups], y[kChunkGroups], l2[kChunkGroups], bound[kChunkGroups];
   __mmask16 seen[kChunkGroups];

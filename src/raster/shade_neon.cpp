@@ -178,8 +178,7 @@ void resolve_shade_row_neon(int n, const int* ids, const float* coef, float dx0,
                             const ShadeTarget* targets) {
   static const float lanes[4] = {0, 1, 2, 3};
   const float32x4_t one = vdupq_n_f32(1.0f);
-  float max_bias = -INFINITY;  // footprints are needed only where some target is not magnified
-  for (int k = 0; k < n_targets; ++k) max_bias = max_bias > targets[k].params->lod_bias ? max_bias : targets[k].params->lod_bias;
+  const float max_bias = max_lod_bias(n_targets, targets);
   int i = 0;
   for (; i + 4 <= n; i += 4) {
     // Each lane's planes with the row's part summed (r = q + dq/dy dy, the scalar twin's

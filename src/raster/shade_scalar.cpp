@@ -94,8 +94,7 @@ void shade_row_scalar(int n, const float* wx, const float* wy, const float* log2
 
 void resolve_shade_row_scalar(int n, const int* ids, const float* coef, float dx0, float dy, float* z, int n_targets,
                               const ShadeTarget* targets) {
-  float max_bias = -INFINITY;  // footprints are needed only where some target is not magnified
-  for (int k = 0; k < n_targets; ++k) max_bias = std::max(max_bias, targets[k].params->lod_bias);
+  const float max_bias = max_lod_bias(n_targets, targets);
   for (int i = 0; i < n; ++i) {
     float x = NAN, y = NAN, l2 = 0.0f, bound = INFINITY;
     z[i] = NAN;

@@ -35,6 +35,7 @@
 // lanes need different levels, it samples each of them and picks per lane.
 #pragma once
 
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <vector>
@@ -167,6 +168,14 @@ void resolve_shade_row_neon(int n, const int* ids, const float* coef, float dx0,
                             const ShadeTarget* targets);
 #endif
 using ResolveShadeRowFn = void (*)(int, const int*, const float*, float, float, float*, int, const ShadeTarget*);
+
+// The largest lod_bias of the targets (-inf for none): an entry magnified for it is for
+// every target (float addition rounds monotonically), and its pixels need no footprint.
+inline float max_lod_bias(int n_targets, const ShadeTarget* targets) {
+  float b = -INFINITY;
+  for (int k = 0; k < n_targets; ++k) b = b > targets[k].params->lod_bias ? b : targets[k].params->lod_bias;
+  return b;
+}
 
 // Visibility in a block that one triangle covers wholly: rows r < h, columns i < w (w <= 8)
 // from z and id (row stride `stride`); the triangle's 1/z there is (base + B (dy + r)) +
