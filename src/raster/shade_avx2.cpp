@@ -370,6 +370,20 @@ TL_INLINE Planes8 planes8(__m256i id, unsigned seen, const int* ids, const float
   return P;
 }
 
+// The planes of the vectors before, kept while they see one triangle (a row's vectors over a
+// large triangle): the next vector wholly on that triangle takes them as they are.
+struct RowPlanes {
+  int entry = -1;  // the triangle P is broadcast from; -1: none
+  Planes8 P{};
+  TL_INLINE const Planes8& of(__m256i id, unsigned seen, const int* ids, const float* coef, float dy) {
+    const bool one = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_cmpeq_epi32(id, _mm256_set1_epi32(ids[0])))) == 0xFF;
+    if (one && ids[0] == entry && entry >= 0) return P;
+    P = planes8(id, seen, ids, coef, dy);
+    entry = one ? ids[0] : -1;
+    return P;
+  }
+};
+
 // plane_footprint_log2() lane by lane, the same operations, given x, y and z from the planes.
 TL_INLINE __m256 footprint8(const Planes8& P, __m256 x, __m256 y, __m256 zz) {
   const __m256 du_x = _mm256_mul_ps(_mm256_sub_ps(P.c4, _mm256_mul_ps(x, P.c1)), zz);
@@ -431,6 +445,7 @@ void resolve_shade_row_avx2(int n, const int* ids, const float* coef, float dx0,
   const float max_bias = max_lod_bias(n_targets, targets);
   // Chunks of up to kChunkVectors vectors: the chunk's resolve, then its shading.
   __m256 x[kChunkVectors], y[kChunkVectors], l2[kChunkVectors], in[kChunkVectors], bound[kChunkVectors];
+  RowPlanes planes;
   int i = 0;
   while (i + 8 <= n) {
     const int vectors = (n - i) / 8 < kChunkVectors ? (n - i) / 8 : kChunkVectors;
@@ -446,7 +461,7 @@ void resolve_shade_row_avx2(int n, const int* ids, const float* coef, float dx0,
         _mm256_storeu_ps(z + at, nan);
         continue;
       }
-      const Planes8 P = planes8(id, seen, ids + at, coef, dy);
+      const Planes8& P = planes.of(id, seen, ids + at, coef, dy);
       // The scalar twin's operations in the same order, 8 lanes wide.
       const __m256 dx = _mm256_add_ps(_mm256_set1_ps(dx0 + static_cast<float>(at)), lane);
       const __m256 zz = _mm256_div_ps(one, _mm256_add_ps(P.r0, _mm256_mul_ps(P.c1, dx)));

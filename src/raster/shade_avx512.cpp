@@ -379,6 +379,20 @@ TL_INLINE Planes16 planes16(__m512i id, __mmask16 seen, const int* ids, const fl
   return P;
 }
 
+// The planes of the vectors before, kept while they see one triangle (a row's vectors over a
+// large triangle): the next vector wholly on that triangle takes them as they are.
+struct RowPlanes {
+  int entry = -1;  // the triangle P is broadcast from; -1: none
+  Planes16 P{};
+  TL_INLINE const Planes16& of(__m512i id, __mmask16 seen, const int* ids, const float* coef, float dy) {
+    const bool one = _mm512_cmpneq_epi32_mask(id, _mm512_set1_epi32(ids[0])) == 0;
+    if (one && ids[0] == entry && entry >= 0) return P;
+    P = planes16(id, seen, ids, coef, dy);
+    entry = one ? ids[0] : -1;
+    return P;
+  }
+};
+
 // plane_footprint_log2() lane by lane, the same operations, given x, y and z from the planes.
 TL_INLINE __m512 footprint16(const Planes16& P, __m512 x, __m512 y, __m512 zz) {
   const __m512 du_x = _mm512_mul_ps(_mm512_sub_ps(P.c4, _mm512_mul_ps(x, P.c1)), zz);
@@ -430,6 +444,7 @@ void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx
   // Chunks of up to kChunkGroups vectors: the chunk's resolve, then its shading.
   __m512 x[kChunkGroups], y[kChunkGroups], l2[kChunkGroups], bound[kChunkGroups];
   __mmask16 seen[kChunkGroups];
+  RowPlanes planes;
   int i = 0;
   while (i + 16 <= n) {
     const int groups = (n - i) / 16 < kChunkGroups ? (n - i) / 16 : kChunkGroups;
@@ -444,7 +459,7 @@ void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx
         _mm512_storeu_ps(z + at, nan);
         continue;
       }
-      const Planes16 P = planes16(id, seen[g], ids + at, coef, dy);
+      const Planes16& P = planes.of(id, seen[g], ids + at, coef, dy);
       // The scalar twin's operations in the same order, 16 lanes wide.
       const __m512 dx = _mm512_add_ps(_mm512_set1_ps(dx0 + static_cast<float>(at)), lane);
       const __m512 zz = _mm512_div_ps(one, _mm512_add_ps(P.r0, _mm512_mul_ps(P.c1, dx)));
