@@ -516,8 +516,8 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
       int xlo = 1 << 30, xhi = -xlo, ylo = xlo, yhi = -xlo;
       bool inside = true;
       for (int k = j; k < j + 8; ++k) {
-        const int x0 = static_cast<int>(std::floor(coords[0].a0 + coords[0].a1 * wx[k] + coords[0].a2 * wy[k]));
-        const int y0 = static_cast<int>(std::floor(coords[0].b0 + coords[0].b1 * wx[k] + coords[0].b2 * wy[k]));
+        const int x0 = static_cast<int>(std::floor((coords[0].a0 + coords[0].a1 * wx[k] + coords[0].a2 * wy[k]) / 256));
+        const int y0 = static_cast<int>(std::floor((coords[0].b0 + coords[0].b1 * wx[k] + coords[0].b2 * wy[k]) / 256));
         inside = inside && x0 >= 0 && x0 < levels[0].width - 1 && y0 >= 0 && y0 < levels[0].height - 1;
         xlo = std::min(xlo, x0), xhi = std::max(xhi, x0), ylo = std::min(ylo, y0), yhi = std::max(yhi, y0);
       }

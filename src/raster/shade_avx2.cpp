@@ -116,8 +116,8 @@ TL_INLINE bool window_taps(const MipLevel& L, const int* texels, __m256i x0, __m
   return true;
 }
 
-// floor(c * 256) of texel coordinates c.
-TL_INLINE __m256i fixed8(__m256 c) { return _mm256_cvttps_epi32(_mm256_floor_ps(_mm256_mul_ps(c, _mm256_set1_ps(256.0f)))); }
+// floor(c) of coordinates c in 256ths of a texel.
+TL_INLINE __m256i fixed8(__m256 c) { return _mm256_cvttps_epi32(_mm256_floor_ps(c)); }
 
 // (U & 255) << 7 in both 16-bit halves of each lane: the low byte moved to each word's high
 // byte, then halved.

@@ -35,10 +35,8 @@ struct Sample16 {
 TL_INLINE int lane0(__m512i v) { return _mm_cvtsi128_si32(_mm512_castsi512_si128(v)); }
 TL_INLINE int lane15(__m512i v) { return _mm_extract_epi32(_mm512_extracti32x4_epi32(v, 3), 3); }
 
-// floor(c * 256) of texel coordinates c.
-TL_INLINE __m512i fixed8(__m512 c) {
-  return _mm512_cvt_roundps_epi32(_mm512_mul_ps(c, _mm512_set1_ps(256.0f)), _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
-}
+// floor(c) of coordinates c in 256ths of a texel.
+TL_INLINE __m512i fixed8(__m512 c) { return _mm512_cvt_roundps_epi32(c, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC); }
 
 // (U & 255) << 7 in both 16-bit halves of each lane: the low byte moved to each word's high
 // byte, then halved.

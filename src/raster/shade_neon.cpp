@@ -49,12 +49,11 @@ inline uint32x4_t load_lanes(const std::uint32_t* texels, int32x4_t at) {
 inline Sample4 sample4(const ShadeParams& p, int level, float32x4_t x, float32x4_t y) {
   const MipLevel& L = p.levels[level];
   const LevelCoords& k = p.coords[level];
-  const float32x4_t s256 = vdupq_n_f32(256.0f);
   // vcvtm: convert rounding towards minus infinity, floor() then a conversion in one step.
-  const int32x4_t U = vcvtmq_s32_f32(vmulq_f32(vaddq_f32(vaddq_f32(vdupq_n_f32(k.a0), vmulq_f32(vdupq_n_f32(k.a1), x)),
-                                                         vmulq_f32(vdupq_n_f32(k.a2), y)), s256));
-  const int32x4_t V = vcvtmq_s32_f32(vmulq_f32(vaddq_f32(vaddq_f32(vdupq_n_f32(k.b0), vmulq_f32(vdupq_n_f32(k.b1), x)),
-                                                         vmulq_f32(vdupq_n_f32(k.b2), y)), s256));
+  const int32x4_t U = vcvtmq_s32_f32(vaddq_f32(vaddq_f32(vdupq_n_f32(k.a0), vmulq_f32(vdupq_n_f32(k.a1), x)),
+                                               vmulq_f32(vdupq_n_f32(k.a2), y)));
+  const int32x4_t V = vcvtmq_s32_f32(vaddq_f32(vaddq_f32(vdupq_n_f32(k.b0), vmulq_f32(vdupq_n_f32(k.b1), x)),
+                                               vmulq_f32(vdupq_n_f32(k.b2), y)));
   const int32x4_t x0 = vshrq_n_s32(U, 8), y0 = vshrq_n_s32(V, 8);
   const int32x4_t wid = vdupq_n_s32(L.width), hei = vdupq_n_s32(L.height);
   const int32x4_t zero = vdupq_n_s32(0), ione = vdupq_n_s32(1);

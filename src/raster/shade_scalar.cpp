@@ -20,8 +20,8 @@ struct Sample {
 inline Sample sample(const ShadeParams& p, int level, float x, float y) {
   const MipLevel L = p.levels[level];
   const LevelCoords& k = p.coords[level];
-  const int U = static_cast<int>(std::floor((k.a0 + k.a1 * x + k.a2 * y) * 256.0f));
-  const int V = static_cast<int>(std::floor((k.b0 + k.b1 * x + k.b2 * y) * 256.0f));
+  const int U = static_cast<int>(std::floor(k.a0 + k.a1 * x + k.a2 * y));
+  const int V = static_cast<int>(std::floor(k.b0 + k.b1 * x + k.b2 * y));
   const int x0 = U >> 8, y0 = V >> 8, fx = (U & 255) << 7, fy = (V & 255) << 7;
   std::uint32_t t[4];
   for (int j = 0; j < 4; ++j) {
@@ -80,9 +80,9 @@ std::vector<LevelCoords> level_coords(const std::vector<MipLevel>& levels, doubl
                                       double b1, double b2) {
   std::vector<LevelCoords> out;
   for (const MipLevel& L : levels) {
-    const double s = L.scale;
-    out.push_back({static_cast<float>((a0 + 0.5) * s - 0.5), static_cast<float>(a1 * s), static_cast<float>(a2 * s),
-                   static_cast<float>((b0 + 0.5) * s - 0.5), static_cast<float>(b1 * s), static_cast<float>(b2 * s)});
+    const double s = L.scale, f = 256.0;
+    out.push_back({static_cast<float>(((a0 + 0.5) * s - 0.5) * f), static_cast<float>(a1 * s * f), static_cast<float>(a2 * s * f),
+                   static_cast<float>(((b0 + 0.5) * s - 0.5) * f), static_cast<float>(b1 * s * f), static_cast<float>(b2 * s * f)});
   }
   return out;
 }

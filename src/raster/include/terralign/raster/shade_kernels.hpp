@@ -14,10 +14,12 @@
 //   take level 0 without computing the footprint where a bound over the pixel's triangle in
 //   its tile shows the texture magnified there (entry_magnified(): most pixels of views from
 //   a few hundred metres over 0.3-5 m orthophotos).
-// - At level l a pixel's texel coordinates (centres at integers) are ul = a0 + a1 x + a2 y,
-//   vl = b0 + b1 x + b2 y (the level's LevelCoords, float, in that order), and
-//   U = floor(ul * 256) (V likewise) gives the left tap's column U >> 8 and the column
-//   fraction F = (U & 255) << 7, eight bits of it in the 15 of the fixed point below.
+// - At level l a pixel's texel coordinates (centres at integers) in 256ths of a texel are
+//   256 ul = a0 + a1 x + a2 y, 256 vl = b0 + b1 x + b2 y (the level's LevelCoords, float, in
+//   that order: the coefficients carry the 256, which as a power of two leaves every rounding
+//   as it would be in texels), and U = floor(256 ul) (V likewise) gives the left tap's column
+//   U >> 8 and the column fraction F = (U & 255) << 7, eight bits of it in the 15 of the fixed
+//   point below.
 // - A channel c enters as C = c << 7 (0 .. 32640: a difference of two fits 16 bits signed), and
 //     lerp(a, b, F) = a + (((b - a) * F + 2^14) >> 15)
 //   (x86's pmulhrsw, NEON's vqrdmulh: one instruction for 16, 8 or 4 pixels' channels).
@@ -65,8 +67,8 @@ struct LevelCoords {
   float a0, a1, a2, b0, b1, b2;
 };
 
-// The coordinates of every level of `levels`, given level 0's (u0 = a0 + a1 x + a2 y, ...),
-// computed in double: ul = (u0 + 0.5) scale - 0.5.
+// The coordinates of every level of `levels` in 256ths of a texel, given level 0's in texels
+// (u0 = a0 + a1 x + a2 y, ...), computed in double: ul = (u0 + 0.5) scale - 0.5.
 std::vector<LevelCoords> level_coords(const std::vector<MipLevel>& levels, double a0, double a1, double a2, double b0,
                                       double b1, double b2);
 
