@@ -433,7 +433,7 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   std::vector<Kernels> vector_kernels;
 #if defined(TERRALIGN_HAVE_AVX2)
   if (cpu_has_avx2()) vector_kernels.push_back({"avx2", shade_row_avx2, resolve_shade_row_avx2, depth_block_avx2, edge_block_avx2});
-  if (cpu_has_avx512()) vector_kernels.push_back({"avx512", shade_row_avx512, resolve_shade_row_avx512, depth_block_avx2, edge_block_avx2});
+  if (cpu_has_avx512()) vector_kernels.push_back({"avx512", shade_row_avx512, resolve_shade_row_avx512, depth_block_avx512, edge_block_avx2});
 #endif
 #if defined(TERRALIGN_HAVE_NEON)
   vector_kernels.push_back({"neon", shade_row_neon, resolve_shade_row_neon, depth_block_neon, nullptr});
@@ -656,9 +656,10 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
     }
   }
   texels.swap(saved);
-  // The depth kernel: blocks of every width 1..8 and height 1..8 written into a 12 x 10
-  // buffer holding other triangles' depths (some nearer, some farther), with a row stride.
-  const int stride = 12;
+  // The depth kernel: blocks of every width 1..kDepthBlockMaxW and height 1..8 written into a
+  // 44 x 10 buffer holding other triangles' depths (some nearer, some farther), with a row
+  // stride (8 columns to spare past the widest block, as the renderer's rows have).
+  const int stride = kDepthBlockMaxW + 12;
   std::vector<float> z0(static_cast<std::size_t>(stride) * 10);
   std::vector<int> id0(z0.size());
   std::uniform_real_distribution<float> zd(0.0005f, 0.0015f);
@@ -668,7 +669,7 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   }
   z0[stride + 2] = 0.0f;  // every block's first pixel is empty, so every block writes
   int changed = 0;
-  for (int bw = 1; bw <= 8; ++bw)
+  for (int bw = 1; bw <= kDepthBlockMaxW; ++bw)
     for (int bh = 1; bh <= 8; ++bh) {
       std::vector<float> zs = z0;
       std::vector<int> is = id0;
@@ -685,7 +686,7 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
         CHECK(is == iv);
       }
     }
-  CHECK(changed == 64);  // every block wrote some pixels (the comparison is not of no-ops)
+  CHECK(changed == kDepthBlockMaxW * 8);  // every block wrote some pixels (the comparison is not of no-ops)
   // The edge kernel: 200 seeded triangles' edge functions (28.8 fixed point, as the renderer's)
   // crossing blocks of every size; covered counts, depths and ids compared.
   std::uniform_int_distribution<std::int64_t> corner(-6 * 65536, 6 * 65536), slope(-3 * 65536, 3 * 65536);

@@ -356,8 +356,9 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     return Error{"render options: AVX-512 kernels requested but this CPU (or build) has none"};
 #if defined(TERRALIGN_HAVE_AVX2)
   if (cpu_has_avx512() && (options.simd == RenderOptions::Simd::Auto || options.simd == RenderOptions::Simd::Avx512)) {
-    m.shade = shade_row_avx512;  // the depth kernels stay AVX2
+    m.shade = shade_row_avx512;  // the edge kernels stay AVX2
     m.resolve_shade = resolve_shade_row_avx512;
+    m.depth_block = depth_block_avx512;
     m.simd = "avx512";
   }
 #endif
@@ -812,14 +813,14 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
         const int qx1 = std::min(qx0 + 31, bx1);
         const Corners group = classify(qx0, qy0, qx1, qy1);
         if (group.outside) continue;
+        if (group.inside) {  // the whole group in one call (kDepthBlockMaxW: 32 columns)
+          covered_block(qx0, qy0, qx1, qy1);
+          continue;
+        }
         for (int by = qy0; by <= qy1; by += 8) {
           const int ey1 = std::min(by + 7, qy1);
           for (int bx = qx0; bx <= qx1; bx += 8) {
             const int ex1 = std::min(bx + 7, qx1);
-            if (group.inside) {
-              covered_block(bx, by, ex1, ey1);
-              continue;
-            }
             const Corners q = classify(bx, by, ex1, ey1);
             if (q.outside) continue;
             const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by - y0) * stride + (bx - x0);

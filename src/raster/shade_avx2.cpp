@@ -486,11 +486,20 @@ void resolve_shade_row_avx2(int n, const int* ids, const float* coef, float dx0,
 void depth_block_avx2(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
                       std::ptrdiff_t stride, int e) {
   const __m256i lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
-  const __m256 ax = _mm256_mul_ps(_mm256_set1_ps(A), _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(dx), lane)));
   const __m256i ve = _mm256_set1_epi32(e);
-  const __m256i cols = _mm256_cmpgt_epi32(_mm256_set1_epi32(w), lane);
-  for (int r = 0; r < h; ++r, z += stride, id += stride)
-    depth_row(cols, _mm256_add_ps(_mm256_set1_ps(base + B * static_cast<float>(dy + r)), ax), z, id, ve);
+  // Eight columns at a time, each group's A (dx + i) kept for every row.
+  constexpr int kGroups = kDepthBlockMaxW / 8;
+  __m256 ax[kGroups];
+  __m256i cols[kGroups];
+  const int groups = (w + 7) / 8;
+  for (int g = 0; g < groups; ++g) {
+    ax[g] = _mm256_mul_ps(_mm256_set1_ps(A), _mm256_cvtepi32_ps(_mm256_add_epi32(_mm256_set1_epi32(dx + 8 * g), lane)));
+    cols[g] = _mm256_cmpgt_epi32(_mm256_set1_epi32(w - 8 * g), lane);
+  }
+  for (int r = 0; r < h; ++r, z += stride, id += stride) {
+    const __m256 rowz = _mm256_set1_ps(base + B * static_cast<float>(dy + r));
+    for (int g = 0; g < groups; ++g) depth_row(cols[g], _mm256_add_ps(rowz, ax[g]), z + 8 * g, id + 8 * g, ve);
+  }
 }
 
 long edge_block_avx2(int w, int h, const std::int64_t* E, const std::int64_t* dEx, const std::int64_t* dEy, float base,

@@ -479,4 +479,29 @@ void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx
   }
 }
 
+void depth_block_avx512(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
+                        std::ptrdiff_t stride, int e) {
+  // Sixteen columns at a time, masked to the block: each group's A (dx + i) kept for every row.
+  const __m512 lane = _mm512_setr_ps(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const __m512i ve = _mm512_set1_epi32(e);
+  constexpr int kGroups = kDepthBlockMaxW / 16;
+  __m512 ax[kGroups];
+  __mmask16 cols[kGroups];
+  const int groups = (w + 15) / 16;
+  for (int g = 0; g < groups; ++g) {
+    ax[g] = _mm512_mul_ps(_mm512_set1_ps(A), _mm512_add_ps(_mm512_set1_ps(static_cast<float>(dx + 16 * g)), lane));
+    const int n = w - 16 * g;
+    cols[g] = static_cast<__mmask16>(n >= 16 ? 0xFFFF : (1u << n) - 1);
+  }
+  for (int r = 0; r < h; ++r, z += stride, id += stride) {
+    const __m512 rowz = _mm512_set1_ps(base + B * static_cast<float>(dy + r));
+    for (int g = 0; g < groups; ++g) {
+      const __m512 iz = _mm512_add_ps(rowz, ax[g]);
+      const __mmask16 nearer = _mm512_mask_cmp_ps_mask(cols[g], iz, _mm512_maskz_loadu_ps(cols[g], z + 16 * g), _CMP_GT_OQ);
+      _mm512_mask_storeu_ps(z + 16 * g, nearer, iz);
+      _mm512_mask_storeu_epi32(id + 16 * g, nearer, ve);
+    }
+  }
+}
+
 }  // namespace terralign::raster

@@ -220,36 +220,30 @@ void resolve_shade_row_neon(int n, const int* ids, const float* coef, float dx0,
 
 void depth_block_neon(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
                       std::ptrdiff_t stride, int e) {
-  if (w < 4) {
-    depth_block_scalar(w, h, base, A, B, dx, dy, z, id, stride, e);
-    return;
-  }
+  // Four columns at a time, each group's A (dx + i) kept for every row; a last group of
+  // fewer columns pixel by pixel.
   static const std::int32_t lanes[4] = {0, 1, 2, 3};
   const int32x4_t lane = vld1q_s32(lanes);
-  const float32x4_t a0 = vmulq_n_f32(vcvtq_f32_s32(vaddq_s32(vdupq_n_s32(dx), lane)), A);
-  const float32x4_t a1 = vmulq_n_f32(vcvtq_f32_s32(vaddq_s32(vdupq_n_s32(dx + 4), lane)), A);
+  constexpr int kGroups = kDepthBlockMaxW / 4;
+  float32x4_t ax[kGroups];
+  const int groups = w / 4;
+  for (int g = 0; g < groups; ++g) ax[g] = vmulq_n_f32(vcvtq_f32_s32(vaddq_s32(vdupq_n_s32(dx + 4 * g), lane)), A);
   const int32x4_t ve = vdupq_n_s32(e);
   for (int r = 0; r < h; ++r, z += stride, id += stride) {
     const float rowz = base + B * static_cast<float>(dy + r);
     const float32x4_t rz = vdupq_n_f32(rowz);
-    const float32x4_t iz = vaddq_f32(rz, a0);
-    const float32x4_t old = vld1q_f32(z);
-    const uint32x4_t nearer = vcgtq_f32(iz, old);
-    vst1q_f32(z, vbslq_f32(nearer, iz, old));
-    vst1q_s32(id, vbslq_s32(nearer, ve, vld1q_s32(id)));
-    if (w == 8) {
-      const float32x4_t iz1 = vaddq_f32(rz, a1);
-      const float32x4_t old1 = vld1q_f32(z + 4);
-      const uint32x4_t nearer1 = vcgtq_f32(iz1, old1);
-      vst1q_f32(z + 4, vbslq_f32(nearer1, iz1, old1));
-      vst1q_s32(id + 4, vbslq_s32(nearer1, ve, vld1q_s32(id + 4)));
-    } else {
-      for (int i = 4; i < w; ++i) {
-        const float izs = rowz + A * static_cast<float>(dx + i);
-        if (izs > z[i]) {
-          z[i] = izs;
-          id[i] = e;
-        }
+    for (int g = 0; g < groups; ++g) {
+      const float32x4_t iz = vaddq_f32(rz, ax[g]);
+      const float32x4_t old = vld1q_f32(z + 4 * g);
+      const uint32x4_t nearer = vcgtq_f32(iz, old);
+      vst1q_f32(z + 4 * g, vbslq_f32(nearer, iz, old));
+      vst1q_s32(id + 4 * g, vbslq_s32(nearer, ve, vld1q_s32(id + 4 * g)));
+    }
+    for (int i = 4 * groups; i < w; ++i) {
+      const float izs = rowz + A * static_cast<float>(dx + i);
+      if (izs > z[i]) {
+        z[i] = izs;
+        id[i] = e;
       }
     }
   }

@@ -179,17 +179,22 @@ inline float max_lod_bias(int n_targets, const ShadeTarget* targets) {
   return b;
 }
 
-// Visibility in a block that one triangle covers wholly: rows r < h, columns i < w (w <= 8)
-// from z and id (row stride `stride`); the triangle's 1/z there is (base + B (dy + r)) +
-// A (dx + i), in that order; where it is larger than z (nearer), it replaces z and id
-// becomes e. Only the block's pixels change; the vector builds read and write back (unchanged)
-// the 8 columns from each row's first whatever w is, so every row must have 8 columns of
-// memory that no other thread writes meanwhile (the renderer pads its rows by 8).
+// Visibility in a block that one triangle covers wholly: rows r < h, columns i < w
+// (w <= kDepthBlockMaxW) from z and id (row stride `stride`); the triangle's 1/z there is
+// (base + B (dy + r)) + A (dx + i), in that order; where it is larger than z (nearer), it
+// replaces z and id becomes e. Only the block's pixels change; the AVX2 build reads and
+// writes back (unchanged) each row's columns up to the next multiple of 8 past w, so every
+// row must have 8 columns of memory past the block that no other thread writes meanwhile (the
+// renderer pads its rows by 8). The renderer passes blocks of 8 x 8 pixels, or 32 x 32 where
+// one triangle covers a whole group of 4 x 4 blocks.
+constexpr int kDepthBlockMaxW = 32;
 void depth_block_scalar(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
                         std::ptrdiff_t stride, int e);
 #if defined(TERRALIGN_HAVE_AVX2)
 void depth_block_avx2(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
                       std::ptrdiff_t stride, int e);
+void depth_block_avx512(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
+                        std::ptrdiff_t stride, int e);
 #endif
 #if defined(TERRALIGN_HAVE_NEON)
 void depth_block_neon(int w, int h, float base, float A, float B, int dx, int dy, float* z, int* id,
