@@ -14,9 +14,12 @@ namespace terralign::raster {
 namespace {
 
 // A tile row is one call of the fused resolve-and-shade kernel: 128 pixels give the AVX-512
-// kernel eight vectors to overlap (64 gave four: 7 % slower on the flat nadir frame).
-constexpr int kTileW = 128, kTileH = 32;
+// kernel eight vectors to overlap (64 gave four: 7 % slower on the flat nadir frame). Tile
+// rows are split between the threads whole (see render()): 24 pixels high, a 480-pixel
+// frame has 20 of them, an even share for two threads (32 gave 15: 9 % slower oblique).
+constexpr int kTileW = 128, kTileH = 24;
 constexpr int kVisStride = kTileW + 8;   // a visibility buffer's row (see Impl::zbuf)
+constexpr int kVisSlice = kTileH * kVisStride + 16;  // a tile's visibility buffer, and a cache line apart
 constexpr int kSubBits = 8;              // sub-pixel bits of the fixed-point screen positions
 constexpr double kGuardPx = 2048.0;      // guard band beyond the image, pixels
 constexpr int kMaxClipVerts = 9;
@@ -58,7 +61,11 @@ struct Tri {
 
 // One thread's share of a frame's geometry: the triangles of its run of chunks, in draw
 // order, in its own region of the triangle array, and the scratch of the chunk being drawn.
-struct GeomPart {
+// A thread's geometry. Each part, like each thread's RasterScratch, starts a cache line of
+// its own: a line that two threads write moves between their cores on every write, which
+// costs far more than the write (most of all in a virtual machine whose two cores are not
+// beside each other).
+struct alignas(64) GeomPart {
   Tri* tris = nullptr;  // max_triangles entries
   int n_tris = 0;
   bool overflow = false;
@@ -68,6 +75,12 @@ struct GeomPart {
   std::vector<std::uint8_t> out;     // per vertex: bit p set when outside clip plane p
   std::vector<int> tile_count;       // per screen tile: this part's triangles binned there
   std::vector<int> tile_fill;        // per screen tile: where this part's next entry goes
+};
+
+// What a thread writes as it rasterizes, beside its visibility buffer (see GeomPart).
+struct alignas(64) RasterScratch {
+  ShadeTarget targets[kMaxShadeTargets];  // the row being resolved, one per requested layer
+  long fragments = 0;                     // pixels its tiles covered this frame
 };
 
 struct LayerTexture {
@@ -108,13 +121,12 @@ struct Renderer::Impl {
   std::vector<int> draw_list;             // the chunks a frame draws, in traversal order
   std::vector<std::uint8_t> drawn;        // per chunk: 1 while it is in the draw list
   std::vector<int> tile_count, tile_start;  // per tile: bin entries, first entry
-  std::vector<long> tile_fragments;
   std::vector<std::vector<float>> tile_coef;  // per thread: kPlaneFloats per bin entry of a tile
   int max_tile_entries = 0;                    // bin entries one tile may hold
   std::unique_ptr<int[]> bin_entries;     // likewise not zeroed
   std::size_t bin_capacity = 0;
   // Visibility: 1/z of the nearest triangle so far (0: none) and its bin entry (-1: none),
-  // a tile's worth at a time (kTileH rows of kVisStride). A pinhole camera resolves each
+  // a tile's worth at a time (kTileH rows of kVisStride, kVisSlice apart). A pinhole camera resolves each
   // tile as soon as it is rasterized, so each thread keeps one (35 KB, which stays in L1
   // from tile to tile); a distorted camera resolves after every tile is done and keeps one
   // per tile. Rows hold 8 pixels more than a tile's: the depth kernels read and write back
@@ -124,7 +136,7 @@ struct Renderer::Impl {
   std::vector<float> remap_u, remap_v;    // per output pixel, pinhole position (distortion)
   std::vector<float> gx, gy, gz;          // distorted camera, per output pixel: local world x, y; depth
   std::vector<float> log2fp;              // distorted camera, per output pixel
-  std::vector<ShadeTarget> row_targets;   // pinhole camera, per thread: one row's layers
+  std::vector<RasterScratch> raster_scratch;  // per thread
   std::vector<ShadeParams> layer_params;  // per layer
   std::vector<int> chunk_stack;
 
@@ -313,7 +325,6 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   }
   m.tile_count.resize(tiles);
   m.tile_start.resize(tiles + 1);
-  m.tile_fragments.resize(tiles);
   // A tile holds each triangle at most once: no more entries than triangles (a small target's
   // renderer, with a small max_triangles, stays small).
   m.max_tile_entries = std::min(kMaxTileEntries, options.max_triangles);
@@ -321,7 +332,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   for (auto& coef : m.tile_coef) coef.resize(kPlaneFloats * static_cast<std::size_t>(m.max_tile_entries));
   m.bin_capacity = static_cast<std::size_t>(options.max_triangles) * 4 + tiles * 256;
   m.bin_entries.reset(new int[m.bin_capacity]);
-  const std::size_t vpx = static_cast<std::size_t>(kTileH * kVisStride) *
+  const std::size_t vpx = static_cast<std::size_t>(kVisSlice) *
                           (m.remap_u.empty() ? static_cast<std::size_t>(options.threads) : static_cast<std::size_t>(tiles));
   m.zbuf.resize(vpx);
   m.idbuf.resize(vpx);
@@ -332,7 +343,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.gz.resize(opx);
     m.log2fp.resize(opx);
   }
-  m.row_targets.resize(static_cast<std::size_t>(options.threads) * m.layers.size());
+  m.raster_scratch.resize(static_cast<std::size_t>(options.threads));
   for (const LayerTexture& T : m.layers)
     m.layer_params.push_back({T.texels.get(), T.levels.data(), T.coords.data(), static_cast<int>(T.levels.size()), T.lod_bias});
   m.chunk_stack.reserve(m.terrain.chunks().size() + 8);
@@ -716,7 +727,7 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   const bool resolve_here = remap_u.empty();
   // The tile's visibility buffers: pixel (x, y) at (y - y0) stride + x - x0.
   const std::ptrdiff_t stride = kVisStride;
-  const std::ptrdiff_t origin = static_cast<std::ptrdiff_t>(resolve_here ? thread : tile) * kTileH * kVisStride;
+  const std::ptrdiff_t origin = static_cast<std::ptrdiff_t>(resolve_here ? thread : tile) * kVisSlice;
   float* const tz = zbuf.data() + origin;
   int* const tid = idbuf.data() + origin;
   for (int r = 0; r <= y1 - y0; ++r) {
@@ -855,7 +866,8 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
                  : INFINITY;
     }
   }
-  tile_fragments[static_cast<std::size_t>(tile)] = frags;
+  RasterScratch& scratch = raster_scratch[static_cast<std::size_t>(thread)];
+  scratch.fragments += frags;
   if (!resolve_here) {
     // Distorted camera: resolve_rows() reads this tile later; it needs triangle indices.
     for (int r = 0; r <= y1 - y0; ++r) {
@@ -869,7 +881,7 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   // pixel's world position in registers).
   const std::size_t w = static_cast<std::size_t>(camera.width);
   const std::size_t n_layers = frame_out->layer_names.size();
-  ShadeTarget* targets = row_targets.data() + static_cast<std::size_t>(thread) * layers.size();
+  ShadeTarget* targets = scratch.targets;
   for (int y = y0; y <= y1; ++y) {
     const std::size_t k = static_cast<std::size_t>(y) * w + static_cast<std::size_t>(x0);
     for (std::size_t l = 0; l < n_layers; ++l)
@@ -898,7 +910,8 @@ void Renderer::Impl::resolve_rows(int row0, int row1) {
       log2fp[k] = 0.0f;
       if (!(px > -0.5 && py > -0.5 && px < vw - 0.5 && py < vh - 0.5)) continue;
       const int ix = static_cast<int>(std::lround(px)), iy = static_cast<int>(std::lround(py));
-      const int id = idbuf[static_cast<std::size_t>(((iy / kTileH) * tiles_x + ix / kTileW) * kTileH + iy % kTileH) * kVisStride +
+      const int id = idbuf[static_cast<std::size_t>((iy / kTileH) * tiles_x + ix / kTileW) * kVisSlice +
+                           static_cast<std::size_t>(iy % kTileH) * kVisStride +
                            static_cast<std::size_t>(ix % kTileW)];
       if (id < 0) continue;
       // The pinhole pixel nearest to this output pixel's ray names the triangle; its planes
@@ -1014,18 +1027,14 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
       return Error{"render: a screen tile holds " + std::to_string(c) + " triangles, over " + std::to_string(m.max_tile_entries)};
     }
   TaskCtx ctx{&m, &out, 8};
-  // Each tile row is cut into one run of neighbouring tiles per thread (task r * threads + j,
-  // on thread j, takes run (j + r) % threads of row r): a tile's left and right neighbours,
-  // whose output rows share cache lines with its own (RGB rows are 384 bytes a tile), are then
-  // mostly on its own thread, and the runs rotate so a view busier on one side is still
-  // shared evenly.
-  const int threads = m.pool->threads();
-  m.pool->run(m.tiles_y * threads, [](void* c, int i) {
-    auto* x = static_cast<TaskCtx*>(c);
-    Impl& im = *x->m;
-    const int n = im.pool->threads(), row = i / n, j = i % n, run = (j + row) % n;
-    const int a0 = run * im.tiles_x / n, a1 = (run + 1) * im.tiles_x / n;
-    for (int a = a0; a < a1; ++a) im.raster_tile(row * im.tiles_x + a, j);
+  for (RasterScratch& s : m.raster_scratch) s.fragments = 0;
+  // Task r is tile row r, on thread r % threads: each thread writes whole rows of the output
+  // images, so two threads share a cache line of them only where one's tile row ends and the
+  // next begins (a line written by two cores moves between them on every write).
+  m.pool->run(m.tiles_y, [](void* c, int row) {
+    Impl& im = *static_cast<TaskCtx*>(c)->m;
+    const int j = row % im.pool->threads();
+    for (int a = 0; a < im.tiles_x; ++a) im.raster_tile(row * im.tiles_x + a, j);
   }, &ctx);
   const auto t2 = Clock::now();
   if (!m.remap_u.empty()) {
@@ -1046,7 +1055,7 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   // Terrain seen: for a pinhole camera every covered pixel has a depth (clipping keeps 1/z
   // positive), so the tiles' fragment counts tell without a pass over the depth image.
   long fragments = 0;
-  for (long f : m.tile_fragments) fragments += f;
+  for (const RasterScratch& s : m.raster_scratch) fragments += s.fragments;
   if (stats) {
     stats->triangles = n_tris;
     stats->chunks = chunks_drawn;
