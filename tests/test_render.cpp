@@ -644,6 +644,38 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
       CHECK(f.valid[t] == ref.valid[t]);
     }
   }
+  // Whole chunks magnified for a layer: a row of 160 pixels over entry 5 (magnified for both
+  // layers), then entry 2 (for the second only), which the vector kernels take by their
+  // level-0 path (every lane of a chunk magnified) and by their general one.
+  {
+    std::vector<int> ids2(160, 5);
+    for (std::size_t i = 128; i < ids2.size(); ++i) ids2[i] = 2;
+    auto whole = [&](ResolveShadeRowFn fn) {
+      const int n2 = static_cast<int>(ids2.size());
+      Fused f;
+      f.z.assign(ids2.size(), 7.0f);
+      for (int k = 0; k < 2; ++k) {
+        f.rgb[k].assign(3 * ids2.size(), 1);
+        f.valid[k].assign(ids2.size(), 1);
+      }
+      const ShadeTarget targets[2] = {{&p, f.rgb[0].data(), f.valid[0].data()}, {&p2, f.rgb[1].data(), f.valid[1].data()}};
+      fn(n2, ids2.data(), coef.data(), 30.0f, 7.0f, f.z.data(), 2, targets);
+      return f;
+    };
+    const Fused ref_whole = whole(resolve_shade_row_scalar);
+    int shown = 0;
+    for (auto v : ref_whole.valid[0]) shown += v != 0;
+    CHECK(shown >= 12);  // the small texture spans 15 of the first chunk's pixels (22-36)
+    for (const Kernels& k : vector_kernels) {
+      CAPTURE(std::string(k.name));
+      const Fused f = whole(k.resolve_shade);
+      CHECK(std::memcmp(f.z.data(), ref_whole.z.data(), f.z.size() * sizeof(float)) == 0);
+      for (int t = 0; t < 2; ++t) {
+        CHECK(f.rgb[t] == ref_whole.rgb[t]);
+        CHECK(f.valid[t] == ref_whole.valid[t]);
+      }
+    }
+  }
   // And over the opaque texture (the shortcut, as above).
   texels.swap(saved);
   const Fused ref_opaque = fused(resolve_shade_row_scalar);

@@ -264,9 +264,20 @@ TL_INLINE Levels8 levels8(const ShadeParams& p, __m256 log2fp, __m256 terrain) {
 TL_INLINE void shade_chunk(const ShadeParams& p, int vectors, const __m256* x, const __m256* y, const __m256* log2fp,
                            const __m256* terrain, const __m256* bound, std::uint8_t* rgb, std::uint8_t* valid) {
   const int top = p.n_levels - 1;
+  Fetched f[kChunkVectors];
+  // Every lane over terrain whose entry's bound shows the layer magnified: level 0 alone, in
+  // two loops that take the level's parameters once (as the AVX-512 build's).
+  bool level0 = bound != nullptr;
+  for (int v = 0; v < vectors && level0; ++v)
+    level0 = _mm256_movemask_ps(_mm256_and_ps(
+                 terrain[v], _mm256_cmp_ps(_mm256_add_ps(bound[v], _mm256_set1_ps(p.lod_bias)), _mm256_setzero_ps(), _CMP_LE_OQ))) == 0xFF;
+  if (level0) {
+    for (int v = 0; v < vectors; ++v) f[v] = fetch8(p, 0, x[v], y[v]);
+    for (int v = 0; v < vectors; ++v) output8(filter8(f[v]), rgb + 24 * v, valid + 8 * v);
+    return;
+  }
   __m256 xs[kChunkVectors], ys[kChunkVectors];
   Levels8 lv[kChunkVectors];
-  Fetched f[kChunkVectors];
   Sample8 s[kChunkVectors];
   bool any[kChunkVectors];
   // Lanes without terrain compute on (0, 0) and are cleared at the end.

@@ -265,9 +265,22 @@ TL_INLINE Levels16 levels16(const ShadeParams& p, __m512 log2fp, __mmask16 terra
 TL_INLINE void shade_chunk(const ShadeParams& p, int groups, const __m512* x, const __m512* y, const __m512* log2fp,
                            const __mmask16* terrain, const __m512* bound, std::uint8_t* rgb, std::uint8_t* valid) {
   const int top = p.n_levels - 1;
+  Fetched f[kChunkGroups];
+  // Every lane over terrain whose entry's bound shows the layer magnified (most chunks of
+  // views from a few hundred metres): level 0 alone, in two loops that take the level's
+  // parameters once and keep nothing else per vector. The general loops below give the same
+  // bytes, 20 % slower on a nadir frame (they keep levels, samples and coordinates per vector).
+  bool level0 = bound != nullptr;
+  for (int g = 0; g < groups && level0; ++g)
+    level0 = terrain[g] == 0xFFFF &&
+             _mm512_cmp_ps_mask(_mm512_add_ps(bound[g], _mm512_set1_ps(p.lod_bias)), _mm512_setzero_ps(), _CMP_LE_OQ) == 0xFFFF;
+  if (level0) {
+    for (int g = 0; g < groups; ++g) f[g] = fetch16(p, 0, x[g], y[g]);
+    for (int g = 0; g < groups; ++g) output16(filter16(f[g]), rgb + 48 * g, valid + 16 * g);
+    return;
+  }
   __m512 xs[kChunkGroups], ys[kChunkGroups];
   Levels16 lv[kChunkGroups];
-  Fetched f[kChunkGroups];
   Sample16 s[kChunkGroups];
   // Lanes without terrain compute on (0, 0) and are cleared at the end.
   for (int g = 0; g < groups; ++g) {
