@@ -62,11 +62,10 @@ struct Tri {
 
 // One thread's share of a frame's geometry: the triangles of its run of chunks, in draw
 // order, in its own region of the triangle array, and the scratch of the chunk being drawn.
-// A thread's geometry. Each part, like each thread's RasterScratch, starts a cache line of
-// its own: a line that two threads write moves between their cores on every write, which
-// costs far more than the write (most of all in a virtual machine whose two cores are not
-// beside each other).
-struct alignas(64) GeomPart {
+// A thread's geometry. Each part, like each thread's RasterScratch and RowBand, starts a
+// cache line of its own (kUnsharedAlign): a line that two threads write moves between their
+// cores on every write, which costs far more than the write.
+struct alignas(kUnsharedAlign) GeomPart {
   Tri* tris = nullptr;  // max_triangles entries
   int n_tris = 0;
   bool overflow = false;
@@ -79,13 +78,16 @@ struct alignas(64) GeomPart {
 };
 
 // A thread's band of tile rows (see Renderer::render()): the next row to take from its top
-// (low 32 bits) and the end of the rows not yet taken (high 32 bits), on a line of its own.
-struct alignas(64) RowBand {
-  std::atomic<std::uint64_t> rows{0};
+// (low 16 bits) and the end of the rows not yet taken (high 16 bits).
+// 32 bits, which every target's atomics handle (a Cortex-M7 has none of 64); a view at most
+// 2^20 pixels high has fewer than 2^16 tile rows.
+struct alignas(kUnsharedAlign) RowBand {
+  std::atomic<std::uint32_t> rows{0};
 };
+static_assert(((1 << 20) + kTileH - 1) / kTileH < (1 << 16), "tile rows must fit a RowBand's 16-bit halves");
 
 // What a thread writes as it rasterizes, beside its visibility buffer (see GeomPart).
-struct alignas(64) RasterScratch {
+struct alignas(kUnsharedAlign) RasterScratch {
   ShadeTarget targets[kMaxShadeTargets];  // the row being resolved, one per requested layer
   long fragments = 0;                     // pixels its tiles covered this frame
 };
@@ -907,12 +909,12 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
 void Renderer::Impl::raster_rows(int thread) {
   // Takes one row of band b, from its top or its bottom; -1 when the band has none left.
   auto take = [this](int b, bool from_top) {
-    std::atomic<std::uint64_t>& w = row_bands[static_cast<std::size_t>(b)].rows;
-    std::uint64_t r = w.load(std::memory_order_relaxed);
+    std::atomic<std::uint32_t>& w = row_bands[static_cast<std::size_t>(b)].rows;
+    std::uint32_t r = w.load(std::memory_order_relaxed);
     for (;;) {
-      const std::uint64_t top = r & 0xFFFFFFFFu, end = r >> 32;
+      const std::uint32_t top = r & 0xFFFFu, end = r >> 16;
       if (top >= end) return -1;
-      const std::uint64_t next = from_top ? (end << 32 | (top + 1)) : ((end - 1) << 32 | top);
+      const std::uint32_t next = from_top ? (end << 16 | (top + 1)) : ((end - 1) << 16 | top);
       if (w.compare_exchange_weak(r, next, std::memory_order_relaxed)) return static_cast<int>(from_top ? top : end - 1);
     }
   };
@@ -922,10 +924,10 @@ void Renderer::Impl::raster_rows(int thread) {
   for (int row = take(thread, true); row >= 0; row = take(thread, true)) draw(row);
   for (;;) {
     int band = -1;
-    std::uint64_t most = 0;
+    std::uint32_t most = 0;
     for (int b = 0; b < pool->threads(); ++b) {
-      const std::uint64_t r = row_bands[static_cast<std::size_t>(b)].rows.load(std::memory_order_relaxed);
-      const std::uint64_t top = r & 0xFFFFFFFFu, end = r >> 32;
+      const std::uint32_t r = row_bands[static_cast<std::size_t>(b)].rows.load(std::memory_order_relaxed);
+      const std::uint32_t top = r & 0xFFFFu, end = r >> 16;
       if (end > top && end - top > most) {
         most = end - top;
         band = b;
@@ -1084,9 +1086,9 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   // thread count and any timing.
   const int threads = m.pool->threads();
   for (int j = 0; j < threads; ++j) {
-    const std::uint64_t top = static_cast<std::uint64_t>(j) * static_cast<std::uint64_t>(m.tiles_y) / static_cast<std::uint64_t>(threads);
-    const std::uint64_t end = static_cast<std::uint64_t>(j + 1) * static_cast<std::uint64_t>(m.tiles_y) / static_cast<std::uint64_t>(threads);
-    m.row_bands[static_cast<std::size_t>(j)].rows.store(end << 32 | top, std::memory_order_relaxed);
+    const std::uint32_t top = static_cast<std::uint32_t>(j * m.tiles_y / threads);
+    const std::uint32_t end = static_cast<std::uint32_t>((j + 1) * m.tiles_y / threads);
+    m.row_bands[static_cast<std::size_t>(j)].rows.store(end << 16 | top, std::memory_order_relaxed);
   }
   m.pool->run(threads, [](void* c, int j) { static_cast<TaskCtx*>(c)->m->raster_rows(j); }, &ctx);
   const auto t2 = Clock::now();

@@ -22,6 +22,16 @@
 
 namespace terralign {
 
+// The alignment of data that one thread of a pool writes while another writes its neighbour
+// (per-thread scratch, per-task partial sums): a cache line, since a line written by two
+// cores moves between them on every write. A build without threads has no such sharing, and
+// a microcontroller's allocator gives 16 bytes.
+#if defined(TERRALIGN_NO_THREADS)
+constexpr int kUnsharedAlign = 16;
+#else
+constexpr int kUnsharedAlign = 64;
+#endif
+
 class ThreadPool {
  public:
   using Task = void (*)(void* ctx, int index);

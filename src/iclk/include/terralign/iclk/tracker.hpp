@@ -232,9 +232,9 @@ class Tracker {
   // Runs on the pool in fixed bands of block rows, so the result does not depend on the
   // thread count: each band picks its pixels, then writes them after the earlier bands'.
   int select_pixels(int level, const Pinhole<S>& K);
-  // Bands and chunks are written by the thread that takes them, a line of their own each (a
-  // cache line written by two cores moves between them on every write).
-  struct alignas(64) Band {
+  // Bands and chunks are written by the thread that takes them, a line of their own each
+  // (kUnsharedAlign).
+  struct alignas(kUnsharedAlign) Band {
     int row0 = 0, row1 = 0;  // block rows [row0, row1)
     int count = 0, offset = 0;
     Eigen::Matrix<double, DoF, DoF> motion;  // the band's shares of motion0_, floor0_, radius2_sum_
@@ -276,13 +276,13 @@ class Tracker {
   Eigen::Vector3d up_ = Eigen::Vector3d::Zero(), tilt_ = Eigen::Vector3d::Zero();
   // Per chunk of kChunk pixels: partial sums, combined in chunk order.
   static constexpr int kChunk = 2048;
-  struct alignas(64) Partial {
+  struct alignas(kUnsharedAlign) Partial {
     Eigen::Matrix<double, DoF, 1> g;
     Eigen::Matrix<double, DoF, DoF> H_out;
     double cost, wsum;
     int valid;
   };
-  std::vector<Partial> partials_;  // (C++17's allocator honours alignas(64))
+  std::vector<Partial> partials_;  // (C++17's allocator honours over-alignment)
   std::vector<Band> bands_;
   std::vector<int> pick_;  // per block of the level: its chosen pixel (y * w + x), or -1
   int pick_cols_ = 0, pick_block_ = 1;
