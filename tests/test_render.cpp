@@ -572,18 +572,31 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
     std::vector<float> z;
     std::vector<std::uint8_t> rgb[2], valid[2];
   };
-  auto fused = [&](ResolveShadeRowFn fn) {
+  // A row of entries `row` from column dx0 (of row 7), through kernel fn.
+  auto fused = [&](ResolveShadeRowFn fn, const std::vector<int>& row, float dx0) {
     Fused f;
-    f.z.assign(static_cast<std::size_t>(m), 7.0f);
+    f.z.assign(row.size(), 7.0f);
     for (int k = 0; k < 2; ++k) {
-      f.rgb[k].assign(3 * static_cast<std::size_t>(m), 1);
-      f.valid[k].assign(static_cast<std::size_t>(m), 1);
+      f.rgb[k].assign(3 * row.size(), 1);
+      f.valid[k].assign(row.size(), 1);
     }
     const ShadeTarget targets[2] = {{&p, f.rgb[0].data(), f.valid[0].data()}, {&p2, f.rgb[1].data(), f.valid[1].data()}};
-    fn(m, ids.data(), coef.data(), 5.0f, 7.0f, f.z.data(), 2, targets);
+    fn(static_cast<int>(row.size()), row.data(), coef.data(), dx0, 7.0f, f.z.data(), 2, targets);
     return f;
   };
-  const Fused ref = fused(resolve_shade_row_scalar);
+  // Every vector kernel's row against the scalar's, bit for bit.
+  auto same_as_scalar = [&](const std::vector<int>& row, float dx0, const Fused& ref_row) {
+    for (const Kernels& k : vector_kernels) {
+      CAPTURE(std::string(k.name));
+      const Fused f = fused(k.resolve_shade, row, dx0);
+      CHECK(std::memcmp(f.z.data(), ref_row.z.data(), f.z.size() * sizeof(float)) == 0);
+      for (int t = 0; t < 2; ++t) {
+        CHECK(f.rgb[t] == ref_row.rgb[t]);
+        CHECK(f.valid[t] == ref_row.valid[t]);
+      }
+    }
+  };
+  const Fused ref = fused(resolve_shade_row_scalar, ids, 5.0f);
   // The fused kernel is the documented resolve followed by shade_row: the same bits.
   {
     std::vector<float> x(m), y(m), z(m), l2(m);
@@ -635,58 +648,22 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
     for (auto v : ref.valid[0]) shown += v != 0;
     CHECK(shown > 10);
   }
-  for (const Kernels& k : vector_kernels) {
-    CAPTURE(std::string(k.name));
-    const Fused f = fused(k.resolve_shade);
-    CHECK(std::memcmp(f.z.data(), ref.z.data(), f.z.size() * sizeof(float)) == 0);
-    for (int t = 0; t < 2; ++t) {
-      CHECK(f.rgb[t] == ref.rgb[t]);
-      CHECK(f.valid[t] == ref.valid[t]);
-    }
-  }
+  same_as_scalar(ids, 5.0f, ref);
   // Whole chunks magnified for a layer: a row of 160 pixels over entry 5 (magnified for both
   // layers), then entry 2 (for the second only), which the vector kernels take by their
   // level-0 path (every lane of a chunk magnified) and by their general one.
   {
-    std::vector<int> ids2(160, 5);
-    for (std::size_t i = 128; i < ids2.size(); ++i) ids2[i] = 2;
-    auto whole = [&](ResolveShadeRowFn fn) {
-      const int n2 = static_cast<int>(ids2.size());
-      Fused f;
-      f.z.assign(ids2.size(), 7.0f);
-      for (int k = 0; k < 2; ++k) {
-        f.rgb[k].assign(3 * ids2.size(), 1);
-        f.valid[k].assign(ids2.size(), 1);
-      }
-      const ShadeTarget targets[2] = {{&p, f.rgb[0].data(), f.valid[0].data()}, {&p2, f.rgb[1].data(), f.valid[1].data()}};
-      fn(n2, ids2.data(), coef.data(), 30.0f, 7.0f, f.z.data(), 2, targets);
-      return f;
-    };
-    const Fused ref_whole = whole(resolve_shade_row_scalar);
+    std::vector<int> whole(160, 5);
+    for (std::size_t i = 128; i < whole.size(); ++i) whole[i] = 2;
+    const Fused ref_whole = fused(resolve_shade_row_scalar, whole, 30.0f);
     int shown = 0;
     for (auto v : ref_whole.valid[0]) shown += v != 0;
     CHECK(shown >= 12);  // the small texture spans 15 of the first chunk's pixels (22-36)
-    for (const Kernels& k : vector_kernels) {
-      CAPTURE(std::string(k.name));
-      const Fused f = whole(k.resolve_shade);
-      CHECK(std::memcmp(f.z.data(), ref_whole.z.data(), f.z.size() * sizeof(float)) == 0);
-      for (int t = 0; t < 2; ++t) {
-        CHECK(f.rgb[t] == ref_whole.rgb[t]);
-        CHECK(f.valid[t] == ref_whole.valid[t]);
-      }
-    }
+    same_as_scalar(whole, 30.0f, ref_whole);
   }
   // And over the opaque texture (the shortcut, as above).
   texels.swap(saved);
-  const Fused ref_opaque = fused(resolve_shade_row_scalar);
-  for (const Kernels& k : vector_kernels) {
-    CAPTURE(std::string(k.name));
-    const Fused f = fused(k.resolve_shade);
-    for (int t = 0; t < 2; ++t) {
-      CHECK(f.rgb[t] == ref_opaque.rgb[t]);
-      CHECK(f.valid[t] == ref_opaque.valid[t]);
-    }
-  }
+  same_as_scalar(ids, 5.0f, fused(resolve_shade_row_scalar, ids, 5.0f));
   texels.swap(saved);
   // The depth kernel: blocks of every width 1..kDepthBlockMaxW and height 1..8 written into a
   // 44 x 10 buffer holding other triangles' depths (some nearer, some farther), with a row
