@@ -62,9 +62,9 @@ struct Tri {
 
 // One thread's share of a frame's geometry: the triangles of its run of chunks, in draw
 // order, in its own region of the triangle array, and the scratch of the chunk being drawn.
-// A thread's geometry. Each part, like each thread's RasterScratch and RowBand, starts a
-// cache line of its own (kUnsharedAlign): a line that two threads write moves between their
-// cores on every write, which costs far more than the write.
+// Each part, like each thread's RasterScratch and RowBand, starts a cache line of its own
+// (kUnsharedAlign): a line that two threads write moves between their cores on every write,
+// which costs far more than the write.
 struct alignas(kUnsharedAlign) GeomPart {
   Tri* tris = nullptr;  // max_triangles entries
   int n_tris = 0;
@@ -77,14 +77,16 @@ struct alignas(kUnsharedAlign) GeomPart {
   std::vector<int> tile_fill;        // per screen tile: where this part's next entry goes
 };
 
-// A thread's band of tile rows (see Renderer::render()): the next row to take from its top
-// (low 16 bits) and the end of the rows not yet taken (high 16 bits).
-// 32 bits, which every target's atomics handle (a Cortex-M7 has none of 64); a view at most
-// 2^20 pixels high has fewer than 2^16 tile rows.
+// A thread's band of units, tile rows or blocks of output rows (see Renderer::render()): the
+// next unit to take from its top (low 16 bits) and the end of the units not yet taken (high
+// 16 bits). 32 bits, which every target's atomics handle (a Cortex-M7 has none of 64); a view
+// at most 2^20 pixels high has fewer than 2^16 tile rows or blocks of rows.
 struct alignas(kUnsharedAlign) RowBand {
   std::atomic<std::uint32_t> rows{0};
 };
-static_assert(((1 << 20) + kTileH - 1) / kTileH < (1 << 16), "tile rows must fit a RowBand's 16-bit halves");
+constexpr int kRowsPerBlock = 24;  // output rows a unit of a distorted camera's resolve and shading
+static_assert(((1 << 20) + std::min(kTileH, kRowsPerBlock) - 1) / std::min(kTileH, kRowsPerBlock) < (1 << 16),
+              "units must fit a RowBand's 16-bit halves");
 
 // What a thread writes as it rasterizes, beside its visibility buffer (see GeomPart).
 struct alignas(kUnsharedAlign) RasterScratch {
@@ -135,8 +137,8 @@ struct Renderer::Impl {
   std::unique_ptr<int[]> bin_entries;     // likewise not zeroed
   std::size_t bin_capacity = 0;
   // Visibility: 1/z of the nearest triangle so far (0: none) and its bin entry (-1: none),
-  // a tile's worth at a time (kTileH rows of kVisStride, kVisSlice apart). A pinhole camera resolves each
-  // tile as soon as it is rasterized, so each thread keeps one (35 KB, which stays in L1
+  // a tile's worth at a time (kTileH rows of kVisStride, kVisSlice apart). A pinhole camera
+  // resolves each tile as soon as it is rasterized, so each thread keeps one (26 KB, in L1
   // from tile to tile); a distorted camera resolves after every tile is done and keeps one
   // per tile. Rows hold 8 pixels more than a tile's: the depth kernels read and write back
   // 8 columns from a block's first (shade_kernels.hpp), which stay inside the tile's own.
@@ -172,7 +174,9 @@ struct Renderer::Impl {
   }
   bool chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const;
   void raster_tile(int tile, int thread);
-  void raster_rows(int thread);
+  void deal_bands(int units);
+  template <class F>
+  void claim_units(int thread, F&& draw);
   void resolve_rows(int row0, int row1);
   void shade_span(int y, int x, int n, const float* wx, const float* wy, const float* log2fp);
 };
@@ -904,38 +908,50 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   }
 }
 
-// Thread j's share of the frame's tile rows (see render()): its own band from the top, then
-// rows from the bottom of the band with the most left, until none is left.
-void Renderer::Impl::raster_rows(int thread) {
-  // Takes one row of band b, from its top or its bottom; -1 when the band has none left.
-  auto take = [this](int b, bool from_top) {
+// Deals `units` (tile rows, or blocks of output rows) to the threads as bands: unit runs
+// [j units / threads, (j + 1) units / threads) for thread j. claim_units() then takes them.
+void Renderer::Impl::deal_bands(int units) {
+  const int threads = pool->threads();
+  for (int j = 0; j < threads; ++j) {
+    const std::uint32_t top = static_cast<std::uint32_t>(j * units / threads);
+    const std::uint32_t end = static_cast<std::uint32_t>((j + 1) * units / threads);
+    row_bands[static_cast<std::size_t>(j)].rows.store(end << 16 | top, std::memory_order_relaxed);
+  }
+}
+
+// Thread j's share of the dealt units (see render()): draw(unit) for each unit of its own band
+// from the top, then for units from the bottom of the band with the most left, until none is.
+template <class F>
+void Renderer::Impl::claim_units(int thread, F&& draw) {
+  auto rows_of = [](std::uint32_t r, std::uint32_t& top, std::uint32_t& end) {
+    top = r & 0xFFFFu;
+    end = r >> 16;
+  };
+  // Takes one unit of band b, from its top or its bottom; -1 when the band has none left.
+  auto take = [&](int b, bool from_top) {
     std::atomic<std::uint32_t>& w = row_bands[static_cast<std::size_t>(b)].rows;
-    std::uint32_t r = w.load(std::memory_order_relaxed);
+    std::uint32_t r = w.load(std::memory_order_relaxed), top, end;
     for (;;) {
-      const std::uint32_t top = r & 0xFFFFu, end = r >> 16;
+      rows_of(r, top, end);
       if (top >= end) return -1;
       const std::uint32_t next = from_top ? (end << 16 | (top + 1)) : ((end - 1) << 16 | top);
       if (w.compare_exchange_weak(r, next, std::memory_order_relaxed)) return static_cast<int>(from_top ? top : end - 1);
     }
   };
-  auto draw = [&](int row) {
-    for (int a = 0; a < tiles_x; ++a) raster_tile(row * tiles_x + a, thread);
-  };
-  for (int row = take(thread, true); row >= 0; row = take(thread, true)) draw(row);
+  for (int unit = take(thread, true); unit >= 0; unit = take(thread, true)) draw(unit);
   for (;;) {
     int band = -1;
-    std::uint32_t most = 0;
+    std::uint32_t most = 0, top, end;
     for (int b = 0; b < pool->threads(); ++b) {
-      const std::uint32_t r = row_bands[static_cast<std::size_t>(b)].rows.load(std::memory_order_relaxed);
-      const std::uint32_t top = r & 0xFFFFu, end = r >> 16;
+      rows_of(row_bands[static_cast<std::size_t>(b)].rows.load(std::memory_order_relaxed), top, end);
       if (end > top && end - top > most) {
         most = end - top;
         band = b;
       }
     }
     if (band < 0) return;
-    const int row = take(band, false);
-    if (row >= 0) draw(row);
+    const int unit = take(band, false);
+    if (unit >= 0) draw(unit);
   }
 }
 
@@ -976,13 +992,6 @@ void Renderer::Impl::resolve_rows(int row0, int row1) {
     }
 }
 
-namespace {
-struct TaskCtx {
-  Renderer::Impl* m;
-  RenderOutput* out;
-  int rows_per_task;
-};
-}  // namespace
 
 Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* stats) {
   Impl& m = *impl_;
@@ -1073,7 +1082,6 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
       invalidate();
       return Error{"render: a screen tile holds " + std::to_string(c) + " triangles, over " + std::to_string(m.max_tile_entries)};
     }
-  TaskCtx ctx{&m, &out, 8};
   for (RasterScratch& s : m.raster_scratch) s.fragments = 0;
   // Tile rows are claimed, not dealt: thread j starts at the top of band j of the rows and
   // works down it, then takes the band with the most rows left from its bottom up
@@ -1085,25 +1093,28 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   // from its own bins, through the thread's own buffers), so the output is the same for any
   // thread count and any timing.
   const int threads = m.pool->threads();
-  for (int j = 0; j < threads; ++j) {
-    const std::uint32_t top = static_cast<std::uint32_t>(j * m.tiles_y / threads);
-    const std::uint32_t end = static_cast<std::uint32_t>((j + 1) * m.tiles_y / threads);
-    m.row_bands[static_cast<std::size_t>(j)].rows.store(end << 16 | top, std::memory_order_relaxed);
-  }
-  m.pool->run(threads, [](void* c, int j) { static_cast<TaskCtx*>(c)->m->raster_rows(j); }, &ctx);
+  m.deal_bands(m.tiles_y);
+  m.pool->run(threads, [](void* c, int j) {
+    Impl& im = *static_cast<Impl*>(c);
+    im.claim_units(j, [&im, j](int row) {
+      for (int a = 0; a < im.tiles_x; ++a) im.raster_tile(row * im.tiles_x + a, j);
+    });
+  }, &m);
   const auto t2 = Clock::now();
   if (!m.remap_u.empty()) {
-    const int blocks = (m.camera.height + ctx.rows_per_task - 1) / ctx.rows_per_task;
-    m.pool->run(blocks, [](void* c, int i) {
-      auto* x = static_cast<TaskCtx*>(c);
-      Impl& im = *x->m;
-      const int r0 = i * x->rows_per_task, r1 = std::min(r0 + x->rows_per_task, im.camera.height);
-      im.resolve_rows(r0, r1);
-      for (int y = r0; y < r1; ++y) {
-        const std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(im.camera.width);
-        im.shade_span(y, 0, im.camera.width, im.gx.data() + k, im.gy.data() + k, im.log2fp.data() + k);
-      }
-    }, &ctx);
+    // A distorted camera: blocks of output rows, claimed in bands as the tile rows were.
+    m.deal_bands((m.camera.height + kRowsPerBlock - 1) / kRowsPerBlock);
+    m.pool->run(threads, [](void* c, int j) {
+      Impl& im = *static_cast<Impl*>(c);
+      im.claim_units(j, [&im](int block) {
+        const int r0 = block * kRowsPerBlock, r1 = std::min(r0 + kRowsPerBlock, im.camera.height);
+        im.resolve_rows(r0, r1);
+        for (int y = r0; y < r1; ++y) {
+          const std::size_t k = static_cast<std::size_t>(y) * static_cast<std::size_t>(im.camera.width);
+          im.shade_span(y, 0, im.camera.width, im.gx.data() + k, im.gy.data() + k, im.log2fp.data() + k);
+        }
+      });
+    }, &m);
     std::copy(m.gz.begin(), m.gz.end(), out.depth.pixels().begin());
   }
   const auto t3 = Clock::now();
