@@ -184,6 +184,18 @@ TEST_CASE("bad GeoTIFF input: each refused with the file and the value") {
     REQUIRE(!b.ok());
     CHECK(b.error().message.find("needs 3600 bytes") != std::string::npos);
   }
+  SUBCASE("tiles far larger than the raster (a header fuzz_geotiff found)") {
+    // One tile buffer must fit the raster's limit: a 40 x 30 raster in 65520 x 65520 tiles
+    // would otherwise allocate 12.9 GB for one of them (the default limit is 2 GiB).
+    auto bytes = read_file(fixture("rgb_tiles_deflate.tif"));
+    REQUIRE(bytes.ok());
+    patch_tag(*bytes, 322, 65520);  // TileWidth
+    patch_tag(*bytes, 323, 65520);  // TileLength
+    auto r = read_geotiff_memory(bytes->data(), bytes->size(), "huge_tiles.tif");
+    REQUIRE(!r.ok());
+    CHECK(r.error().message.find("huge_tiles.tif") != std::string::npos);
+    CHECK(r.error().message.find("tiles of 65520 x 65520 need 12878611200 bytes each, over the limit") != std::string::npos);
+  }
   SUBCASE("unsupported sample format") {
     auto r = read_geotiff(fixture("dem_float64.tif"));
     REQUIRE(!r.ok());

@@ -345,6 +345,12 @@ Result<GeoRaster> read_geotiff_memory(const std::uint8_t* data, std::size_t size
     const tmsize_t tile_bytes = TIFFTileSize(t);
     const std::size_t need = std::size_t{tw} * th * px_samples * bytes_per_sample;
     if (tile_bytes <= 0 || static_cast<std::size_t>(tile_bytes) < need) return fail("inconsistent tile size");
+    // A tile may be larger than the raster (its edge tiles are padded), but one buffer of it
+    // must fit the same limit as the raster: a header naming 65536 x 65536 tiles over a small
+    // image would otherwise allocate gigabytes (found by fuzz_geotiff).
+    if (static_cast<std::int64_t>(tile_bytes) > limits.max_bytes)
+      return fail("tiles of " + std::to_string(tw) + " x " + std::to_string(th) + " need " + std::to_string(tile_bytes) +
+                  " bytes each, over the limit of " + std::to_string(limits.max_bytes));
     std::vector<std::uint8_t> buf(static_cast<std::size_t>(tile_bytes));
     for (int p = 0; p < planes; ++p)
       for (std::uint32_t ty = 0; ty < h; ty += th)
@@ -364,6 +370,8 @@ Result<GeoRaster> read_geotiff_memory(const std::uint8_t* data, std::size_t size
     const tmsize_t strip_bytes = TIFFStripSize(t);
     const std::size_t need = std::size_t{rps} * w * px_samples * bytes_per_sample;
     if (strip_bytes <= 0 || static_cast<std::size_t>(strip_bytes) < need) return fail("inconsistent strip size");
+    if (static_cast<std::int64_t>(strip_bytes) > limits.max_bytes)
+      return fail("strips of " + std::to_string(strip_bytes) + " bytes, over the limit of " + std::to_string(limits.max_bytes));
     std::vector<std::uint8_t> buf(static_cast<std::size_t>(strip_bytes));
     const std::uint32_t strips_per_plane = (h + rps - 1) / rps;
     for (int p = 0; p < planes; ++p)
