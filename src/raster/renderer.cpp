@@ -45,35 +45,66 @@ struct ClipVert {
 };
 
 // A vertex inside the clip volume, projected: screen position (pixel centres at integers),
-// 1/z, the fixed-point snap of the position, and its local world position.
+// 1/z and local world x/z, y/z (the planes' values there), and the fixed-point snap of the
+// position (inside the guard band: |X|, |Y| < 2^29).
 struct ProjVert {
-  double sx, sy, iz;
-  std::int64_t X, Y;
-  float wx, wy;
+  double sx, sy, iz, qx, qy;
+  std::int32_t X, Y;
 };
 
-// A screen triangle ready for rasterization. Plane coefficients q(x, y) = A x + B y + C in
-// pixel coordinates (centres at integers) for 1/z, x_world/z and y_world/z.
-struct Tri {
-  std::int32_t X[3], Y[3];     // fixed point, kSubBits (inside the guard band: |X|, |Y| < 2^29)
-  int bx0, by0, bx1, by1;      // inclusive pixel bounding box, clamped to the image
-  double A[3], B[3], C[3];     // [0]: 1/z, [1]: wx/z, [2]: wy/z
+// A screen triangle ready for rasterization: its snapped corners, and for 1/z, x_world/z and
+// y_world/z the planes q(x, y) = A (x - x0) + B (y - y0) + C in pixel coordinates (centres at
+// integers), (x0, y0) the corner of its pixel box (box()). Fitted in double, kept in float
+// relative to that corner: one cache line a triangle (kUnsharedAlign is the line), where the
+// planes in double at the image's corner took 112 bytes (the triangle array of a renderer,
+// max_triangles a thread, 59 MB a thread at the default, is now 34 MB; frames are no faster).
+// A pixel's 1/z from the float planes is within about 1e-7 relative of the double ones.
+struct alignas(kUnsharedAlign) Tri {
+  std::int32_t X[3], Y[3];  // fixed point, kSubBits (inside the guard band: |X|, |Y| < 2^29)
+  float A[3], B[3], C[3];   // [0]: 1/z, [1]: wx/z, [2]: wy/z
 };
+
+// A triangle's inclusive pixel box, clamped to the view: the pixels whose centres (whole
+// coordinates) lie within its snapped corners' box. Only they can be covered.
+struct PixelBox {
+  int x0, y0, x1, y1;
+};
+// The screen tiles a triangle's pixel box touches, inclusive (create() keeps tile indices
+// below 2^16). Kept beside the triangles, 8 bytes each, so that binning reads these alone and
+// not the triangles' cache lines.
+struct TileSpan {
+  std::uint16_t x0, y0, x1, y1;
+};
+
+inline PixelBox pixel_box(const std::int32_t* X, const std::int32_t* Y, int vw, int vh) {
+  constexpr std::int32_t kHalfUp = (1 << kSubBits) - 1;
+  // (int casts: std::int32_t is long on some targets, arm-none-eabi's among them.)
+  return {std::max(0, static_cast<int>((std::min({X[0], X[1], X[2]}) + kHalfUp) >> kSubBits)),
+          std::max(0, static_cast<int>((std::min({Y[0], Y[1], Y[2]}) + kHalfUp) >> kSubBits)),
+          std::min(vw - 1, static_cast<int>(std::max({X[0], X[1], X[2]}) >> kSubBits)),
+          std::min(vh - 1, static_cast<int>(std::max({Y[0], Y[1], Y[2]}) >> kSubBits))};
+}
 
 // One thread's share of a frame's geometry: the triangles of its run of chunks, in draw
 // order, in its own region of the triangle array, and the scratch of the chunk being drawn.
 // Each part, like each thread's RasterScratch and RowBand, starts a cache line of its own
 // (kUnsharedAlign): a line that two threads write moves between their cores on every write,
 // which costs far more than the write.
+// Plane k of t at (dx, dy) pixels from its box's corner, in double.
+inline double plane_at(const Tri& t, int k, double dx, double dy) {
+  return static_cast<double>(t.C[k]) + static_cast<double>(t.A[k]) * dx + static_cast<double>(t.B[k]) * dy;
+}
+
 struct alignas(kUnsharedAlign) GeomPart {
-  Tri* tris = nullptr;  // max_triangles entries
+  Tri* tris = nullptr;        // max_triangles entries
+  TileSpan* spans = nullptr;  // likewise, one per triangle
   int n_tris = 0;
   bool overflow = false;
   int chunks_drawn = 0;
   std::vector<ClipVert> verts;       // (kChunkQuads + 1)^2
   std::vector<ProjVert> proj;        // their projections, where out is 0
   std::vector<std::uint8_t> out;     // per vertex: bit p set when outside clip plane p
-  std::vector<int> tile_count;       // per screen tile: this part's triangles binned there
+  std::vector<int> tile_count;       // per screen tile: this part's triangles binned there (counted as drawn)
   std::vector<int> tile_fill;        // per screen tile: where this part's next entry goes
 };
 
@@ -128,6 +159,7 @@ struct Renderer::Impl {
   // index names it everywhere below), not zeroed (default-initialised): a view touches, and
   // so commits to memory, only the pages of the triangles it draws.
   std::unique_ptr<Tri[]> tris;
+  std::unique_ptr<TileSpan[]> spans;      // likewise
   std::vector<GeomPart> parts;            // per thread
   std::vector<int> draw_list;             // the chunks a frame draws, in traversal order
   std::vector<std::uint8_t> drawn;        // per chunk: 1 while it is in the draw list
@@ -166,11 +198,12 @@ struct Renderer::Impl {
   float skirt_drop(const TerrainChunk& c, int side) const;
   void draw_chunks(int part);
   void bin_part(int part);
-  // Calls f(tile index) for every screen tile t's bounding box touches.
+  PixelBox box(const Tri& t) const { return pixel_box(t.X, t.Y, vw, vh); }
+  // Calls f(tile index) for every screen tile of the span.
   template <class F>
-  void for_each_tile(const Tri& t, F&& f) const {
-    for (int b = t.by0 / kTileH; b <= t.by1 / kTileH; ++b)
-      for (int a = t.bx0 / kTileW; a <= t.bx1 / kTileW; ++a) f(static_cast<std::size_t>(b * tiles_x + a));
+  void for_each_tile(const TileSpan& s, F&& f) const {
+    for (int b = s.y0; b <= s.y1; ++b)
+      for (int a = s.x0; a <= s.x1; ++a) f(static_cast<std::size_t>(b * tiles_x + a));
   }
   bool chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const;
   void raster_tile(int tile, int thread);
@@ -326,12 +359,16 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.guard[3] = static_cast<float>((m.vh + kGuardPx - m.pinhole.cy) / m.pinhole.fy);
   m.tiles_x = (m.vw + kTileW - 1) / kTileW;
   m.tiles_y = (m.vh + kTileH - 1) / kTileH;
+  if (m.tiles_x > 65535 || m.tiles_y > 65535)  // (TileSpan's 16 bits; the camera's 32768 px keep far below)
+    return Error{"render: " + std::to_string(m.tiles_x) + " x " + std::to_string(m.tiles_y) + " screen tiles, over 65535 a side"};
   const std::size_t tiles = static_cast<std::size_t>(m.tiles_x) * static_cast<std::size_t>(m.tiles_y);
   m.tris.reset(new Tri[static_cast<std::size_t>(options.threads) * static_cast<std::size_t>(options.max_triangles)]);
+  m.spans.reset(new TileSpan[static_cast<std::size_t>(options.threads) * static_cast<std::size_t>(options.max_triangles)]);
   m.parts.resize(static_cast<std::size_t>(options.threads));
   for (std::size_t j = 0; j < m.parts.size(); ++j) {
     GeomPart& g = m.parts[j];
     g.tris = m.tris.get() + j * static_cast<std::size_t>(options.max_triangles);
+    g.spans = m.spans.get() + j * static_cast<std::size_t>(options.max_triangles);
     g.verts.resize(static_cast<std::size_t>(kChunkQuads + 1) * (kChunkQuads + 1));
     g.proj.resize(g.verts.size());
     g.out.resize(g.verts.size());
@@ -453,10 +490,10 @@ ProjVert Renderer::Impl::project(const ClipVert& v) const {
   p.iz = 1.0 / static_cast<double>(v.z);
   p.sx = pinhole.fx * v.x * p.iz + pinhole.cx;
   p.sy = pinhole.fy * v.y * p.iz + pinhole.cy;
-  p.X = round_fixed(p.sx * (1 << kSubBits));
-  p.Y = round_fixed(p.sy * (1 << kSubBits));
-  p.wx = v.wx;
-  p.wy = v.wy;
+  p.qx = v.wx * p.iz;
+  p.qy = v.wy * p.iz;
+  p.X = static_cast<std::int32_t>(round_fixed(p.sx * (1 << kSubBits)));
+  p.Y = static_cast<std::int32_t>(round_fixed(p.sy * (1 << kSubBits)));
   return p;
 }
 
@@ -469,8 +506,8 @@ void Renderer::Impl::emit_triangle(GeomPart& g, const ProjVert& a, const ProjVer
   const double sx[3] = {a.sx, b.sx, c.sx}, sy[3] = {a.sy, b.sy, c.sy}, iz[3] = {a.iz, b.iz, c.iz};
   Tri& t = g.tris[g.n_tris];
   for (int k = 0; k < 3; ++k) {
-    t.X[k] = static_cast<std::int32_t>(v[k]->X);
-    t.Y[k] = static_cast<std::int32_t>(v[k]->Y);
+    t.X[k] = v[k]->X;
+    t.Y[k] = v[k]->Y;
   }
   const std::int64_t area = (std::int64_t{t.X[1]} - t.X[0]) * (std::int64_t{t.Y[2]} - t.Y[0]) -
                             (std::int64_t{t.Y[1]} - t.Y[0]) * (std::int64_t{t.X[2]} - t.X[0]);
@@ -479,30 +516,27 @@ void Renderer::Impl::emit_triangle(GeomPart& g, const ProjVert& a, const ProjVer
     std::swap(t.X[1], t.X[2]);
     std::swap(t.Y[1], t.Y[2]);
   }
-  // The pixels whose centres (whole coordinates) lie within the snapped corners' box: only
-  // they can be covered. A triangle of a few pixels often holds no centre at all.
-  constexpr std::int32_t kHalfUp = (1 << kSubBits) - 1;
-  // (int casts: std::int32_t is long on some targets, arm-none-eabi's among them.)
-  t.bx0 = std::max(0, static_cast<int>((std::min({t.X[0], t.X[1], t.X[2]}) + kHalfUp) >> kSubBits));
-  t.by0 = std::max(0, static_cast<int>((std::min({t.Y[0], t.Y[1], t.Y[2]}) + kHalfUp) >> kSubBits));
-  t.bx1 = std::min(vw - 1, static_cast<int>(std::max({t.X[0], t.X[1], t.X[2]}) >> kSubBits));
-  t.by1 = std::min(vh - 1, static_cast<int>(std::max({t.Y[0], t.Y[1], t.Y[2]}) >> kSubBits));
-  if (t.bx0 > t.bx1 || t.by0 > t.by1) return;
+  // A triangle of a few pixels often holds no pixel centre at all.
+  const PixelBox p = box(t);
+  if (p.x0 > p.x1 || p.y0 > p.y1) return;
   // Planes from the unsnapped positions, in double: exact depth whatever the snapping.
   const double x0 = sx[0], y0 = sy[0];
   const double e1x = sx[1] - x0, e1y = sy[1] - y0, e2x = sx[2] - x0, e2y = sy[2] - y0;
   const double det = e1x * e2y - e2x * e1y;
   if (det == 0) return;
-  const double q[3][3] = {{iz[0], iz[1], iz[2]},
-                          {v[0]->wx * iz[0], v[1]->wx * iz[1], v[2]->wx * iz[2]},
-                          {v[0]->wy * iz[0], v[1]->wy * iz[1], v[2]->wy * iz[2]}};
+  const double q[3][3] = {{iz[0], iz[1], iz[2]}, {a.qx, b.qx, c.qx}, {a.qy, b.qy, c.qy}};
   const double inv_det = 1.0 / det;  // one division, not six (a frame has up to 10^5 triangles)
-  for (int p = 0; p < 3; ++p) {
-    const double d1 = q[p][1] - q[p][0], d2 = q[p][2] - q[p][0];
-    t.A[p] = (d1 * e2y - d2 * e1y) * inv_det;
-    t.B[p] = (d2 * e1x - d1 * e2x) * inv_det;
-    t.C[p] = q[p][0] - t.A[p] * x0 - t.B[p] * y0;
+  for (int k = 0; k < 3; ++k) {
+    const double d1 = q[k][1] - q[k][0], d2 = q[k][2] - q[k][0];
+    const double A = (d1 * e2y - d2 * e1y) * inv_det, B = (d2 * e1x - d1 * e2x) * inv_det;
+    t.A[k] = static_cast<float>(A);
+    t.B[k] = static_cast<float>(B);
+    t.C[k] = static_cast<float>(q[k][0] + A * (p.x0 - x0) + B * (p.y0 - y0));
   }
+  TileSpan& span = g.spans[g.n_tris];
+  span = {static_cast<std::uint16_t>(p.x0 / kTileW), static_cast<std::uint16_t>(p.y0 / kTileH),
+          static_cast<std::uint16_t>(p.x1 / kTileW), static_cast<std::uint16_t>(p.y1 / kTileH)};
+  for_each_tile(span, [&](std::size_t tile) { ++g.tile_count[tile]; });
   ++g.n_tris;
 }
 
@@ -703,12 +737,11 @@ void Renderer::Impl::draw_chunks(int part) {
   g.n_tris = 0;
   g.overflow = false;
   g.chunks_drawn = 0;
+  std::fill(g.tile_count.begin(), g.tile_count.end(), 0);
   const std::size_t n = draw_list.size(), k = parts.size(), j = static_cast<std::size_t>(part);
   const auto& chunks = terrain.chunks();
   for (std::size_t i = j * n / k; i < (j + 1) * n / k; ++i)
     draw_chunk(g, chunks[static_cast<std::size_t>(draw_list[i])]);
-  std::fill(g.tile_count.begin(), g.tile_count.end(), 0);
-  for (int i = 0; i < g.n_tris; ++i) for_each_tile(g.tris[i], [&](std::size_t tile) { ++g.tile_count[tile]; });
 }
 
 // Writes part j's triangles into the bins of the tiles they touch, from the offsets render()
@@ -717,7 +750,7 @@ void Renderer::Impl::bin_part(int part) {
   GeomPart& g = parts[static_cast<std::size_t>(part)];
   const int first = part * options.max_triangles;
   for (int i = 0; i < g.n_tris; ++i)
-    for_each_tile(g.tris[i], [&](std::size_t tile) { bin_entries[static_cast<std::size_t>(g.tile_fill[tile]++)] = first + i; });
+    for_each_tile(g.spans[i], [&](std::size_t tile) { bin_entries[static_cast<std::size_t>(g.tile_fill[tile]++)] = first + i; });
 }
 
 // ---- rasterization ----
@@ -762,14 +795,12 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     const int id = bin_entries[static_cast<std::size_t>(first + e)];
     const Tri& t = tris[static_cast<std::size_t>(id)];
     if (e + kPrefetchAhead < count) {
-      // A view's triangles outgrow the caches (112 bytes each): fetch one a few entries ahead.
-      const char* next = reinterpret_cast<const char*>(&tris[static_cast<std::size_t>(bin_entries[static_cast<std::size_t>(first + e + kPrefetchAhead)])]);
-      __builtin_prefetch(next);
-      __builtin_prefetch(next + 64);
-      __builtin_prefetch(next + 128);
+      // A view's triangles outgrow the caches: fetch one a few entries ahead.
+      __builtin_prefetch(&tris[static_cast<std::size_t>(bin_entries[static_cast<std::size_t>(first + e + kPrefetchAhead)])]);
     }
-    const int bx0 = std::max(t.bx0, x0), bx1 = std::min(t.bx1, x1);
-    const int by0 = std::max(t.by0, y0), by1 = std::min(t.by1, y1);
+    const PixelBox tb = box(t);
+    const int bx0 = std::max(tb.x0, x0), bx1 = std::min(tb.x1, x1);
+    const int by0 = std::max(tb.y0, y0), by1 = std::min(tb.y1, y1);
     if (bx0 > bx1 || by0 > by1) continue;
     // Edge k runs from vertex k to vertex k+1; inside: E > 0, or E == 0 on a top or left
     // edge (clockwise on screen with y down: top = horizontal going right, left = going up).
@@ -790,8 +821,8 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
       dy32[k] = static_cast<std::int32_t>(dEy[k]);
     }
     // 1/z relative to the box corner, in float (exact enough for the depth test only).
-    const float A = static_cast<float>(t.A[0]), B = static_cast<float>(t.B[0]);
-    const float base = static_cast<float>(t.A[0] * bx0 + t.B[0] * by0 + t.C[0]);
+    const float A = t.A[0], B = t.B[0];
+    const float base = static_cast<float>(plane_at(t, 0, bx0 - tb.x0, by0 - tb.y0));
     // A triangle within one block (most triangles over a detailed DEM cover a few pixels):
     // straight to the edge kernel, its values bounded by |E| + 7 |dEx| + 7 |dEy| per edge.
     bool one_block = edge_block32 && bx1 - bx0 < 8 && by1 - by0 < 8;
@@ -869,9 +900,9 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     if (resolve_here && frags > frags_before) {
       float* c = coef + kPlaneFloats * e;
       for (int q = 0; q < 3; ++q) {
-        c[3 * q + 0] = static_cast<float>(t.A[q] * x0 + t.B[q] * y0 + t.C[q]);
-        c[3 * q + 1] = static_cast<float>(t.A[q]);
-        c[3 * q + 2] = static_cast<float>(t.B[q]);
+        c[3 * q + 0] = static_cast<float>(plane_at(t, q, x0 - tb.x0, y0 - tb.y0));
+        c[3 * q + 1] = t.A[q];
+        c[3 * q + 2] = t.B[q];
       }
       // The footprint's bound over the entry's box in the tile: where it shows a layer
       // magnified, its pixels skip their own footprints. It costs about what a few pixels'
@@ -980,15 +1011,16 @@ void Renderer::Impl::resolve_rows(int row0, int row1) {
       // The pinhole pixel nearest to this output pixel's ray names the triangle; its planes
       // are evaluated at the ray's exact pinhole position.
       const Tri& t = tris[static_cast<std::size_t>(id)];
-      const double iz = t.A[0] * px + t.B[0] * py + t.C[0];
+      const PixelBox tb = box(t);
+      const double iz = plane_at(t, 0, px - tb.x0, py - tb.y0);
       if (!(iz > 0)) continue;
       const double z = 1.0 / iz;
-      const double wx = (t.A[1] * px + t.B[1] * py + t.C[1]) * z;
-      const double wy = (t.A[2] * px + t.B[2] * py + t.C[2]) * z;
+      const double wx = plane_at(t, 1, px - tb.x0, py - tb.y0) * z;
+      const double wy = plane_at(t, 2, px - tb.x0, py - tb.y0) * z;
       gz[k] = static_cast<float>(z);
       gx[k] = static_cast<float>(wx);
       gy[k] = static_cast<float>(wy);
-      log2fp[k] = footprint_log2(t.A[0], t.B[0], t.A[1], t.B[1], t.A[2], t.B[2], wx, wy, z);
+      log2fp[k] = footprint_log2<double>(t.A[0], t.B[0], t.A[1], t.B[1], t.A[2], t.B[2], wx, wy, z);
     }
 }
 
