@@ -233,7 +233,7 @@ void for_rows(ThreadPool& pool, int rows, F fn) {
 
 void build_mips(const geo::Layer& L, LayerTexture& T, ThreadPool& pool) {
   const int w0 = L.rgba.width(), h0 = L.rgba.height();
-  T.levels = mip_chain(w0, h0, 16);
+  T.levels = mip_chain(w0, h0, kMaxMipLevels);
   const std::size_t end = mip_chain_end(T.levels);
   // A guard texel (0) at each end: the vector kernels read a row's two taps as one pair,
   // which may start one texel before a level or end one after it (shade_kernels.hpp). Not

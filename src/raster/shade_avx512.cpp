@@ -141,6 +141,34 @@ struct Fetched {
   __m512i U, V;
 };
 
+// Taps (x0 .. x0 + 1, y0 .. y0 + 1) by gathers from the levels whose first texel, width and
+// height each lane's off, wid and hei give; `interior`: the lanes whose four taps lie inside.
+TL_INLINE void gather_taps(const int* texels, __m512i x0, __m512i y0, __m512i off, __m512i wid, __m512i hei,
+                           __mmask16 interior, Taps& t) {
+  if (interior == 0xFFFF) {
+    const __m512i at = _mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(y0, wid), x0));
+    gather_pair(texels, at, t.t00, t.t10);
+    gather_pair(texels, _mm512_add_epi32(at, wid), t.t01, t.t11);
+    return;
+  }
+  // The pair starts at x0 clamped to [-1, width - 1] and the row is clamped into the level; a
+  // tap outside the level reads as 0, whatever the pair fetched (the array has a guard texel
+  // at each end, so the pair never leaves it).
+  const __m512i zero = _mm512_setzero_si512(), ione = _mm512_set1_epi32(1);
+  const __m512i wm1 = _mm512_sub_epi32(wid, ione), hm1 = _mm512_sub_epi32(hei, ione);
+  const __m512i xp = _mm512_min_epi32(_mm512_max_epi32(x0, _mm512_set1_epi32(-1)), wm1);
+  const __m512i x1 = _mm512_add_epi32(x0, ione), y1 = _mm512_add_epi32(y0, ione);
+  const __mmask16 in_l = _mm512_cmplt_epu32_mask(x0, wid), in_r = _mm512_cmplt_epu32_mask(x1, wid);
+  const __mmask16 in_t = _mm512_cmplt_epu32_mask(y0, hei), in_b = _mm512_cmplt_epu32_mask(y1, hei);
+  const __m512i yt = _mm512_min_epi32(_mm512_max_epi32(y0, zero), hm1), yb = _mm512_min_epi32(_mm512_max_epi32(y1, zero), hm1);
+  gather_pair(texels, _mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(yt, wid), xp)), t.t00, t.t10);
+  gather_pair(texels, _mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(yb, wid), xp)), t.t01, t.t11);
+  t.t00 = _mm512_maskz_mov_epi32(in_t & in_l, t.t00);
+  t.t10 = _mm512_maskz_mov_epi32(in_t & in_r, t.t10);
+  t.t01 = _mm512_maskz_mov_epi32(in_b & in_l, t.t01);
+  t.t11 = _mm512_maskz_mov_epi32(in_b & in_r, t.t11);
+}
+
 // The taps of 16 lanes seeing world (x, y) at one level.
 TL_INLINE Fetched fetch16(const ShadeParams& p, int level, __m512 x, __m512 y) {
   const MipLevel& L = p.levels[level];
@@ -152,36 +180,50 @@ TL_INLINE Fetched fetch16(const ShadeParams& p, int level, __m512 x, __m512 y) {
   f.V = fixed8(_mm512_add_ps(_mm512_add_ps(_mm512_set1_ps(k.b0), _mm512_mul_ps(_mm512_set1_ps(k.b1), x)),
                              _mm512_mul_ps(_mm512_set1_ps(k.b2), y)));
   const __m512i x0 = _mm512_srai_epi32(f.U, 8), y0 = _mm512_srai_epi32(f.V, 8);
-  const __m512i wid = _mm512_set1_epi32(L.width), hei = _mm512_set1_epi32(L.height);
-  Taps& t = f.t;
   // 0 <= x0 < width - 1 and 0 <= y0 < height - 1 unsigned: every lane's four taps inside.
   const __mmask16 interior = _mm512_cmplt_epu32_mask(x0, _mm512_set1_epi32(L.width - 1)) &
                              _mm512_cmplt_epu32_mask(y0, _mm512_set1_epi32(L.height - 1));
-  if (interior == 0xFFFF) {
-    if (!window_taps(L, texels, x0, y0, t)) {
-      const __m512i at = _mm512_add_epi32(_mm512_set1_epi32(L.offset), _mm512_add_epi32(_mm512_mullo_epi32(y0, wid), x0));
-      gather_pair(texels, at, t.t00, t.t10);
-      gather_pair(texels, _mm512_add_epi32(at, wid), t.t01, t.t11);
-    }
-  } else {
-    // The pair starts at x0 clamped to [-1, width - 1] and the row is clamped into the level;
-    // a tap outside the level reads as 0, whatever the pair fetched (the array has a guard
-    // texel at each end, so the pair never leaves it).
-    const __m512i zero = _mm512_setzero_si512(), ione = _mm512_set1_epi32(1);
-    const __m512i wm1 = _mm512_sub_epi32(wid, ione), hm1 = _mm512_sub_epi32(hei, ione);
-    const __m512i xp = _mm512_min_epi32(_mm512_max_epi32(x0, _mm512_set1_epi32(-1)), wm1);
-    const __m512i x1 = _mm512_add_epi32(x0, ione), y1 = _mm512_add_epi32(y0, ione);
-    const __mmask16 in_l = _mm512_cmplt_epu32_mask(x0, wid), in_r = _mm512_cmplt_epu32_mask(x1, wid);
-    const __mmask16 in_t = _mm512_cmplt_epu32_mask(y0, hei), in_b = _mm512_cmplt_epu32_mask(y1, hei);
-    const __m512i yt = _mm512_min_epi32(_mm512_max_epi32(y0, zero), hm1), yb = _mm512_min_epi32(_mm512_max_epi32(y1, zero), hm1);
-    const __m512i off = _mm512_set1_epi32(L.offset);
-    gather_pair(texels, _mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(yt, wid), xp)), t.t00, t.t10);
-    gather_pair(texels, _mm512_add_epi32(off, _mm512_add_epi32(_mm512_mullo_epi32(yb, wid), xp)), t.t01, t.t11);
-    t.t00 = _mm512_maskz_mov_epi32(in_t & in_l, t.t00);
-    t.t10 = _mm512_maskz_mov_epi32(in_t & in_r, t.t10);
-    t.t01 = _mm512_maskz_mov_epi32(in_b & in_l, t.t01);
-    t.t11 = _mm512_maskz_mov_epi32(in_b & in_r, t.t11);
+  if (interior != 0xFFFF || !window_taps(L, texels, x0, y0, f.t))
+    gather_taps(texels, x0, y0, _mm512_set1_epi32(L.offset), _mm512_set1_epi32(L.width), _mm512_set1_epi32(L.height),
+                interior, f.t);
+  return f;
+}
+
+// A chain's levels (at most kMaxMipLevels, 16) by level, one lane each: the per-level values fetch16_lanes()
+// picks by each lane's level.
+struct LevelTable {
+  __m512 a0, a1, a2, b0, b1, b2;
+  __m512i off, wid, hei;
+};
+
+TL_INLINE LevelTable level_table(const ShadeParams& p) {
+  alignas(64) float c[6][16] = {};
+  alignas(64) int d[3][16] = {};
+  for (int l = 0; l < p.n_levels && l < kMaxMipLevels; ++l) {
+    const LevelCoords& k = p.coords[l];
+    c[0][l] = k.a0; c[1][l] = k.a1; c[2][l] = k.a2;
+    c[3][l] = k.b0; c[4][l] = k.b1; c[5][l] = k.b2;
+    d[0][l] = p.levels[l].offset; d[1][l] = p.levels[l].width; d[2][l] = p.levels[l].height;
   }
+  return {_mm512_load_ps(c[0]), _mm512_load_ps(c[1]), _mm512_load_ps(c[2]), _mm512_load_ps(c[3]), _mm512_load_ps(c[4]),
+          _mm512_load_ps(c[5]), _mm512_load_si512(d[0]), _mm512_load_si512(d[1]), _mm512_load_si512(d[2])};
+}
+
+// fetch16() with each lane at its own level (a vector whose lanes straddle levels): the same
+// coordinates and taps lane by lane, by gathers.
+TL_INLINE Fetched fetch16_lanes(const ShadeParams& p, const LevelTable& T, __m512i level, __m512 x, __m512 y) {
+  const int* texels = reinterpret_cast<const int*>(p.texels);
+  Fetched f;
+  f.U = fixed8(_mm512_add_ps(_mm512_add_ps(_mm512_permutexvar_ps(level, T.a0), _mm512_mul_ps(_mm512_permutexvar_ps(level, T.a1), x)),
+                             _mm512_mul_ps(_mm512_permutexvar_ps(level, T.a2), y)));
+  f.V = fixed8(_mm512_add_ps(_mm512_add_ps(_mm512_permutexvar_ps(level, T.b0), _mm512_mul_ps(_mm512_permutexvar_ps(level, T.b1), x)),
+                             _mm512_mul_ps(_mm512_permutexvar_ps(level, T.b2), y)));
+  const __m512i x0 = _mm512_srai_epi32(f.U, 8), y0 = _mm512_srai_epi32(f.V, 8);
+  const __m512i wid = _mm512_permutexvar_epi32(level, T.wid), hei = _mm512_permutexvar_epi32(level, T.hei);
+  const __m512i ione = _mm512_set1_epi32(1);
+  const __mmask16 interior = _mm512_cmplt_epu32_mask(x0, _mm512_sub_epi32(wid, ione)) &
+                             _mm512_cmplt_epu32_mask(y0, _mm512_sub_epi32(hei, ione));
+  gather_taps(texels, x0, y0, _mm512_permutexvar_epi32(level, T.off), wid, hei, interior, f.t);
   return f;
 }
 
@@ -281,6 +323,8 @@ TL_INLINE void shade_chunk(const ShadeParams& p, int groups, const __m512* x, co
   }
   __m512 xs[kChunkGroups], ys[kChunkGroups];
   Levels16 lv[kChunkGroups];
+  LevelTable table;
+  bool have_table = false;
   Sample16 s[kChunkGroups];
   // Lanes without terrain compute on (0, 0) and are cleared at the end.
   for (int g = 0; g < groups; ++g) {
@@ -311,17 +355,19 @@ TL_INLINE void shade_chunk(const ShadeParams& p, int groups, const __m512* x, co
       s[g] = {lerp15(s[g].rb, s1.rb, l.t), lerp15(s[g].ga, s1.ga, l.t)};
       continue;
     }
-    // Lanes at different levels: every level from the least l0 to the greatest l1, each lane
-    // taking its own two.
+    // Lanes at different levels: each lane's two, by gathers (one sample where no lane's
+    // fraction needs the second).
     const __m512i l1 = _mm512_min_epi32(_mm512_add_epi32(l.l0, _mm512_set1_epi32(1)), _mm512_set1_epi32(top));
-    Sample16 s0{}, s1{};
-    for (int level = l.lo; level <= (l.hi < top ? l.hi + 1 : top); ++level) {
-      const Sample16 at = filter16(fetch16(p, level, xs[g], ys[g]));
-      const __mmask16 first = _mm512_cmpeq_epi32_mask(l.l0, _mm512_set1_epi32(level));
-      const __mmask16 second = _mm512_cmpeq_epi32_mask(l1, _mm512_set1_epi32(level));
-      s0 = {_mm512_mask_mov_epi32(s0.rb, first, at.rb), _mm512_mask_mov_epi32(s0.ga, first, at.ga)};
-      s1 = {_mm512_mask_mov_epi32(s1.rb, second, at.rb), _mm512_mask_mov_epi32(s1.ga, second, at.ga)};
+    if (!have_table) {
+      table = level_table(p);
+      have_table = true;
     }
+    const Sample16 s0 = filter16(fetch16_lanes(p, table, l.l0, xs[g], ys[g]));
+    if (_mm512_mask_test_epi32_mask(terrain[g], l.t, l.t) == 0) {
+      s[g] = s0;
+      continue;
+    }
+    const Sample16 s1 = filter16(fetch16_lanes(p, table, l1, xs[g], ys[g]));
     s[g] = {lerp15(s0.rb, s1.rb, l.t), lerp15(s0.ga, s1.ga, l.t)};
   }
   for (int g = 0; g < groups; ++g)

@@ -34,7 +34,8 @@
 // So the float work is the resolve, the footprint and the texel coordinates. A vector's lanes
 // mostly share a level; its fetches are then row loads where its taps lie in a few texel rows
 // (nadir views, and rows that run along the texture's rows), gathers elsewhere. Where its
-// lanes need different levels, it samples each of them and picks per lane.
+// lanes need different levels, it samples each of them and picks per lane (AVX-512: gathers
+// each lane's two levels, two samples where the levels l .. l + 2 took three).
 #pragma once
 
 #include <cmath>
@@ -43,6 +44,11 @@
 #include <vector>
 
 namespace terralign::raster {
+
+// The most levels the renderer's chains have (down to 1 x 1 from up to 32768 texels a side;
+// a larger texture's chain stops there). The AVX-512 kernels pick a lane's level from one
+// vector of 16.
+constexpr int kMaxMipLevels = 16;
 
 struct MipLevel {
   std::int32_t offset;  // index of the level's first texel in the texel array
@@ -77,7 +83,7 @@ struct ShadeParams {
                                 // back, and a readable guard texel before the first and after the last
   const MipLevel* levels;
   const LevelCoords* coords;    // per level
-  int n_levels;                 // >= 1
+  int n_levels;                 // 1 .. kMaxMipLevels
   float lod_bias;               // added to log2(footprint in metres): -log2(texel size)
 };
 
