@@ -7,6 +7,7 @@
 #include <cstring>
 #include <limits>
 
+#include <terralign/raster/geometry_kernels.hpp>
 #include <terralign/raster/shade_kernels.hpp>
 #include <terralign/raster/terrain.hpp>
 #include <terralign/geo/thread_pool.hpp>
@@ -21,7 +22,6 @@ namespace {
 constexpr int kTileW = 128, kTileH = 24;
 constexpr int kVisStride = kTileW + 8;   // a visibility buffer's row (see Impl::zbuf)
 constexpr int kVisSlice = kTileH * kVisStride + 16;  // a tile's visibility buffer, and a cache line apart
-constexpr int kSubBits = 8;              // sub-pixel bits of the fixed-point screen positions
 constexpr double kGuardPx = 2048.0;      // guard band beyond the image, pixels
 constexpr int kMaxClipVerts = 9;
 constexpr int kMaxTileEntries = 1 << 16;  // triangles binned into one tile, at most
@@ -44,31 +44,6 @@ struct ClipVert {
   float wx, wy;     // local world position
 };
 
-// A vertex inside the clip volume, projected: screen position (pixel centres at integers),
-// 1/z and local world x/z, y/z (the planes' values there), and the fixed-point snap of the
-// position (inside the guard band: |X|, |Y| < 2^29).
-struct ProjVert {
-  double sx, sy, iz, qx, qy;
-  std::int32_t X, Y;
-};
-
-// A screen triangle ready for rasterization: its snapped corners, and for 1/z, x_world/z and
-// y_world/z the planes q(x, y) = A (x - x0) + B (y - y0) + C in pixel coordinates (centres at
-// integers), (x0, y0) the corner of its pixel box (box()). Fitted in double, kept in float
-// relative to that corner: one cache line a triangle (kUnsharedAlign is the line), where the
-// planes in double at the image's corner took 112 bytes (the triangle array of a renderer,
-// max_triangles a thread, 59 MB a thread at the default, is now 34 MB; frames are no faster).
-// A pixel's 1/z from the float planes is within about 1e-7 relative of the double ones.
-struct alignas(kUnsharedAlign) Tri {
-  std::int32_t X[3], Y[3];  // fixed point, kSubBits (inside the guard band: |X|, |Y| < 2^29)
-  float A[3], B[3], C[3];   // [0]: 1/z, [1]: wx/z, [2]: wy/z
-};
-
-// A triangle's inclusive pixel box, clamped to the view: the pixels whose centres (whole
-// coordinates) lie within its snapped corners' box. Only they can be covered.
-struct PixelBox {
-  int x0, y0, x1, y1;
-};
 // The screen tiles a triangle's pixel box touches, inclusive (create() keeps tile indices
 // below 2^16). Kept beside the triangles, 8 bytes each, so that binning reads these alone and
 // not the triangles' cache lines.
@@ -76,34 +51,30 @@ struct TileSpan {
   std::uint16_t x0, y0, x1, y1;
 };
 
-inline PixelBox pixel_box(const std::int32_t* X, const std::int32_t* Y, int vw, int vh) {
-  constexpr std::int32_t kHalfUp = (1 << kSubBits) - 1;
-  // (int casts: std::int32_t is long on some targets, arm-none-eabi's among them.)
-  return {std::max(0, static_cast<int>((std::min({X[0], X[1], X[2]}) + kHalfUp) >> kSubBits)),
-          std::max(0, static_cast<int>((std::min({Y[0], Y[1], Y[2]}) + kHalfUp) >> kSubBits)),
-          std::min(vw - 1, static_cast<int>(std::max({X[0], X[1], X[2]}) >> kSubBits)),
-          std::min(vh - 1, static_cast<int>(std::max({Y[0], Y[1], Y[2]}) >> kSubBits))};
+// Plane k of t at (dx, dy) pixels from its box's corner, in double.
+inline double plane_at(const Tri& t, int k, double dx, double dy) {
+  return static_cast<double>(t.C[k]) + static_cast<double>(t.A[k]) * dx + static_cast<double>(t.B[k]) * dy;
 }
+
+constexpr int kChunkVerts = (kChunkQuads + 1) * (kChunkQuads + 1);
 
 // One thread's share of a frame's geometry: the triangles of its run of chunks, in draw
 // order, in its own region of the triangle array, and the scratch of the chunk being drawn.
 // Each part, like each thread's RasterScratch and RowBand, starts a cache line of its own
 // (kUnsharedAlign): a line that two threads write moves between their cores on every write,
 // which costs far more than the write.
-// Plane k of t at (dx, dy) pixels from its box's corner, in double.
-inline double plane_at(const Tri& t, int k, double dx, double dy) {
-  return static_cast<double>(t.C[k]) + static_cast<double>(t.A[k]) * dx + static_cast<double>(t.B[k]) * dy;
-}
-
 struct alignas(kUnsharedAlign) GeomPart {
   Tri* tris = nullptr;        // max_triangles entries
   TileSpan* spans = nullptr;  // likewise, one per triangle
   int n_tris = 0;
   bool overflow = false;
   int chunks_drawn = 0;
-  std::vector<ClipVert> verts;       // (kChunkQuads + 1)^2
-  std::vector<ProjVert> proj;        // their projections, where out is 0
+  std::vector<ClipVert> verts;       // kChunkVerts
+  std::vector<double> proj_f64;      // their projections (proj), where out is 0
+  std::vector<std::int32_t> proj_i32;
+  ProjGrid proj{};
   std::vector<std::uint8_t> out;     // per vertex: bit p set when outside clip plane p
+  PixelBox row_boxes[2 * kChunkQuads];  // the boxes of a row of quads' triangles
   std::vector<int> tile_count;       // per screen tile: this part's triangles binned there (counted as drawn)
   std::vector<int> tile_fill;        // per screen tile: where this part's next entry goes
 };
@@ -149,6 +120,7 @@ struct Renderer::Impl {
   DepthBlockFn depth_block = depth_block_scalar;
   EdgeBlockFn edge_block = edge_block_scalar;
   EdgeBlock32Fn edge_block32 = nullptr;   // where built: blocks whose edge values fit 32 bits
+  EmitQuadRowFn emit_quad_row = emit_quad_row_scalar;
   const char* simd = "scalar";
   std::unique_ptr<ThreadPool> pool;
 
@@ -192,6 +164,7 @@ struct Renderer::Impl {
   ProjVert project(const ClipVert& v) const;
   std::uint8_t outcode(const ClipVert& v) const;
   void emit_triangle(GeomPart& g, const ProjVert& a, const ProjVert& b, const ProjVert& c) const;
+  void add_triangle(GeomPart& g, const PixelBox& p) const;
   float clip_dist(int plane, const ClipVert& v) const;
   void clip_and_emit(GeomPart& g, const ClipVert* v, int n) const;
   void draw_chunk(GeomPart& g, const TerrainChunk& c) const;
@@ -369,8 +342,12 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     GeomPart& g = m.parts[j];
     g.tris = m.tris.get() + j * static_cast<std::size_t>(options.max_triangles);
     g.spans = m.spans.get() + j * static_cast<std::size_t>(options.max_triangles);
-    g.verts.resize(static_cast<std::size_t>(kChunkQuads + 1) * (kChunkQuads + 1));
-    g.proj.resize(g.verts.size());
+    g.verts.resize(kChunkVerts);
+    g.proj_f64.resize(5 * kChunkVerts);
+    g.proj_i32.resize(2 * kChunkVerts);
+    double* f = g.proj_f64.data();
+    std::int32_t* i = g.proj_i32.data();
+    g.proj = {f, f + kChunkVerts, f + 2 * kChunkVerts, f + 3 * kChunkVerts, f + 4 * kChunkVerts, i, i + kChunkVerts};
     g.out.resize(g.verts.size());
     g.tile_count.resize(tiles);
     g.tile_fill.resize(tiles);
@@ -423,6 +400,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.shade = shade_row_avx512;  // the edge kernels stay AVX2
     m.resolve_shade = resolve_shade_row_avx512;
     m.depth_block = depth_block_avx512;
+    m.emit_quad_row = emit_quad_row_avx512;
     m.simd = "avx512";
   }
 #endif
@@ -502,37 +480,12 @@ void Renderer::Impl::emit_triangle(GeomPart& g, const ProjVert& a, const ProjVer
     g.overflow = true;
     return;
   }
-  const ProjVert* v[3] = {&a, &b, &c};
-  const double sx[3] = {a.sx, b.sx, c.sx}, sy[3] = {a.sy, b.sy, c.sy}, iz[3] = {a.iz, b.iz, c.iz};
-  Tri& t = g.tris[g.n_tris];
-  for (int k = 0; k < 3; ++k) {
-    t.X[k] = v[k]->X;
-    t.Y[k] = v[k]->Y;
-  }
-  const std::int64_t area = (std::int64_t{t.X[1]} - t.X[0]) * (std::int64_t{t.Y[2]} - t.Y[0]) -
-                            (std::int64_t{t.Y[1]} - t.Y[0]) * (std::int64_t{t.X[2]} - t.X[0]);
-  if (area == 0) return;
-  if (area < 0) {  // make every triangle clockwise on screen (y down): area > 0
-    std::swap(t.X[1], t.X[2]);
-    std::swap(t.Y[1], t.Y[2]);
-  }
-  // A triangle of a few pixels often holds no pixel centre at all.
-  const PixelBox p = box(t);
-  if (p.x0 > p.x1 || p.y0 > p.y1) return;
-  // Planes from the unsnapped positions, in double: exact depth whatever the snapping.
-  const double x0 = sx[0], y0 = sy[0];
-  const double e1x = sx[1] - x0, e1y = sy[1] - y0, e2x = sx[2] - x0, e2y = sy[2] - y0;
-  const double det = e1x * e2y - e2x * e1y;
-  if (det == 0) return;
-  const double q[3][3] = {{iz[0], iz[1], iz[2]}, {a.qx, b.qx, c.qx}, {a.qy, b.qy, c.qy}};
-  const double inv_det = 1.0 / det;  // one division, not six (a frame has up to 10^5 triangles)
-  for (int k = 0; k < 3; ++k) {
-    const double d1 = q[k][1] - q[k][0], d2 = q[k][2] - q[k][0];
-    const double A = (d1 * e2y - d2 * e1y) * inv_det, B = (d2 * e1x - d1 * e2x) * inv_det;
-    t.A[k] = static_cast<float>(A);
-    t.B[k] = static_cast<float>(B);
-    t.C[k] = static_cast<float>(q[k][0] + A * (p.x0 - x0) + B * (p.y0 - y0));
-  }
+  PixelBox box;
+  if (setup_triangle(a, b, c, vw, vh, g.tris[g.n_tris], box)) add_triangle(g, box);
+}
+
+// Counts the triangle just set up at g.tris[g.n_tris], whose pixel box is p, into its tiles.
+void Renderer::Impl::add_triangle(GeomPart& g, const PixelBox& p) const {
   TileSpan& span = g.spans[g.n_tris];
   span = {static_cast<std::uint16_t>(p.x0 / kTileW), static_cast<std::uint16_t>(p.y0 / kTileH),
           static_cast<std::uint16_t>(p.x1 / kTileW), static_cast<std::uint16_t>(p.y1 / kTileH)};
@@ -624,7 +577,6 @@ bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool
 
 void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
   std::vector<ClipVert>& chunk_verts = g.verts;
-  std::vector<ProjVert>& chunk_proj = g.proj;
   std::vector<std::uint8_t>& chunk_out = g.out;
   const int step = 1 << c.level;
   const int nx = terrain.posts_x(), ny = terrain.posts_y();
@@ -634,8 +586,15 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
     ii[k] = std::min(c.i0 + k * step, nx - 1);
     jj[k] = std::min(c.j0 + k * step, ny - 1);
   }
-  bool nan_post[(kChunkQuads + 1) * (kChunkQuads + 1)];
-  for (int b = 0; b < n; ++b)
+  bool nan_post[kChunkVerts];
+  // Rows of posts all inside the clip volume and with heights, and whether every quad of a
+  // row has four distinct posts (not so at the map's last column): there both triangles of
+  // every quad of a row between two such rows go to emit_quad_row().
+  bool row_inside[kChunkQuads + 1];
+  bool columns_distinct = true;
+  for (int a = 0; a < kChunkQuads; ++a) columns_distinct = columns_distinct && ii[a + 1] != ii[a];
+  for (int b = 0; b < n; ++b) {
+    row_inside[b] = true;
     for (int a = 0; a < n; ++a) {
       float x, y, z;
       terrain.post(ii[a], jj[b], x, y, z);
@@ -645,12 +604,19 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
       v = {p.x(), p.y(), p.z(), x, y};
       const std::size_t k = static_cast<std::size_t>(b * n + a);
       chunk_out[k] = outcode(v);
-      if (chunk_out[k] == 0) chunk_proj[k] = project(v);
+      if (chunk_out[k] == 0) g.proj.set(static_cast<int>(k), project(v));
+      row_inside[b] = row_inside[b] && chunk_out[k] == 0 && !nan_post[k];
     }
+  }
   // No back-face culling: render() refuses a camera below the terrain, and above it the
   // visible side of a heightfield faces the camera, so culling would only save time.
   for (int b = 0; b < kChunkQuads; ++b) {
     if (jj[b + 1] == jj[b]) continue;
+    if (columns_distinct && row_inside[b] && row_inside[b + 1] && g.n_tris + 2 * kChunkQuads <= options.max_triangles) {
+      const int kept = emit_quad_row(g.proj, b * n, (b + 1) * n, kChunkQuads, vw, vh, g.tris + g.n_tris, g.row_boxes);
+      for (int i = 0; i < kept; ++i) add_triangle(g, g.row_boxes[i]);
+      continue;
+    }
     for (int a = 0; a < kChunkQuads; ++a) {
       if (ii[a + 1] == ii[a]) continue;
       const int k00 = b * n + a, k10 = k00 + 1, k01 = k00 + n, k11 = k01 + 1;
@@ -658,10 +624,9 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
       // Wholly inside the clip volume (most triangles): each vertex was projected once.
       if ((chunk_out[static_cast<std::size_t>(k00)] | chunk_out[static_cast<std::size_t>(k10)] |
            chunk_out[static_cast<std::size_t>(k01)] | chunk_out[static_cast<std::size_t>(k11)]) == 0) {
-        const ProjVert& p00 = chunk_proj[static_cast<std::size_t>(k00)];
-        const ProjVert& p11 = chunk_proj[static_cast<std::size_t>(k11)];
-        emit_triangle(g, p00, chunk_proj[static_cast<std::size_t>(k10)], p11);
-        emit_triangle(g, p00, p11, chunk_proj[static_cast<std::size_t>(k01)]);
+        const ProjVert p00 = g.proj.at(k00), p11 = g.proj.at(k11);
+        emit_triangle(g, p00, g.proj.at(k10), p11);
+        emit_triangle(g, p00, p11, g.proj.at(k01));
         continue;
       }
       const ClipVert& v00 = chunk_verts[static_cast<std::size_t>(k00)];

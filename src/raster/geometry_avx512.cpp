@@ -1,0 +1,109 @@
+// The AVX-512 (F, VL) build of the triangle set-up kernel (geometry_kernels.hpp): eight quads'
+// first triangles in one set of vectors and their second triangles in another, each step
+// setup_triangle()'s operation on eight lanes, in its order (no FMA: the raster target says
+// -ffp-contract=off and this file is built without -mfma), so the triangles are the scalar
+// kernel's bit for bit. The kept ones are then copied out lane by lane in quad order.
+#include <terralign/raster/geometry_kernels.hpp>
+
+#include <immintrin.h>
+
+namespace terralign::raster {
+namespace {
+
+// Eight vertices, one a lane.
+struct Vert8 {
+  __m512d sx, sy, iz, qx, qy;
+  __m256i X, Y;
+};
+
+inline Vert8 load8(const ProjGrid& g, int k, __mmask8 lanes) {
+  return {_mm512_maskz_loadu_pd(lanes, g.sx + k), _mm512_maskz_loadu_pd(lanes, g.sy + k),
+          _mm512_maskz_loadu_pd(lanes, g.iz + k), _mm512_maskz_loadu_pd(lanes, g.qx + k),
+          _mm512_maskz_loadu_pd(lanes, g.qy + k), _mm256_maskz_loadu_epi32(lanes, g.X + k),
+          _mm256_maskz_loadu_epi32(lanes, g.Y + k)};
+}
+
+// Eight triangles set up, field by field, and the lanes kept.
+struct Tri8 {
+  alignas(32) std::int32_t X[3][8], Y[3][8];
+  alignas(32) float A[3][8], B[3][8], C[3][8];
+  alignas(32) std::int32_t box[4][8];
+  __mmask8 keep;
+};
+
+inline void setup8(const Vert8& a, const Vert8& b, const Vert8& c, __mmask8 lanes, int vw, int vh, Tri8& t) {
+  // The doubled area, in 64 bits: differences of corners inside the guard band fit 31 bits.
+  const __m512i dx1 = _mm512_cvtepi32_epi64(_mm256_sub_epi32(b.X, a.X)), dy2 = _mm512_cvtepi32_epi64(_mm256_sub_epi32(c.Y, a.Y));
+  const __m512i dy1 = _mm512_cvtepi32_epi64(_mm256_sub_epi32(b.Y, a.Y)), dx2 = _mm512_cvtepi32_epi64(_mm256_sub_epi32(c.X, a.X));
+  const __m512i area = _mm512_sub_epi64(_mm512_mul_epi32(dx1, dy2), _mm512_mul_epi32(dy1, dx2));
+  const __mmask8 flip = _mm512_cmplt_epi64_mask(area, _mm512_setzero_si512());
+  __mmask8 keep = static_cast<__mmask8>(lanes & _mm512_cmpneq_epi64_mask(area, _mm512_setzero_si512()));
+  const __m256i X1 = _mm256_mask_blend_epi32(flip, b.X, c.X), X2 = _mm256_mask_blend_epi32(flip, c.X, b.X);
+  const __m256i Y1 = _mm256_mask_blend_epi32(flip, b.Y, c.Y), Y2 = _mm256_mask_blend_epi32(flip, c.Y, b.Y);
+  const __m256i half_up = _mm256_set1_epi32((1 << kSubBits) - 1), zero = _mm256_setzero_si256();
+  const __m256i bx0 = _mm256_max_epi32(zero, _mm256_srai_epi32(_mm256_add_epi32(_mm256_min_epi32(_mm256_min_epi32(a.X, X1), X2), half_up), kSubBits));
+  const __m256i by0 = _mm256_max_epi32(zero, _mm256_srai_epi32(_mm256_add_epi32(_mm256_min_epi32(_mm256_min_epi32(a.Y, Y1), Y2), half_up), kSubBits));
+  const __m256i bx1 = _mm256_min_epi32(_mm256_set1_epi32(vw - 1), _mm256_srai_epi32(_mm256_max_epi32(_mm256_max_epi32(a.X, X1), X2), kSubBits));
+  const __m256i by1 = _mm256_min_epi32(_mm256_set1_epi32(vh - 1), _mm256_srai_epi32(_mm256_max_epi32(_mm256_max_epi32(a.Y, Y1), Y2), kSubBits));
+  keep = static_cast<__mmask8>(keep & _mm256_cmple_epi32_mask(bx0, bx1) & _mm256_cmple_epi32_mask(by0, by1));
+  const __m512d e1x = _mm512_sub_pd(b.sx, a.sx), e1y = _mm512_sub_pd(b.sy, a.sy);
+  const __m512d e2x = _mm512_sub_pd(c.sx, a.sx), e2y = _mm512_sub_pd(c.sy, a.sy);
+  const __m512d det = _mm512_sub_pd(_mm512_mul_pd(e1x, e2y), _mm512_mul_pd(e2x, e1y));
+  keep = static_cast<__mmask8>(keep & _mm512_cmp_pd_mask(det, _mm512_setzero_pd(), _CMP_NEQ_UQ));  // as !(det == 0)
+  t.keep = keep;
+  if (keep == 0) return;
+  const __m512d inv_det = _mm512_div_pd(_mm512_set1_pd(1.0), det);
+  const __m512d ox = _mm512_sub_pd(_mm512_cvtepi32_pd(bx0), a.sx), oy = _mm512_sub_pd(_mm512_cvtepi32_pd(by0), a.sy);
+  const __m512d* q[3][3] = {{&a.iz, &b.iz, &c.iz}, {&a.qx, &b.qx, &c.qx}, {&a.qy, &b.qy, &c.qy}};
+  for (int k = 0; k < 3; ++k) {
+    const __m512d d1 = _mm512_sub_pd(*q[k][1], *q[k][0]), d2 = _mm512_sub_pd(*q[k][2], *q[k][0]);
+    const __m512d A = _mm512_mul_pd(_mm512_sub_pd(_mm512_mul_pd(d1, e2y), _mm512_mul_pd(d2, e1y)), inv_det);
+    const __m512d B = _mm512_mul_pd(_mm512_sub_pd(_mm512_mul_pd(d2, e1x), _mm512_mul_pd(d1, e2x)), inv_det);
+    const __m512d C = _mm512_add_pd(_mm512_add_pd(*q[k][0], _mm512_mul_pd(A, ox)), _mm512_mul_pd(B, oy));
+    _mm256_store_ps(t.A[k], _mm512_cvtpd_ps(A));
+    _mm256_store_ps(t.B[k], _mm512_cvtpd_ps(B));
+    _mm256_store_ps(t.C[k], _mm512_cvtpd_ps(C));
+  }
+  const __m256i* corners[6] = {&a.X, &X1, &X2, &a.Y, &Y1, &Y2};
+  for (int k = 0; k < 3; ++k) {
+    _mm256_store_si256(reinterpret_cast<__m256i*>(t.X[k]), *corners[k]);
+    _mm256_store_si256(reinterpret_cast<__m256i*>(t.Y[k]), *corners[3 + k]);
+  }
+  _mm256_store_si256(reinterpret_cast<__m256i*>(t.box[0]), bx0);
+  _mm256_store_si256(reinterpret_cast<__m256i*>(t.box[1]), by0);
+  _mm256_store_si256(reinterpret_cast<__m256i*>(t.box[2]), bx1);
+  _mm256_store_si256(reinterpret_cast<__m256i*>(t.box[3]), by1);
+}
+
+inline void copy_out(const Tri8& t, int i, Tri& out, PixelBox& box) {
+  for (int k = 0; k < 3; ++k) {
+    out.X[k] = t.X[k][i];
+    out.Y[k] = t.Y[k][i];
+    out.A[k] = t.A[k][i];
+    out.B[k] = t.B[k][i];
+    out.C[k] = t.C[k][i];
+  }
+  box = {t.box[0][i], t.box[1][i], t.box[2][i], t.box[3][i]};
+}
+
+}  // namespace
+
+int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes) {
+  int count = 0;
+  Tri8 first, second;
+  for (int a0 = 0; a0 < n; a0 += 8) {
+    const int m = n - a0 < 8 ? n - a0 : 8;
+    const __mmask8 lanes = static_cast<__mmask8>((1u << m) - 1);
+    const Vert8 v00 = load8(g, top + a0, lanes), v10 = load8(g, top + a0 + 1, lanes);
+    const Vert8 v01 = load8(g, bottom + a0, lanes), v11 = load8(g, bottom + a0 + 1, lanes);
+    setup8(v00, v10, v11, lanes, vw, vh, first);
+    setup8(v00, v11, v01, lanes, vw, vh, second);
+    for (int i = 0; i < m; ++i) {
+      if (first.keep >> i & 1) copy_out(first, i, out[count], boxes[count]), ++count;
+      if (second.keep >> i & 1) copy_out(second, i, out[count], boxes[count]), ++count;
+    }
+  }
+  return count;
+}
+
+}  // namespace terralign::raster

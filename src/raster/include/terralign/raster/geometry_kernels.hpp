@@ -1,0 +1,105 @@
+// Triangle set-up: a screen triangle from three projected vertices (its snapped corners made
+// clockwise, its pixel box, the planes of 1/z, x/z and y/z fitted in double), one at a time
+// (setup_triangle(): the clipped triangles) or for a row of a terrain chunk's quads at once
+// (emit_quad_row: most of a frame's triangles). A scalar build and an AVX-512 build (eight
+// triangles a vector) do the same integer and double operations in the same order, so they
+// agree bit for bit.
+#pragma once
+
+#include <algorithm>
+#include <cstdint>
+
+#include <terralign/geo/thread_pool.hpp>
+
+namespace terralign::raster {
+
+constexpr int kSubBits = 8;  // sub-pixel bits of the fixed-point screen positions
+
+// A vertex inside the clip volume, projected: screen position (pixel centres at integers),
+// 1/z and local world x/z, y/z (the planes' values there), and the fixed-point snap of the
+// position (inside the renderer's guard band: |X|, |Y| < 2^29).
+struct ProjVert {
+  double sx, sy, iz, qx, qy;
+  std::int32_t X, Y;
+};
+
+// A grid of projected vertices, one array a quantity (vertex k of each), for the vector
+// kernel's loads.
+struct ProjGrid {
+  double *sx, *sy, *iz, *qx, *qy;
+  std::int32_t *X, *Y;
+  ProjVert at(int k) const { return {sx[k], sy[k], iz[k], qx[k], qy[k], X[k], Y[k]}; }
+  void set(int k, const ProjVert& p) const {
+    sx[k] = p.sx; sy[k] = p.sy; iz[k] = p.iz; qx[k] = p.qx; qy[k] = p.qy; X[k] = p.X; Y[k] = p.Y;
+  }
+};
+
+// A screen triangle ready for rasterization: its snapped corners, and for 1/z, x_world/z and
+// y_world/z the planes q(x, y) = A (x - x0) + B (y - y0) + C in pixel coordinates (centres at
+// integers), (x0, y0) the corner of its pixel box (pixel_box()). Fitted in double, kept in
+// float relative to that corner: one cache line a triangle (kUnsharedAlign is the line), where
+// the planes in double at the image's corner took 112 bytes (the triangle array of a
+// renderer, max_triangles a thread, 59 MB a thread at the default, is now 34 MB). A pixel's
+// 1/z from the float planes is within about 1e-7 relative of the double ones.
+struct alignas(kUnsharedAlign) Tri {
+  std::int32_t X[3], Y[3];  // fixed point, kSubBits
+  float A[3], B[3], C[3];   // [0]: 1/z, [1]: wx/z, [2]: wy/z
+};
+
+// A triangle's inclusive pixel box, clamped to the view: the pixels whose centres (whole
+// coordinates) lie within its snapped corners' box. Only they can be covered.
+struct PixelBox {
+  int x0, y0, x1, y1;
+};
+inline PixelBox pixel_box(const std::int32_t* X, const std::int32_t* Y, int vw, int vh) {
+  constexpr std::int32_t kHalfUp = (1 << kSubBits) - 1;
+  // (int casts: std::int32_t is long on some targets, arm-none-eabi's among them.)
+  return {std::max(0, static_cast<int>((std::min({X[0], X[1], X[2]}) + kHalfUp) >> kSubBits)),
+          std::max(0, static_cast<int>((std::min({Y[0], Y[1], Y[2]}) + kHalfUp) >> kSubBits)),
+          std::min(vw - 1, static_cast<int>(std::max({X[0], X[1], X[2]}) >> kSubBits)),
+          std::min(vh - 1, static_cast<int>(std::max({Y[0], Y[1], Y[2]}) >> kSubBits))};
+}
+
+// Triangle (a, b, c) of a vw x vh view into t and its pixel box into box: corners b and c
+// swapped where needed to make it clockwise on screen (y down), the planes fitted from the
+// unsnapped positions in double (exact depth whatever the snapping), in a's, b's, c's order.
+// False (t and box then hold scratch) where it has no area or covers no pixel centre: a
+// triangle of a few pixels often holds none.
+inline bool setup_triangle(const ProjVert& a, const ProjVert& b, const ProjVert& c, int vw, int vh, Tri& t, PixelBox& box) {
+  t.X[0] = a.X; t.X[1] = b.X; t.X[2] = c.X;
+  t.Y[0] = a.Y; t.Y[1] = b.Y; t.Y[2] = c.Y;
+  const std::int64_t area = (std::int64_t{t.X[1]} - t.X[0]) * (std::int64_t{t.Y[2]} - t.Y[0]) -
+                            (std::int64_t{t.Y[1]} - t.Y[0]) * (std::int64_t{t.X[2]} - t.X[0]);
+  if (area == 0) return false;
+  if (area < 0) {
+    std::swap(t.X[1], t.X[2]);
+    std::swap(t.Y[1], t.Y[2]);
+  }
+  box = pixel_box(t.X, t.Y, vw, vh);
+  if (box.x0 > box.x1 || box.y0 > box.y1) return false;
+  const double e1x = b.sx - a.sx, e1y = b.sy - a.sy, e2x = c.sx - a.sx, e2y = c.sy - a.sy;
+  const double det = e1x * e2y - e2x * e1y;
+  if (det == 0) return false;
+  const double inv_det = 1.0 / det;  // one division, not six
+  const double q[3][3] = {{a.iz, b.iz, c.iz}, {a.qx, b.qx, c.qx}, {a.qy, b.qy, c.qy}};
+  for (int k = 0; k < 3; ++k) {
+    const double d1 = q[k][1] - q[k][0], d2 = q[k][2] - q[k][0];
+    const double A = (d1 * e2y - d2 * e1y) * inv_det, B = (d2 * e1x - d1 * e2x) * inv_det;
+    t.A[k] = static_cast<float>(A);
+    t.B[k] = static_cast<float>(B);
+    t.C[k] = static_cast<float>(q[k][0] + A * (box.x0 - a.sx) + B * (box.y0 - a.sy));
+  }
+  return true;
+}
+
+// The triangles of quads a = 0 .. n - 1 (n <= 16) between the grid rows whose vertices start
+// at `top` and at `bottom`: (top + a, top + a + 1, bottom + a + 1), then (top + a, bottom + a +
+// 1, bottom + a), each as setup_triangle() makes it; those it keeps are written in that order
+// to out and boxes (room for 2 n each). Returns how many.
+int emit_quad_row_scalar(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes);
+#if defined(TERRALIGN_HAVE_AVX2)
+int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes);
+#endif
+using EmitQuadRowFn = int (*)(const ProjGrid&, int, int, int, int, int, Tri*, PixelBox*);
+
+}  // namespace terralign::raster
