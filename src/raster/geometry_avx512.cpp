@@ -1,8 +1,10 @@
-// The AVX-512 (F, VL) build of the triangle set-up kernel (geometry_kernels.hpp): eight quads'
-// first triangles in one set of vectors and their second triangles in another, each step
-// setup_triangle()'s operation on eight lanes, in its order (no FMA: the raster target says
-// -ffp-contract=off and this file is built without -mfma), so the triangles are the scalar
-// kernel's bit for bit. The kept ones are then copied out lane by lane in quad order.
+// The AVX-512 (F, BW, VL) build of the geometry's kernels (geometry_kernels.hpp), each step
+// the scalar build's operation lane by lane, in its order (no FMA: the raster target says
+// -ffp-contract=off and this file is built without -mfma), so the results are the scalar
+// kernels' bit for bit. The vertex stage takes 16 posts a vector (their projections in two
+// halves of eight doubles); the triangle set-up takes eight quads' first triangles in one set
+// of vectors and their second triangles in another, and copies the kept ones out lane by lane
+// in quad order.
 #include <terralign/raster/geometry_kernels.hpp>
 
 #include <immintrin.h>
@@ -87,6 +89,67 @@ inline void copy_out(const Tri8& t, int i, Tri& out, PixelBox& box) {
 }
 
 }  // namespace
+
+bool project_posts_avx512(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
+                          const ProjGrid& proj, std::uint8_t* out, bool* no_height) {
+  const __m512 zero = _mm512_setzero_ps();
+  bool all = true;
+  for (int a0 = 0; a0 < n; a0 += 16) {
+    const int m = n - a0 < 16 ? n - a0 : 16;
+    const __mmask16 lanes = static_cast<__mmask16>((1u << m) - 1);
+    const int k = k0 + a0;
+    const __m512 X = _mm512_maskz_loadu_ps(lanes, x + a0), Y = _mm512_maskz_loadu_ps(lanes, y + a0);
+    const __m512 Z = _mm512_maskz_loadu_ps(lanes, z + a0);
+    const __mmask16 none = _mm512_mask_cmp_ps_mask(lanes, _mm512_sub_ps(Z, Z), zero, _CMP_NEQ_UQ);  // NaN or infinite
+    const __m512 dx = _mm512_sub_ps(X, _mm512_set1_ps(f.t[0])), dy = _mm512_sub_ps(Y, _mm512_set1_ps(f.t[1]));
+    const __m512 dz = _mm512_sub_ps(_mm512_mask_mov_ps(Z, none, zero), _mm512_set1_ps(f.t[2]));
+    auto row = [&](int i) {
+      return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_set1_ps(f.R[3 * i]), dx), _mm512_mul_ps(_mm512_set1_ps(f.R[3 * i + 1]), dy)),
+                           _mm512_mul_ps(_mm512_set1_ps(f.R[3 * i + 2]), dz));
+    };
+    const __m512 cx = row(0), cy = row(1), cz = row(2);
+    _mm512_mask_storeu_ps(cv.x + k, lanes, cx);
+    _mm512_mask_storeu_ps(cv.y + k, lanes, cy);
+    _mm512_mask_storeu_ps(cv.z + k, lanes, cz);
+    _mm512_mask_storeu_ps(cv.wx + k, lanes, X);
+    _mm512_mask_storeu_ps(cv.wy + k, lanes, Y);
+    // clip_distance() of each plane, >= 0 inside.
+    const __m512 d[5] = {_mm512_sub_ps(cz, _mm512_set1_ps(f.near)), _mm512_sub_ps(cx, _mm512_mul_ps(_mm512_set1_ps(f.guard[0]), cz)),
+                         _mm512_sub_ps(_mm512_mul_ps(_mm512_set1_ps(f.guard[1]), cz), cx),
+                         _mm512_sub_ps(cy, _mm512_mul_ps(_mm512_set1_ps(f.guard[2]), cz)),
+                         _mm512_sub_ps(_mm512_mul_ps(_mm512_set1_ps(f.guard[3]), cz), cy)};
+    __m512i code = _mm512_setzero_si512();
+    __mmask16 inside = lanes;
+    for (int p = 0; p < 5; ++p) {
+      const __mmask16 in = _mm512_cmp_ps_mask(d[p], zero, _CMP_GE_OQ);
+      code = _mm512_mask_or_epi32(code, static_cast<__mmask16>(~in), code, _mm512_set1_epi32(1 << p));
+      inside = static_cast<__mmask16>(inside & in);
+    }
+    _mm512_mask_cvtepi32_storeu_epi8(out + k, lanes, code);
+    _mm512_mask_cvtepi32_storeu_epi8(no_height + k, lanes, _mm512_maskz_mov_epi32(none, _mm512_set1_epi32(1)));
+    all = all && (inside & ~none & lanes) == lanes;
+    // project_vertex() in two halves of eight, every lane (those outside hold scratch).
+    for (int h = 0; h < 2 && 8 * h < m; ++h) {
+      const __mmask8 half = static_cast<__mmask8>(lanes >> (8 * h));
+      auto part = [h](__m512 v) {
+        return _mm512_cvtps_pd(h ? _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(v), 1)) : _mm512_castps512_ps256(v));
+      };
+      const __m512d iz = _mm512_div_pd(_mm512_set1_pd(1.0), part(cz));
+      const __m512d sx = _mm512_add_pd(_mm512_mul_pd(_mm512_mul_pd(_mm512_set1_pd(f.fx), part(cx)), iz), _mm512_set1_pd(f.cx));
+      const __m512d sy = _mm512_add_pd(_mm512_mul_pd(_mm512_mul_pd(_mm512_set1_pd(f.fy), part(cy)), iz), _mm512_set1_pd(f.cy));
+      const __m512d magic = _mm512_set1_pd(6755399441055744.0), sub = _mm512_set1_pd(1 << kSubBits);
+      const int kh = k + 8 * h;
+      _mm512_mask_storeu_pd(proj.iz + kh, half, iz);
+      _mm512_mask_storeu_pd(proj.sx + kh, half, sx);
+      _mm512_mask_storeu_pd(proj.sy + kh, half, sy);
+      _mm512_mask_storeu_pd(proj.qx + kh, half, _mm512_mul_pd(part(X), iz));
+      _mm512_mask_storeu_pd(proj.qy + kh, half, _mm512_mul_pd(part(Y), iz));
+      _mm256_mask_storeu_epi32(proj.X + kh, half, _mm512_cvtpd_epi32(_mm512_sub_pd(_mm512_add_pd(_mm512_mul_pd(sx, sub), magic), magic)));
+      _mm256_mask_storeu_epi32(proj.Y + kh, half, _mm512_cvtpd_epi32(_mm512_sub_pd(_mm512_add_pd(_mm512_mul_pd(sy, sub), magic), magic)));
+    }
+  }
+  return all;
+}
 
 int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes) {
   int count = 0;

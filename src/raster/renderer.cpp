@@ -30,20 +30,6 @@ constexpr long kBoundMinPixels = 32;     // an entry covering fewer has no footp
 
 using Clock = std::chrono::steady_clock;
 
-// Nearest integer (ties to even) of |v| < 2^51 in two additions: adding 1.5 * 2^52 leaves no
-// fraction bits, so the sum is rounded in the FPU's default mode (the same IEEE operation on
-// every machine). std::llround is a library call, 4 % of a synthetic-terrain frame; a
-// projected vertex is inside the guard band, |v| < 2^29 (see Tri).
-inline std::int64_t round_fixed(double v) {
-  constexpr double kMagic = 6755399441055744.0;
-  return static_cast<std::int64_t>((v + kMagic) - kMagic);
-}
-
-struct ClipVert {
-  float x, y, z;    // camera frame
-  float wx, wy;     // local world position
-};
-
 // The screen tiles a triangle's pixel box touches, inclusive (create() keeps tile indices
 // below 2^16). Kept beside the triangles, 8 bytes each, so that binning reads these alone and
 // not the triangles' cache lines.
@@ -69,11 +55,13 @@ struct alignas(kUnsharedAlign) GeomPart {
   int n_tris = 0;
   bool overflow = false;
   int chunks_drawn = 0;
-  std::vector<ClipVert> verts;       // kChunkVerts
+  std::vector<float> verts_f32;      // a chunk's posts in the camera frame (verts), kChunkVerts
+  ClipGrid verts{};
   std::vector<double> proj_f64;      // their projections (proj), where out is 0
   std::vector<std::int32_t> proj_i32;
   ProjGrid proj{};
-  std::vector<std::uint8_t> out;     // per vertex: bit p set when outside clip plane p
+  std::vector<std::uint8_t> out;     // per post: bit p set when outside clip plane p
+  bool no_height[kChunkVerts];       // per post: its height is NaN (no data)
   PixelBox row_boxes[2 * kChunkQuads];  // the boxes of a row of quads' triangles
   std::vector<int> tile_count;       // per screen tile: this part's triangles binned there (counted as drawn)
   std::vector<int> tile_fill;        // per screen tile: where this part's next entry goes
@@ -112,7 +100,6 @@ struct Renderer::Impl {
   geo::CameraModel pinhole;       // the G-buffer's camera (= camera without distortion)
   RenderOptions options;
   double ox = 0, oy = 0, oz = 0;  // local origin in map coordinates
-  float guard[4] = {};            // guard band: x/z left, right, y/z top, bottom
   Terrain terrain;
   std::vector<LayerTexture> layers;
   ShadeRowFn shade = shade_row_scalar;
@@ -121,6 +108,7 @@ struct Renderer::Impl {
   EdgeBlockFn edge_block = edge_block_scalar;
   EdgeBlock32Fn edge_block32 = nullptr;   // where built: blocks whose edge values fit 32 bits
   EmitQuadRowFn emit_quad_row = emit_quad_row_scalar;
+  ProjectPostsFn project_posts = project_posts_scalar;
   const char* simd = "scalar";
   std::unique_ptr<ThreadPool> pool;
 
@@ -160,12 +148,10 @@ struct Renderer::Impl {
   RenderOutput* frame_out = nullptr;
   Eigen::Matrix3f R_C_W;
   Eigen::Vector3f t_local;     // camera centre, local
+  PostFrame frame{};           // the vertex stage's constants (R_C_W, t_local, clip volume, pinhole)
 
-  ProjVert project(const ClipVert& v) const;
-  std::uint8_t outcode(const ClipVert& v) const;
   void emit_triangle(GeomPart& g, const ProjVert& a, const ProjVert& b, const ProjVert& c) const;
   void add_triangle(GeomPart& g, const PixelBox& p) const;
-  float clip_dist(int plane, const ClipVert& v) const;
   void clip_and_emit(GeomPart& g, const ClipVert* v, int n) const;
   void draw_chunk(GeomPart& g, const TerrainChunk& c) const;
   float skirt_drop(const TerrainChunk& c, int side) const;
@@ -326,10 +312,15 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   if (m.vw > (1 << 20) || m.vh > (1 << 20))  // keeps fixed-point positions in 32 bits (Tri)
     return Error{"camera: the undistorted view is " + std::to_string(m.vw) + " x " + std::to_string(m.vh) +
                  " pixels, over 2^20 a side"};
-  m.guard[0] = static_cast<float>((-kGuardPx - m.pinhole.cx) / m.pinhole.fx);
-  m.guard[1] = static_cast<float>((m.vw + kGuardPx - m.pinhole.cx) / m.pinhole.fx);
-  m.guard[2] = static_cast<float>((-kGuardPx - m.pinhole.cy) / m.pinhole.fy);
-  m.guard[3] = static_cast<float>((m.vh + kGuardPx - m.pinhole.cy) / m.pinhole.fy);
+  m.frame.guard[0] = static_cast<float>((-kGuardPx - m.pinhole.cx) / m.pinhole.fx);
+  m.frame.guard[1] = static_cast<float>((m.vw + kGuardPx - m.pinhole.cx) / m.pinhole.fx);
+  m.frame.guard[2] = static_cast<float>((-kGuardPx - m.pinhole.cy) / m.pinhole.fy);
+  m.frame.guard[3] = static_cast<float>((m.vh + kGuardPx - m.pinhole.cy) / m.pinhole.fy);
+  m.frame.near = static_cast<float>(options.near_m);
+  m.frame.fx = m.pinhole.fx;
+  m.frame.fy = m.pinhole.fy;
+  m.frame.cx = m.pinhole.cx;
+  m.frame.cy = m.pinhole.cy;
   m.tiles_x = (m.vw + kTileW - 1) / kTileW;
   m.tiles_y = (m.vh + kTileH - 1) / kTileH;
   if (m.tiles_x > 65535 || m.tiles_y > 65535)  // (TileSpan's 16 bits; the camera's 32768 px keep far below)
@@ -342,13 +333,15 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     GeomPart& g = m.parts[j];
     g.tris = m.tris.get() + j * static_cast<std::size_t>(options.max_triangles);
     g.spans = m.spans.get() + j * static_cast<std::size_t>(options.max_triangles);
-    g.verts.resize(kChunkVerts);
+    g.verts_f32.resize(5 * kChunkVerts);
+    float* v = g.verts_f32.data();
+    g.verts = {v, v + kChunkVerts, v + 2 * kChunkVerts, v + 3 * kChunkVerts, v + 4 * kChunkVerts};
     g.proj_f64.resize(5 * kChunkVerts);
     g.proj_i32.resize(2 * kChunkVerts);
     double* f = g.proj_f64.data();
     std::int32_t* i = g.proj_i32.data();
     g.proj = {f, f + kChunkVerts, f + 2 * kChunkVerts, f + 3 * kChunkVerts, f + 4 * kChunkVerts, i, i + kChunkVerts};
-    g.out.resize(g.verts.size());
+    g.out.resize(kChunkVerts);
     g.tile_count.resize(tiles);
     g.tile_fill.resize(tiles);
   }
@@ -401,6 +394,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.resolve_shade = resolve_shade_row_avx512;
     m.depth_block = depth_block_avx512;
     m.emit_quad_row = emit_quad_row_avx512;
+    m.project_posts = project_posts_avx512;
     m.simd = "avx512";
   }
 #endif
@@ -463,18 +457,6 @@ Result<RenderOutput> Renderer::make_output(const std::vector<std::string>& names
 
 // ---- geometry ----
 
-ProjVert Renderer::Impl::project(const ClipVert& v) const {
-  ProjVert p;
-  p.iz = 1.0 / static_cast<double>(v.z);
-  p.sx = pinhole.fx * v.x * p.iz + pinhole.cx;
-  p.sy = pinhole.fy * v.y * p.iz + pinhole.cy;
-  p.qx = v.wx * p.iz;
-  p.qy = v.wy * p.iz;
-  p.X = static_cast<std::int32_t>(round_fixed(p.sx * (1 << kSubBits)));
-  p.Y = static_cast<std::int32_t>(round_fixed(p.sy * (1 << kSubBits)));
-  return p;
-}
-
 void Renderer::Impl::emit_triangle(GeomPart& g, const ProjVert& a, const ProjVert& b, const ProjVert& c) const {
   if (g.n_tris >= options.max_triangles) {
     g.overflow = true;
@@ -493,26 +475,8 @@ void Renderer::Impl::add_triangle(GeomPart& g, const PixelBox& p) const {
   ++g.n_tris;
 }
 
-// Signed distance of v to clip plane p (>= 0: inside): near, then a guard band around the
-// image (left, right, top, bottom).
-inline float Renderer::Impl::clip_dist(int plane, const ClipVert& v) const {
-  switch (plane) {
-    case 0: return v.z - static_cast<float>(options.near_m);
-    case 1: return v.x - guard[0] * v.z;
-    case 2: return guard[1] * v.z - v.x;
-    case 3: return v.y - guard[2] * v.z;
-    default: return guard[3] * v.z - v.y;
-  }
-}
-
-std::uint8_t Renderer::Impl::outcode(const ClipVert& v) const {
-  std::uint8_t code = 0;
-  for (int plane = 0; plane < 5; ++plane) code |= static_cast<std::uint8_t>((clip_dist(plane, v) >= 0 ? 0 : 1) << plane);
-  return code;
-}
-
 void Renderer::Impl::clip_and_emit(GeomPart& g, const ClipVert* in, int n) const {
-  const float near = static_cast<float>(options.near_m);
+  const float near = frame.near;
   ClipVert buf[2][kMaxClipVerts];
   int count = n;
   std::copy(in, in + n, buf[0]);
@@ -520,7 +484,7 @@ void Renderer::Impl::clip_and_emit(GeomPart& g, const ClipVert* in, int n) const
   for (int plane = 0; plane < 5; ++plane) {
     bool all_in = true, all_out = true;
     for (int i = 0; i < count; ++i) {
-      const bool inside = clip_dist(plane, buf[cur][i]) >= 0;
+      const bool inside = clip_distance(frame, plane, buf[cur][i]) >= 0;
       all_in = all_in && inside;
       all_out = all_out && !inside;
     }
@@ -530,7 +494,7 @@ void Renderer::Impl::clip_and_emit(GeomPart& g, const ClipVert* in, int n) const
     for (int i = 0; i < count && m < kMaxClipVerts - 1; ++i) {
       const ClipVert& a = buf[cur][i];
       const ClipVert& b = buf[cur][(i + 1) % count];
-      const float da = clip_dist(plane, a), db = clip_dist(plane, b);
+      const float da = clip_distance(frame, plane, a), db = clip_distance(frame, plane, b);
       if (da >= 0) buf[1 - cur][m++] = a;
       if ((da >= 0) != (db >= 0)) {
         const float s = da / (da - db);
@@ -549,7 +513,7 @@ void Renderer::Impl::clip_and_emit(GeomPart& g, const ClipVert* in, int n) const
     if (count < 3) return;
   }
   ProjVert p[kMaxClipVerts];
-  for (int i = 0; i < count; ++i) p[i] = project(buf[cur][i]);
+  for (int i = 0; i < count; ++i) p[i] = project_vertex(frame, buf[cur][i]);
   for (int i = 1; i + 1 < count; ++i) emit_triangle(g, p[0], p[i], p[i + 1]);
 }
 
@@ -576,7 +540,6 @@ bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool
 }
 
 void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
-  std::vector<ClipVert>& chunk_verts = g.verts;
   std::vector<std::uint8_t>& chunk_out = g.out;
   const int step = 1 << c.level;
   const int nx = terrain.posts_x(), ny = terrain.posts_y();
@@ -586,7 +549,7 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
     ii[k] = std::min(c.i0 + k * step, nx - 1);
     jj[k] = std::min(c.j0 + k * step, ny - 1);
   }
-  bool nan_post[kChunkVerts];
+  const bool* nan_post = g.no_height;
   // Rows of posts all inside the clip volume and with heights, and whether every quad of a
   // row has four distinct posts (not so at the map's last column): there both triangles of
   // every quad of a row between two such rows go to emit_quad_row().
@@ -594,19 +557,9 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
   bool columns_distinct = true;
   for (int a = 0; a < kChunkQuads; ++a) columns_distinct = columns_distinct && ii[a + 1] != ii[a];
   for (int b = 0; b < n; ++b) {
-    row_inside[b] = true;
-    for (int a = 0; a < n; ++a) {
-      float x, y, z;
-      terrain.post(ii[a], jj[b], x, y, z);
-      ClipVert& v = chunk_verts[static_cast<std::size_t>(b * n + a)];
-      nan_post[b * n + a] = !std::isfinite(z);
-      const Eigen::Vector3f p = R_C_W * (Eigen::Vector3f(x, y, nan_post[b * n + a] ? 0.0f : z) - t_local);
-      v = {p.x(), p.y(), p.z(), x, y};
-      const std::size_t k = static_cast<std::size_t>(b * n + a);
-      chunk_out[k] = outcode(v);
-      if (chunk_out[k] == 0) g.proj.set(static_cast<int>(k), project(v));
-      row_inside[b] = row_inside[b] && chunk_out[k] == 0 && !nan_post[k];
-    }
+    float x[kChunkQuads + 1], y[kChunkQuads + 1], z[kChunkQuads + 1];
+    for (int a = 0; a < n; ++a) terrain.post(ii[a], jj[b], x[a], y[a], z[a]);
+    row_inside[b] = project_posts(frame, x, y, z, n, b * n, g.verts, g.proj, chunk_out.data(), g.no_height);
   }
   // No back-face culling: render() refuses a camera below the terrain, and above it the
   // visible side of a heightfield faces the camera, so culling would only save time.
@@ -629,10 +582,7 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
         emit_triangle(g, p00, p11, g.proj.at(k01));
         continue;
       }
-      const ClipVert& v00 = chunk_verts[static_cast<std::size_t>(k00)];
-      const ClipVert& v10 = chunk_verts[static_cast<std::size_t>(k10)];
-      const ClipVert& v01 = chunk_verts[static_cast<std::size_t>(k01)];
-      const ClipVert& v11 = chunk_verts[static_cast<std::size_t>(k11)];
+      const ClipVert v00 = g.verts.at(k00), v10 = g.verts.at(k10), v01 = g.verts.at(k01), v11 = g.verts.at(k11);
       const ClipVert t1[3] = {v00, v10, v11}, t2[3] = {v00, v11, v01};
       clip_and_emit(g, t1, 3);
       clip_and_emit(g, t2, 3);
@@ -644,8 +594,7 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
   if (drops[0] > 0 || drops[1] > 0 || drops[2] > 0 || drops[3] > 0) {
     auto skirt = [&](int ka, int kb, float drop) {
       if (nan_post[ka] || nan_post[kb]) return;
-      const ClipVert& a = chunk_verts[static_cast<std::size_t>(ka)];
-      const ClipVert& b = chunk_verts[static_cast<std::size_t>(kb)];
+      const ClipVert a = g.verts.at(ka), b = g.verts.at(kb);
       // Dropping a vertex by `drop` along world -z is -drop times the world z axis in C.
       const Eigen::Vector3f down = R_C_W * Eigen::Vector3f(0, 0, -drop);
       ClipVert a2 = a, b2 = b;
@@ -1017,6 +966,10 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   m.R_C_W = T_W_C.q_W_C.conjugate().toRotationMatrix().cast<float>();
   m.t_local = Eigen::Vector3f(static_cast<float>(t.x() - m.ox), static_cast<float>(t.y() - m.oy),
                               static_cast<float>(t.z() - m.oz));
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) m.frame.R[3 * i + j] = m.R_C_W(i, j);
+    m.frame.t[i] = m.t_local[i];
+  }
 
   // 1-2. Level of detail and geometry.
   m.chunk_stack.clear();

@@ -1,9 +1,12 @@
+// The geometry's kernels. The vertex stage: terrain posts into the camera frame, their
+// outcodes against the clip volume, and the projection of those inside (project_posts, a row
+// of a chunk's posts at once; project_vertex() alone, for the clipped polygons' corners).
 // Triangle set-up: a screen triangle from three projected vertices (its snapped corners made
 // clockwise, its pixel box, the planes of 1/z, x/z and y/z fitted in double), one at a time
 // (setup_triangle(): the clipped triangles) or for a row of a terrain chunk's quads at once
-// (emit_quad_row: most of a frame's triangles). A scalar build and an AVX-512 build (eight
-// triangles a vector) do the same integer and double operations in the same order, so they
-// agree bit for bit.
+// (emit_quad_row: most of a frame's triangles). A scalar build and an AVX-512 build (16 posts,
+// eight triangles a vector) do the same integer, float and double operations in the same
+// order, so they agree bit for bit.
 #pragma once
 
 #include <algorithm>
@@ -15,6 +18,55 @@ namespace terralign::raster {
 
 constexpr int kSubBits = 8;  // sub-pixel bits of the fixed-point screen positions
 
+// A vertex in the camera frame, and its local world position (metres from the renderer's
+// origin).
+struct ClipVert {
+  float x, y, z;
+  float wx, wy;
+};
+
+// A grid of ClipVerts, one array a quantity (vertex k of each).
+struct ClipGrid {
+  float *x, *y, *z, *wx, *wy;
+  ClipVert at(int k) const { return {x[k], y[k], z[k], wx[k], wy[k]}; }
+};
+
+// The vertex stage's constants for a frame: the camera's rotation R_C_W (row major) and
+// local centre, the clip volume (the near plane; the guard band's bounds of x/z left and
+// right, y/z top and bottom) and the pinhole.
+struct PostFrame {
+  float R[9], t[3];
+  float near, guard[4];
+  double fx, fy, cx, cy;
+};
+
+// Signed distance of v to clip plane p (>= 0: inside): the near plane, then the guard band's
+// left, right, top and bottom.
+inline float clip_distance(const PostFrame& f, int plane, const ClipVert& v) {
+  switch (plane) {
+    case 0: return v.z - f.near;
+    case 1: return v.x - f.guard[0] * v.z;
+    case 2: return f.guard[1] * v.z - v.x;
+    case 3: return v.y - f.guard[2] * v.z;
+    default: return f.guard[3] * v.z - v.y;
+  }
+}
+
+// Bit p set where v is outside clip plane p.
+inline std::uint8_t outcode(const PostFrame& f, const ClipVert& v) {
+  std::uint8_t code = 0;
+  for (int plane = 0; plane < 5; ++plane) code |= static_cast<std::uint8_t>((clip_distance(f, plane, v) >= 0 ? 0 : 1) << plane);
+  return code;
+}
+
+// Nearest integer (ties to even) of |v| < 2^51 in two additions: adding 1.5 * 2^52 leaves no
+// fraction bits, so the sum is rounded in the FPU's default mode (the same IEEE operation on
+// every machine). std::llround is a library call, 4 % of a synthetic-terrain frame.
+inline double round_fixed(double v) {
+  constexpr double kMagic = 6755399441055744.0;
+  return (v + kMagic) - kMagic;
+}
+
 // A vertex inside the clip volume, projected: screen position (pixel centres at integers),
 // 1/z and local world x/z, y/z (the planes' values there), and the fixed-point snap of the
 // position (inside the renderer's guard band: |X|, |Y| < 2^29).
@@ -24,7 +76,7 @@ struct ProjVert {
 };
 
 // A grid of projected vertices, one array a quantity (vertex k of each), for the vector
-// kernel's loads.
+// kernels' loads.
 struct ProjGrid {
   double *sx, *sy, *iz, *qx, *qy;
   std::int32_t *X, *Y;
@@ -33,6 +85,33 @@ struct ProjGrid {
     sx[k] = p.sx; sy[k] = p.sy; iz[k] = p.iz; qx[k] = p.qx; qy[k] = p.qy; X[k] = p.X; Y[k] = p.Y;
   }
 };
+
+// v (inside the clip volume: the guard band keeps |X|, |Y| < 2^29) projected.
+inline ProjVert project_vertex(const PostFrame& f, const ClipVert& v) {
+  ProjVert p;
+  p.iz = 1.0 / static_cast<double>(v.z);
+  p.sx = f.fx * v.x * p.iz + f.cx;
+  p.sy = f.fy * v.y * p.iz + f.cy;
+  p.qx = v.wx * p.iz;
+  p.qy = v.wy * p.iz;
+  p.X = static_cast<std::int32_t>(round_fixed(p.sx * (1 << kSubBits)));
+  p.Y = static_cast<std::int32_t>(round_fixed(p.sy * (1 << kSubBits)));
+  return p;
+}
+
+// Posts k0 .. k0 + n - 1 of a grid, at local world (x[a], y[a]) with heights z[a] (not
+// finite: no height; placed at 0 and flagged): their camera-frame positions R (p - t) (each
+// coordinate (R_i0 dx + R_i1 dy) + R_i2 dz) into cv, their outcodes into out[k] and no_height[k],
+// and where out[k] is 0 their projections into proj (elsewhere proj is left as it was or
+// holds scratch). Returns whether all n have a height and lie inside the clip volume.
+bool project_posts_scalar(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
+                          const ProjGrid& proj, std::uint8_t* out, bool* no_height);
+#if defined(TERRALIGN_HAVE_AVX2)
+bool project_posts_avx512(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
+                          const ProjGrid& proj, std::uint8_t* out, bool* no_height);
+#endif
+using ProjectPostsFn = bool (*)(const PostFrame&, const float*, const float*, const float*, int, int, const ClipGrid&,
+                                const ProjGrid&, std::uint8_t*, bool*);
 
 // A screen triangle ready for rasterization: its snapped corners, and for 1/z, x_world/z and
 // y_world/z the planes q(x, y) = A (x - x0) + B (y - y0) + C in pixel coordinates (centres at
