@@ -307,7 +307,7 @@ TL_INLINE Levels16 levels16(const ShadeParams& p, __m512 log2fp, __mmask16 terra
 TL_INLINE void shade_chunk(const ShadeParams& p, int groups, const __m512* x, const __m512* y, const __m512* log2fp,
                            const __mmask16* terrain, const __m512* bound, std::uint8_t* rgb, std::uint8_t* valid) {
   const int top = p.n_levels - 1;
-  Fetched f[kChunkGroups];
+  Fetched f[kChunkGroups], f1[kChunkGroups];
   // Every lane over terrain whose entry's bound shows the layer magnified (most chunks of
   // views from a few hundred metres): level 0 alone, in two loops that take the level's
   // parameters once and keep nothing else per vector. The general loops below give the same
@@ -339,36 +339,40 @@ TL_INLINE void shade_chunk(const ShadeParams& p, int groups, const __m512* x, co
       lv[g] = levels16(p, _mm512_mask_mov_ps(log2fp[g], magnified, _mm512_set1_ps(-INFINITY)), terrain[g]);
     s[g] = {_mm512_setzero_si512(), _mm512_setzero_si512()};
   }
-  // Vectors whose lanes share a level (most): that level's sample for all lanes ...
-  for (int g = 0; g < groups; ++g)
-    if (terrain[g] != 0 && lv[g].lo == lv[g].hi) f[g] = fetch16(p, lv[g].lo, xs[g], ys[g]);
-  for (int g = 0; g < groups; ++g)
-    if (terrain[g] != 0 && lv[g].lo == lv[g].hi) s[g] = filter16(f[g]);
+  // Each vector's first level for every lane: the vector's level where its lanes share one
+  // (most), a row window or gathers; else each lane's own l0, by gathers. Then the second
+  // level (l0 + 1) where some lane's fraction needs it (a fraction of 0 keeps the first sample
+  // exactly). The fetches of all the vectors go first, each pass's gathers independent of one
+  // another, and the filters after.
+  bool second[kChunkGroups];
   for (int g = 0; g < groups; ++g) {
+    second[g] = terrain[g] != 0 && _mm512_mask_test_epi32_mask(terrain[g], lv[g].t, lv[g].t) != 0;
     if (terrain[g] == 0) continue;
-    const Levels16& l = lv[g];
-    if (l.lo == l.hi) {
-      // ... and the next level's, lerped in by each lane's fraction (a lane's fraction of 0
-      // keeps the first sample exactly).
-      if (_mm512_mask_test_epi32_mask(terrain[g], l.t, l.t) == 0) continue;
-      const Sample16 s1 = filter16(fetch16(p, l.lo < top ? l.lo + 1 : top, xs[g], ys[g]));
-      s[g] = {lerp15(s[g].rb, s1.rb, l.t), lerp15(s[g].ga, s1.ga, l.t)};
+    if (lv[g].lo == lv[g].hi) {
+      f[g] = fetch16(p, lv[g].lo, xs[g], ys[g]);
       continue;
     }
-    // Lanes at different levels: each lane's two, by gathers (one sample where no lane's
-    // fraction needs the second).
-    const __m512i l1 = _mm512_min_epi32(_mm512_add_epi32(l.l0, _mm512_set1_epi32(1)), _mm512_set1_epi32(top));
     if (!have_table) {
       table = level_table(p);
       have_table = true;
     }
-    const Sample16 s0 = filter16(fetch16_lanes(p, table, l.l0, xs[g], ys[g]));
-    if (_mm512_mask_test_epi32_mask(terrain[g], l.t, l.t) == 0) {
-      s[g] = s0;
-      continue;
-    }
-    const Sample16 s1 = filter16(fetch16_lanes(p, table, l1, xs[g], ys[g]));
-    s[g] = {lerp15(s0.rb, s1.rb, l.t), lerp15(s0.ga, s1.ga, l.t)};
+    f[g] = fetch16_lanes(p, table, lv[g].l0, xs[g], ys[g]);
+  }
+  for (int g = 0; g < groups; ++g) {
+    if (!second[g]) continue;
+    const Levels16& l = lv[g];
+    if (l.lo == l.hi)
+      f1[g] = fetch16(p, l.lo < top ? l.lo + 1 : top, xs[g], ys[g]);
+    else
+      f1[g] = fetch16_lanes(p, table, _mm512_min_epi32(_mm512_add_epi32(l.l0, _mm512_set1_epi32(1)), _mm512_set1_epi32(top)),
+                            xs[g], ys[g]);
+  }
+  for (int g = 0; g < groups; ++g) {
+    if (terrain[g] == 0) continue;
+    s[g] = filter16(f[g]);
+    if (!second[g]) continue;
+    const Sample16 s1 = filter16(f1[g]);
+    s[g] = {lerp15(s[g].rb, s1.rb, lv[g].t), lerp15(s[g].ga, s1.ga, lv[g].t)};
   }
   for (int g = 0; g < groups; ++g)
     output16({_mm512_maskz_mov_epi32(terrain[g], s[g].rb), _mm512_maskz_mov_epi32(terrain[g], s[g].ga)},
