@@ -337,7 +337,7 @@ TEST_CASE("no-data texels do not darken their neighbours, at any level of detail
   }
 }
 
-TEST_CASE("1 and 2 threads, and scalar and AVX2 shading, give the same bytes") {
+TEST_CASE("1, 2 and 3 threads, and the scalar, AVX2 and AVX-512 kernels, give the same bytes") {
   const geo::Map map = test::dem_map(257, 257, 0, 2000, 7.8125, [](double x, double y) {
     return 100 + 30 * std::sin(x * 0.004) * std::cos(y * 0.006);
   }, smooth_layer());
@@ -352,17 +352,22 @@ TEST_CASE("1 and 2 threads, and scalar and AVX2 shading, give the same bytes") {
   auto r1 = make(map, cam, one);
   auto r2 = make(map, cam, two);
   auto r3 = make(map, cam, three);
-  MESSAGE("shading kernel with 2 threads: " << std::string(r2->simd_name()));
-  auto o1 = r1->make_output({"all"}), o2 = r2->make_output({"all"}), o3 = r3->make_output({"all"});
-  REQUIRE((o1.ok() && o2.ok() && o3.ok()));
+  MESSAGE("kernels with 2 threads: " << std::string(r2->simd_name()));
+  // Where the CPU has AVX-512 (r2, r3), also the AVX2 kernels (with the scalar entry set-up).
+  RenderOptions avx2 = two;
+  avx2.simd = RenderOptions::Simd::Avx2;
+  auto r4 = make(map, cam, cpu_has_avx2() ? avx2 : two);
+  auto o1 = r1->make_output({"all"}), o2 = r2->make_output({"all"}), o3 = r3->make_output({"all"}), o4 = r4->make_output({"all"});
+  REQUIRE((o1.ok() && o2.ok() && o3.ok() && o4.ok()));
   for (const geo::Pose& T : {look_down(900, 1100, 900), look_down(700, 600, 500, 50, 30)}) {
     RenderStats s1, s3;
     REQUIRE(r1->render(T, o1.value(), &s1).ok());
     REQUIRE(r2->render(T, o2.value()).ok());
     REQUIRE(r3->render(T, o3.value(), &s3).ok());
+    REQUIRE(r4->render(T, o4.value()).ok());
     CHECK(s1.chunks > 3);  // enough chunks that every thread draws some
     CHECK(s1.triangles == s3.triangles);
-    for (const RenderOutput* o : {&o2.value(), &o3.value()}) {
+    for (const RenderOutput* o : {&o2.value(), &o3.value(), &o4.value()}) {
       CHECK(o1->rgb[0].pixels() == o->rgb[0].pixels());
       CHECK(o1->valid[0].pixels() == o->valid[0].pixels());
       CHECK(std::memcmp(o1->depth.data(), o->depth.data(), o1->depth.size() * sizeof(float)) == 0);
@@ -884,6 +889,70 @@ TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows o
   MESSAGE("kept " << kept_total << ", rejected " << rejected_total);
   CHECK(kept_total > 2000);     // real triangles compared ...
   CHECK(rejected_total > 2000);  // ... and the rejections (no area, no pixel centre, off the view) too
+#else
+  MESSAGE("no x86 vector build: nothing to compare");
+#endif
+}
+
+TEST_CASE("the bin entries' set-up agrees bit for bit on seeded random triangles (AVX-512 vs scalar)") {
+#if defined(TERRALIGN_HAVE_AVX2)
+  if (!cpu_has_avx512()) {
+    MESSAGE("this CPU has no AVX-512: nothing to compare");
+    return;
+  }
+  // Triangles of under a pixel to hundreds of pixels over and around a 300 x 200 view, seen
+  // from the tile at pixels 128 .. 255, 24 .. 47: small ones inside it, across its edges,
+  // outside it, and large ones.
+  const int vw = 300, vh = 200, x0 = 128, y0 = 24, x1 = 255, y1 = 47;
+  std::vector<Tri> tris(64);
+  std::mt19937 rng(99);
+  std::uniform_real_distribution<float> u(0, 1);
+  int small_total = 0, other_total = 0;
+  for (int round = 0; round < 300; ++round) {
+    for (Tri& t : tris) {
+      const float size = round % 3 == 0 ? 300.0f * u(rng) : 9.0f * u(rng);
+      const float cx = 100 + 200 * u(rng), cy = 10 + 50 * u(rng);
+      for (int k = 0; k < 3; ++k) {
+        t.X[k] = static_cast<std::int32_t>((cx + size * (u(rng) - 0.5f)) * 256);
+        t.Y[k] = static_cast<std::int32_t>((cy + size * (u(rng) - 0.5f)) * 256);
+        t.A[k] = (u(rng) - 0.5f) * 1e-3f;
+        t.B[k] = (u(rng) - 0.5f) * 1e-3f;
+        t.C[k] = u(rng) * (k == 0 ? 1e-2f : 3.0f);
+        if (round % 5 == 1) {  // on a grid of half pixels: spans of exactly 8 pixels, edges along rows
+          t.X[k] &= ~127;
+          t.Y[k] &= ~127;
+        }
+      }
+      if (rng() % 6 == 0) {  // two corners the same: an edge of no length
+        t.X[1] = t.X[0];
+        t.Y[1] = t.Y[0];
+      }
+    }
+    int ids[EntrySetup::kMax];
+    const int n = round % 4 == 3 ? 1 + static_cast<int>(rng() % EntrySetup::kMax) : EntrySetup::kMax;
+    for (int i = 0; i < n; ++i) ids[i] = static_cast<int>(rng() % tris.size());
+    EntrySetup a, b;
+    setup_entries_scalar(tris.data(), ids, n, x0, y0, x1, y1, vw, vh, a);
+    setup_entries_avx512(tris.data(), ids, n, x0, y0, x1, y1, vw, vh, b);
+    CAPTURE(round);
+    REQUIRE(a.small == b.small);
+    for (int i = 0; i < n; ++i) {
+      CAPTURE(i);
+      for (int q = 0; q < 9; ++q) CHECK(std::memcmp(&a.plane[q][i], &b.plane[q][i], sizeof(float)) == 0);
+      if (!(a.small >> i & 1)) {
+        ++other_total;
+        continue;
+      }
+      ++small_total;
+      CHECK((a.x0[i] == b.x0[i] && a.y0[i] == b.y0[i] && a.w[i] == b.w[i] && a.h[i] == b.h[i]));
+      CHECK((a.w[i] >= 1 && a.w[i] <= 8 && a.h[i] >= 1 && a.h[i] <= 8));
+      CHECK((a.x0[i] >= x0 && a.x0[i] + a.w[i] - 1 <= x1 && a.y0[i] >= y0 && a.y0[i] + a.h[i] - 1 <= y1));
+      for (int k = 0; k < 3; ++k) CHECK((a.E[k][i] == b.E[k][i] && a.dEx[k][i] == b.dEx[k][i] && a.dEy[k][i] == b.dEy[k][i]));
+    }
+  }
+  MESSAGE(small_total << " small entries, " << other_total << " others");
+  CHECK(small_total > 500);
+  CHECK(other_total > 500);
 #else
   MESSAGE("no x86 vector build: nothing to compare");
 #endif

@@ -169,4 +169,95 @@ int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, int vw, 
   return count;
 }
 
+namespace {
+
+// rows[i] <- column i of the 16 x 16 matrix of 32-bit elements whose row j is rows[j].
+inline void transpose16(__m512i* rows) {
+  __m512i t[16], u[16];
+  for (int i = 0; i < 8; ++i) {
+    t[2 * i] = _mm512_unpacklo_epi32(rows[2 * i], rows[2 * i + 1]);
+    t[2 * i + 1] = _mm512_unpackhi_epi32(rows[2 * i], rows[2 * i + 1]);
+  }
+  for (int i = 0; i < 4; ++i) {
+    u[4 * i] = _mm512_unpacklo_epi64(t[4 * i], t[4 * i + 2]);
+    u[4 * i + 1] = _mm512_unpackhi_epi64(t[4 * i], t[4 * i + 2]);
+    u[4 * i + 2] = _mm512_unpacklo_epi64(t[4 * i + 1], t[4 * i + 3]);
+    u[4 * i + 3] = _mm512_unpackhi_epi64(t[4 * i + 1], t[4 * i + 3]);
+  }
+  // 128-bit lane L of u[4 i + j] holds column 4 L + j of rows 4 i .. 4 i + 3.
+  for (int j = 0; j < 4; ++j) {
+    const __m512i a = _mm512_shuffle_i32x4(u[j], u[4 + j], 0x88), b = _mm512_shuffle_i32x4(u[8 + j], u[12 + j], 0x88);
+    const __m512i c = _mm512_shuffle_i32x4(u[j], u[4 + j], 0xDD), d = _mm512_shuffle_i32x4(u[8 + j], u[12 + j], 0xDD);
+    rows[j] = _mm512_shuffle_i32x4(a, b, 0x88);
+    rows[8 + j] = _mm512_shuffle_i32x4(a, b, 0xDD);
+    rows[4 + j] = _mm512_shuffle_i32x4(c, d, 0x88);
+    rows[12 + j] = _mm512_shuffle_i32x4(c, d, 0xDD);
+  }
+}
+
+// (C + A dx) + B dy in double for eight lanes of one half (h) of 16, then float.
+inline __m256 plane_at_corner(__m512 C, __m512 A, __m512 B, __m512i dx, __m512i dy, int h) {
+  auto half_ps = [h](__m512 v) {
+    return _mm512_cvtps_pd(h ? _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(v), 1)) : _mm512_castps512_ps256(v));
+  };
+  auto half_pi = [h](__m512i v) { return _mm512_cvtepi32_pd(h ? _mm512_extracti64x4_epi64(v, 1) : _mm512_castsi512_si256(v)); };
+  return _mm512_cvtpd_ps(_mm512_add_pd(_mm512_add_pd(half_ps(C), _mm512_mul_pd(half_ps(A), half_pi(dx))), _mm512_mul_pd(half_ps(B), half_pi(dy))));
+}
+
+}  // namespace
+
+void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
+                          EntrySetup& s) {
+  // The entries' triangles, one a row (lanes past n repeat the first), then one field a row.
+  __m512i f[16];
+  for (int i = 0; i < 16; ++i) f[i] = _mm512_loadu_si512(&tris[ids[i < n ? i : 0]]);
+  transpose16(f);
+  const __m512i X[3] = {f[0], f[1], f[2]}, Y[3] = {f[3], f[4], f[5]};
+  const __mmask16 lanes = static_cast<__mmask16>((1u << n) - 1);
+  const __m512i half_up = _mm512_set1_epi32((1 << kSubBits) - 1), zero = _mm512_setzero_si512();
+  const __m512i xmin = _mm512_min_epi32(_mm512_min_epi32(X[0], X[1]), X[2]), xmax = _mm512_max_epi32(_mm512_max_epi32(X[0], X[1]), X[2]);
+  const __m512i ymin = _mm512_min_epi32(_mm512_min_epi32(Y[0], Y[1]), Y[2]), ymax = _mm512_max_epi32(_mm512_max_epi32(Y[0], Y[1]), Y[2]);
+  const __m512i bx0 = _mm512_max_epi32(zero, _mm512_srai_epi32(_mm512_add_epi32(xmin, half_up), kSubBits));
+  const __m512i by0 = _mm512_max_epi32(zero, _mm512_srai_epi32(_mm512_add_epi32(ymin, half_up), kSubBits));
+  const __m512i bx1 = _mm512_min_epi32(_mm512_set1_epi32(vw - 1), _mm512_srai_epi32(xmax, kSubBits));
+  const __m512i by1 = _mm512_min_epi32(_mm512_set1_epi32(vh - 1), _mm512_srai_epi32(ymax, kSubBits));
+  // Planes at the tile's corner.
+  const __m512i dx = _mm512_sub_epi32(_mm512_set1_epi32(x0), bx0), dy = _mm512_sub_epi32(_mm512_set1_epi32(y0), by0);
+  for (int q = 0; q < 3; ++q) {
+    const __m512 A = _mm512_castsi512_ps(f[6 + q]), B = _mm512_castsi512_ps(f[9 + q]), C = _mm512_castsi512_ps(f[12 + q]);
+    const __m512 at = _mm512_castpd_ps(_mm512_insertf64x4(_mm512_castps_pd(_mm512_castps256_ps512(plane_at_corner(C, A, B, dx, dy, 0))),
+                                                          _mm256_castps_pd(plane_at_corner(C, A, B, dx, dy, 1)), 1));
+    _mm512_store_ps(s.plane[3 * q], at);
+    _mm512_store_ps(s.plane[3 * q + 1], A);
+    _mm512_store_ps(s.plane[3 * q + 2], B);
+  }
+  const __m512i eight = _mm512_set1_epi32(8 << kSubBits);
+  __mmask16 small = _mm512_mask_cmplt_epi32_mask(lanes, _mm512_sub_epi32(xmax, xmin), eight);
+  small = _mm512_mask_cmplt_epi32_mask(small, _mm512_sub_epi32(ymax, ymin), eight);
+  small = _mm512_mask_cmpge_epi32_mask(small, bx0, _mm512_set1_epi32(x0));
+  small = _mm512_mask_cmple_epi32_mask(small, bx1, _mm512_set1_epi32(x1));
+  small = _mm512_mask_cmpge_epi32_mask(small, by0, _mm512_set1_epi32(y0));
+  small = _mm512_mask_cmple_epi32_mask(small, by1, _mm512_set1_epi32(y1));
+  small = _mm512_mask_cmple_epi32_mask(small, bx0, bx1);
+  small = _mm512_mask_cmple_epi32_mask(small, by0, by1);
+  s.small = small;
+  if (small == 0) return;
+  const __m512i one = _mm512_set1_epi32(1);
+  _mm512_store_si512(s.x0, bx0);
+  _mm512_store_si512(s.y0, by0);
+  _mm512_store_si512(s.w, _mm512_add_epi32(_mm512_sub_epi32(bx1, bx0), one));
+  _mm512_store_si512(s.h, _mm512_add_epi32(_mm512_sub_epi32(by1, by0), one));
+  const __m512i px = _mm512_slli_epi32(bx0, kSubBits), py = _mm512_slli_epi32(by0, kSubBits);
+  for (int k = 0; k < 3; ++k) {
+    const int k1 = (k + 1) % 3;
+    const __m512i ex = _mm512_sub_epi32(X[k1], X[k]), ey = _mm512_sub_epi32(Y[k1], Y[k]);
+    const __mmask16 top_left = static_cast<__mmask16>(
+        (_mm512_cmpeq_epi32_mask(ey, zero) & _mm512_cmpgt_epi32_mask(ex, zero)) | _mm512_cmplt_epi32_mask(ey, zero));
+    const __m512i e = _mm512_sub_epi32(_mm512_mullo_epi32(ex, _mm512_sub_epi32(py, Y[k])), _mm512_mullo_epi32(ey, _mm512_sub_epi32(px, X[k])));
+    _mm512_store_si512(s.E[k], _mm512_mask_sub_epi32(e, static_cast<__mmask16>(~top_left), e, one));
+    _mm512_store_si512(s.dEx[k], _mm512_slli_epi32(_mm512_sub_epi32(zero, ey), kSubBits));
+    _mm512_store_si512(s.dEy[k], _mm512_slli_epi32(ex, kSubBits));
+  }
+}
+
 }  // namespace terralign::raster

@@ -36,4 +36,38 @@ int emit_quad_row_scalar(const ProjGrid& g, int top, int bottom, int n, int vw, 
   return count;
 }
 
+void setup_entries_scalar(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
+                          EntrySetup& s) {
+  s.small = 0;
+  for (int i = 0; i < n; ++i) {
+    const Tri& t = tris[ids[i]];
+    const PixelBox b = pixel_box(t.X, t.Y, vw, vh);
+    for (int q = 0; q < 3; ++q) {
+      s.plane[3 * q][i] = static_cast<float>(static_cast<double>(t.C[q]) + static_cast<double>(t.A[q]) * (x0 - b.x0) +
+                                             static_cast<double>(t.B[q]) * (y0 - b.y0));
+      s.plane[3 * q + 1][i] = t.A[q];
+      s.plane[3 * q + 2][i] = t.B[q];
+    }
+    const std::int32_t span_x = std::max({t.X[0], t.X[1], t.X[2]}) - std::min({t.X[0], t.X[1], t.X[2]});
+    const std::int32_t span_y = std::max({t.Y[0], t.Y[1], t.Y[2]}) - std::min({t.Y[0], t.Y[1], t.Y[2]});
+    if (!(span_x < (8 << kSubBits) && span_y < (8 << kSubBits) && b.x0 >= x0 && b.x1 <= x1 && b.y0 >= y0 && b.y1 <= y1 &&
+          b.x0 <= b.x1 && b.y0 <= b.y1))
+      continue;
+    s.small |= 1u << i;
+    s.x0[i] = b.x0;
+    s.y0[i] = b.y0;
+    s.w[i] = b.x1 - b.x0 + 1;
+    s.h[i] = b.y1 - b.y0 + 1;
+    const std::int32_t px = b.x0 * (1 << kSubBits), py = b.y0 * (1 << kSubBits);
+    for (int k = 0; k < 3; ++k) {
+      const int k1 = (k + 1) % 3;
+      const std::int32_t ex = t.X[k1] - t.X[k], ey = t.Y[k1] - t.Y[k];
+      const bool top_left = (ey == 0 && ex > 0) || ey < 0;
+      s.E[k][i] = ex * (py - t.Y[k]) - ey * (px - t.X[k]) - (top_left ? 0 : 1);
+      s.dEx[k][i] = -ey * (1 << kSubBits);
+      s.dEy[k][i] = ex * (1 << kSubBits);
+    }
+  }
+}
+
 }  // namespace terralign::raster
