@@ -4,13 +4,37 @@
 // kernels' bit for bit. The vertex stage takes 16 posts a vector (their projections in two
 // halves of eight doubles); the triangle set-up takes eight quads' first triangles in one set
 // of vectors and their second triangles in another, and copies the kept ones out lane by lane
-// in quad order.
+// in quad order, transposed to one triangle a vector.
 #include <terralign/raster/geometry_kernels.hpp>
 
 #include <immintrin.h>
 
 namespace terralign::raster {
 namespace {
+
+// rows[i] <- column i of the 16 x 16 matrix of 32-bit elements whose row j is rows[j].
+inline void transpose16(__m512i* rows) {
+  __m512i t[16], u[16];
+  for (int i = 0; i < 8; ++i) {
+    t[2 * i] = _mm512_unpacklo_epi32(rows[2 * i], rows[2 * i + 1]);
+    t[2 * i + 1] = _mm512_unpackhi_epi32(rows[2 * i], rows[2 * i + 1]);
+  }
+  for (int i = 0; i < 4; ++i) {
+    u[4 * i] = _mm512_unpacklo_epi64(t[4 * i], t[4 * i + 2]);
+    u[4 * i + 1] = _mm512_unpackhi_epi64(t[4 * i], t[4 * i + 2]);
+    u[4 * i + 2] = _mm512_unpacklo_epi64(t[4 * i + 1], t[4 * i + 3]);
+    u[4 * i + 3] = _mm512_unpackhi_epi64(t[4 * i + 1], t[4 * i + 3]);
+  }
+  // 128-bit lane L of u[4 i + j] holds column 4 L + j of rows 4 i .. 4 i + 3.
+  for (int j = 0; j < 4; ++j) {
+    const __m512i a = _mm512_shuffle_i32x4(u[j], u[4 + j], 0x88), b = _mm512_shuffle_i32x4(u[8 + j], u[12 + j], 0x88);
+    const __m512i c = _mm512_shuffle_i32x4(u[j], u[4 + j], 0xDD), d = _mm512_shuffle_i32x4(u[8 + j], u[12 + j], 0xDD);
+    rows[j] = _mm512_shuffle_i32x4(a, b, 0x88);
+    rows[8 + j] = _mm512_shuffle_i32x4(a, b, 0xDD);
+    rows[4 + j] = _mm512_shuffle_i32x4(c, d, 0x88);
+    rows[12 + j] = _mm512_shuffle_i32x4(c, d, 0xDD);
+  }
+}
 
 // Eight vertices, one a lane.
 struct Vert8 {
@@ -25,10 +49,10 @@ inline Vert8 load8(const ProjGrid& g, int k, __mmask8 lanes) {
           _mm256_maskz_loadu_epi32(lanes, g.Y + k)};
 }
 
-// Eight triangles set up, field by field, and the lanes kept.
+// Eight triangles set up: their Tri fields (X[3], Y[3], A[3], B[3], C[3]; the 16th is
+// zero), one a vector, their boxes, and the lanes kept.
 struct Tri8 {
-  alignas(32) std::int32_t X[3][8], Y[3][8];
-  alignas(32) float A[3][8], B[3][8], C[3][8];
+  __m256i field[16];
   alignas(32) std::int32_t box[4][8];
   __mmask8 keep;
 };
@@ -62,30 +86,21 @@ inline void setup8(const Vert8& a, const Vert8& b, const Vert8& c, __mmask8 lane
     const __m512d A = _mm512_mul_pd(_mm512_sub_pd(_mm512_mul_pd(d1, e2y), _mm512_mul_pd(d2, e1y)), inv_det);
     const __m512d B = _mm512_mul_pd(_mm512_sub_pd(_mm512_mul_pd(d2, e1x), _mm512_mul_pd(d1, e2x)), inv_det);
     const __m512d C = _mm512_add_pd(_mm512_add_pd(*q[k][0], _mm512_mul_pd(A, ox)), _mm512_mul_pd(B, oy));
-    _mm256_store_ps(t.A[k], _mm512_cvtpd_ps(A));
-    _mm256_store_ps(t.B[k], _mm512_cvtpd_ps(B));
-    _mm256_store_ps(t.C[k], _mm512_cvtpd_ps(C));
+    t.field[6 + k] = _mm256_castps_si256(_mm512_cvtpd_ps(A));
+    t.field[9 + k] = _mm256_castps_si256(_mm512_cvtpd_ps(B));
+    t.field[12 + k] = _mm256_castps_si256(_mm512_cvtpd_ps(C));
   }
-  const __m256i* corners[6] = {&a.X, &X1, &X2, &a.Y, &Y1, &Y2};
-  for (int k = 0; k < 3; ++k) {
-    _mm256_store_si256(reinterpret_cast<__m256i*>(t.X[k]), *corners[k]);
-    _mm256_store_si256(reinterpret_cast<__m256i*>(t.Y[k]), *corners[3 + k]);
-  }
+  t.field[0] = a.X;
+  t.field[1] = X1;
+  t.field[2] = X2;
+  t.field[3] = a.Y;
+  t.field[4] = Y1;
+  t.field[5] = Y2;
+  t.field[15] = _mm256_setzero_si256();
   _mm256_store_si256(reinterpret_cast<__m256i*>(t.box[0]), bx0);
   _mm256_store_si256(reinterpret_cast<__m256i*>(t.box[1]), by0);
   _mm256_store_si256(reinterpret_cast<__m256i*>(t.box[2]), bx1);
   _mm256_store_si256(reinterpret_cast<__m256i*>(t.box[3]), by1);
-}
-
-inline void copy_out(const Tri8& t, int i, Tri& out, PixelBox& box) {
-  for (int k = 0; k < 3; ++k) {
-    out.X[k] = t.X[k][i];
-    out.Y[k] = t.Y[k][i];
-    out.A[k] = t.A[k][i];
-    out.B[k] = t.B[k][i];
-    out.C[k] = t.C[k][i];
-  }
-  box = {t.box[0][i], t.box[1][i], t.box[2][i], t.box[3][i]};
 }
 
 }  // namespace
@@ -161,39 +176,26 @@ int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, int vw, 
     const Vert8 v01 = load8(g, bottom + a0, lanes), v11 = load8(g, bottom + a0 + 1, lanes);
     setup8(v00, v10, v11, lanes, vw, vh, first);
     setup8(v00, v11, v01, lanes, vw, vh, second);
-    for (int i = 0; i < m; ++i) {
-      if (first.keep >> i & 1) copy_out(first, i, out[count], boxes[count]), ++count;
-      if (second.keep >> i & 1) copy_out(second, i, out[count], boxes[count]), ++count;
-    }
+    if ((first.keep | second.keep) == 0) continue;
+    // The two sets' fields side by side (first triangles in lanes 0-7, second in 8-15), then
+    // one triangle a vector: row i the first triangle of quad a0 + i, row 8 + i its second.
+    __m512i rows[16];
+    for (int f = 0; f < 16; ++f)
+      rows[f] = _mm512_inserti64x4(_mm512_castsi256_si512(first.keep ? first.field[f] : second.field[f]),
+                                   second.keep ? second.field[f] : first.field[f], 1);
+    transpose16(rows);
+    for (int i = 0; i < m; ++i)
+      for (const Tri8* t : {&first, &second}) {
+        if (!(t->keep >> i & 1)) continue;
+        _mm512_storeu_si512(&out[count], rows[t == &first ? i : 8 + i]);
+        boxes[count] = {t->box[0][i], t->box[1][i], t->box[2][i], t->box[3][i]};
+        ++count;
+      }
   }
   return count;
 }
 
 namespace {
-
-// rows[i] <- column i of the 16 x 16 matrix of 32-bit elements whose row j is rows[j].
-inline void transpose16(__m512i* rows) {
-  __m512i t[16], u[16];
-  for (int i = 0; i < 8; ++i) {
-    t[2 * i] = _mm512_unpacklo_epi32(rows[2 * i], rows[2 * i + 1]);
-    t[2 * i + 1] = _mm512_unpackhi_epi32(rows[2 * i], rows[2 * i + 1]);
-  }
-  for (int i = 0; i < 4; ++i) {
-    u[4 * i] = _mm512_unpacklo_epi64(t[4 * i], t[4 * i + 2]);
-    u[4 * i + 1] = _mm512_unpackhi_epi64(t[4 * i], t[4 * i + 2]);
-    u[4 * i + 2] = _mm512_unpacklo_epi64(t[4 * i + 1], t[4 * i + 3]);
-    u[4 * i + 3] = _mm512_unpackhi_epi64(t[4 * i + 1], t[4 * i + 3]);
-  }
-  // 128-bit lane L of u[4 i + j] holds column 4 L + j of rows 4 i .. 4 i + 3.
-  for (int j = 0; j < 4; ++j) {
-    const __m512i a = _mm512_shuffle_i32x4(u[j], u[4 + j], 0x88), b = _mm512_shuffle_i32x4(u[8 + j], u[12 + j], 0x88);
-    const __m512i c = _mm512_shuffle_i32x4(u[j], u[4 + j], 0xDD), d = _mm512_shuffle_i32x4(u[8 + j], u[12 + j], 0xDD);
-    rows[j] = _mm512_shuffle_i32x4(a, b, 0x88);
-    rows[8 + j] = _mm512_shuffle_i32x4(a, b, 0xDD);
-    rows[4 + j] = _mm512_shuffle_i32x4(c, d, 0x88);
-    rows[12 + j] = _mm512_shuffle_i32x4(c, d, 0xDD);
-  }
-}
 
 // (C + A dx) + B dy in double for eight lanes of one half (h) of 16, then float.
 inline __m256 plane_at_corner(__m512 C, __m512 A, __m512 B, __m512i dx, __m512i dy, int h) {
