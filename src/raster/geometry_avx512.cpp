@@ -9,6 +9,8 @@
 
 #include <immintrin.h>
 
+#include <cmath>
+
 namespace terralign::raster {
 namespace {
 
@@ -209,7 +211,7 @@ inline __m256 plane_at_corner(__m512 C, __m512 A, __m512 B, __m512i dx, __m512i 
 }  // namespace
 
 void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
-                          EntrySetup& s) {
+                          EntrySetup& s, float* coef) {
   // The entries' triangles, one a row (lanes past n repeat the first), then one field a row.
   __m512i f[16];
   for (int i = 0; i < 16; ++i) f[i] = _mm512_loadu_si512(&tris[ids[i < n ? i : 0]]);
@@ -223,16 +225,20 @@ void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0
   const __m512i by0 = _mm512_max_epi32(zero, _mm512_srai_epi32(_mm512_add_epi32(ymin, half_up), kSubBits));
   const __m512i bx1 = _mm512_min_epi32(_mm512_set1_epi32(vw - 1), _mm512_srai_epi32(xmax, kSubBits));
   const __m512i by1 = _mm512_min_epi32(_mm512_set1_epi32(vh - 1), _mm512_srai_epi32(ymax, kSubBits));
-  // Planes at the tile's corner.
+  // Planes at the tile's corner, one quantity a row, transposed to one entry a row.
   const __m512i dx = _mm512_sub_epi32(_mm512_set1_epi32(x0), bx0), dy = _mm512_sub_epi32(_mm512_set1_epi32(y0), by0);
+  __m512i c[16];
   for (int q = 0; q < 3; ++q) {
     const __m512 A = _mm512_castsi512_ps(f[6 + q]), B = _mm512_castsi512_ps(f[9 + q]), C = _mm512_castsi512_ps(f[12 + q]);
-    const __m512 at = _mm512_castpd_ps(_mm512_insertf64x4(_mm512_castps_pd(_mm512_castps256_ps512(plane_at_corner(C, A, B, dx, dy, 0))),
-                                                          _mm256_castps_pd(plane_at_corner(C, A, B, dx, dy, 1)), 1));
-    _mm512_store_ps(s.plane[3 * q], at);
-    _mm512_store_ps(s.plane[3 * q + 1], A);
-    _mm512_store_ps(s.plane[3 * q + 2], B);
+    c[3 * q] = _mm512_castpd_si512(_mm512_insertf64x4(_mm512_castps_pd(_mm512_castps256_ps512(plane_at_corner(C, A, B, dx, dy, 0))),
+                                                      _mm256_castps_pd(plane_at_corner(C, A, B, dx, dy, 1)), 1));
+    c[3 * q + 1] = f[6 + q];
+    c[3 * q + 2] = f[9 + q];
   }
+  c[9] = _mm512_castps_si512(_mm512_set1_ps(INFINITY));
+  for (int r = 10; r < 16; ++r) c[r] = zero;
+  transpose16(c);
+  for (int i = 0; i < n; ++i) _mm512_mask_storeu_epi32(coef + kPlaneFloats * i, (1u << kPlaneFloats) - 1, c[i]);
   const __m512i eight = _mm512_set1_epi32(8 << kSubBits);
   __mmask16 small = _mm512_mask_cmplt_epi32_mask(lanes, _mm512_sub_epi32(xmax, xmin), eight);
   small = _mm512_mask_cmplt_epi32_mask(small, _mm512_sub_epi32(ymax, ymin), eight);

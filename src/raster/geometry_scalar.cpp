@@ -37,17 +37,19 @@ int emit_quad_row_scalar(const ProjGrid& g, int top, int bottom, int n, int vw, 
 }
 
 void setup_entries_scalar(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
-                          EntrySetup& s) {
+                          EntrySetup& s, float* coef) {
   s.small = 0;
   for (int i = 0; i < n; ++i) {
     const Tri& t = tris[ids[i]];
     const PixelBox b = pixel_box(t.X, t.Y, vw, vh);
+    float* c = coef + kPlaneFloats * i;
     for (int q = 0; q < 3; ++q) {
-      s.plane[3 * q][i] = static_cast<float>(static_cast<double>(t.C[q]) + static_cast<double>(t.A[q]) * (x0 - b.x0) +
-                                             static_cast<double>(t.B[q]) * (y0 - b.y0));
-      s.plane[3 * q + 1][i] = t.A[q];
-      s.plane[3 * q + 2][i] = t.B[q];
+      c[3 * q] = static_cast<float>(static_cast<double>(t.C[q]) + static_cast<double>(t.A[q]) * (x0 - b.x0) +
+                                    static_cast<double>(t.B[q]) * (y0 - b.y0));
+      c[3 * q + 1] = t.A[q];
+      c[3 * q + 2] = t.B[q];
     }
+    c[9] = INFINITY;
     const std::int32_t span_x = std::max({t.X[0], t.X[1], t.X[2]}) - std::min({t.X[0], t.X[1], t.X[2]});
     const std::int32_t span_y = std::max({t.Y[0], t.Y[1], t.Y[2]}) - std::min({t.Y[0], t.Y[1], t.Y[2]});
     if (!(span_x < (8 << kSubBits) && span_y < (8 << kSubBits) && b.x0 >= x0 && b.x1 <= x1 && b.y0 >= y0 && b.y1 <= y1 &&

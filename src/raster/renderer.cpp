@@ -710,7 +710,7 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   alignas(64) EntrySetup setup;
   for (int e0 = 0; e0 < count; e0 += EntrySetup::kMax) {
     const int batch = std::min(EntrySetup::kMax, count - e0);
-    setup_entries(tris.get(), bin_entries.get() + first + e0, batch, x0, y0, x1, y1, vw, vh, setup);
+    setup_entries(tris.get(), bin_entries.get() + first + e0, batch, x0, y0, x1, y1, vw, vh, setup, coef + kPlaneFloats * e0);
     const std::uint32_t small = edge_block32 ? setup.small : 0u;
     for (int i = 0; i < batch; ++i) {
       const int e = e0 + i;
@@ -835,16 +835,14 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
           }
         }
       }
-      if (resolve_here && frags > frags_before) {
+      // The footprint's bound over the entry's box in the tile (setup_entries() left +inf):
+      // where it shows a layer magnified, its pixels skip their own footprints. It costs about
+      // what a few pixels' footprints do, so small triangles (most of a view over a detailed
+      // DEM) go without.
+      if (resolve_here && frags - frags_before >= kBoundMinPixels) {
         float* c = coef + kPlaneFloats * e;
-        for (int q = 0; q < 9; ++q) c[q] = setup.plane[q][i];
-        // The footprint's bound over the entry's box in the tile: where it shows a layer
-        // magnified, its pixels skip their own footprints. It costs about what a few pixels'
-        // footprints do, so small triangles (most of a view over a detailed DEM) go without.
-        c[9] = frags - frags_before >= kBoundMinPixels
-                   ? plane_footprint_bound_log2(c, static_cast<float>(bx0 - x0), static_cast<float>(bx1 - x0),
-                                                static_cast<float>(by0 - y0), static_cast<float>(by1 - y0))
-                   : INFINITY;
+        c[9] = plane_footprint_bound_log2(c, static_cast<float>(bx0 - x0), static_cast<float>(bx1 - x0),
+                                          static_cast<float>(by0 - y0), static_cast<float>(by1 - y0));
       }
     }
   }

@@ -13,6 +13,7 @@
 #include <cstdint>
 
 #include <terralign/geo/thread_pool.hpp>
+#include <terralign/raster/shade_kernels.hpp>
 
 namespace terralign::raster {
 
@@ -186,23 +187,24 @@ using EmitQuadRowFn = int (*)(const ProjGrid&, int, int, int, int, int, Tri*, Pi
 // tile: every edge value over its box fits 24 bits, so it is set up in 32 bits for the
 // 32-bit edge kernel (edge k from corner k to corner k + 1, E >= 0 inside with the top-left
 // rule's bias, at the box's corner; steps per column and row). Every entry also gets its
-// planes at the tile's corner (kPlaneFloats' c[0 .. 8] for the resolve): c[3 q] = (C + A
-// (x0 - box x0)) + B (y0 - box y0) in double, then float.
+// planes at the tile's corner for the resolve (kPlaneFloats floats, shade_kernels.hpp): c[3 q]
+// = (C + A (x0 - box x0)) + B (y0 - box y0) in double, then float; c[3 q + 1] = A, c[3 q + 2] =
+// B; c[9] = +inf (no footprint bound: the rasterizer sets one where the entry covers many
+// pixels).
 struct EntrySetup {
   static constexpr int kMax = 16;
   std::uint32_t small;  // bit i: entry i is small
   alignas(64) std::int32_t x0[kMax], y0[kMax], w[kMax], h[kMax];  // small entries' pixel boxes
   alignas(64) std::int32_t E[3][kMax], dEx[3][kMax], dEy[3][kMax];
-  alignas(64) float plane[9][kMax];  // c[0 .. 8] at the tile's corner
 };
 // Entries tris[ids[i]], i < n <= 16, of the tile whose pixels are x0 .. x1, y0 .. y1 in a
-// vw x vh view.
+// vw x vh view; their planes to coef[kPlaneFloats i ...].
 void setup_entries_scalar(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
-                          EntrySetup& s);
+                          EntrySetup& s, float* coef);
 #if defined(TERRALIGN_HAVE_AVX2)
 void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
-                          EntrySetup& s);
+                          EntrySetup& s, float* coef);
 #endif
-using SetupEntriesFn = void (*)(const Tri*, const int*, int, int, int, int, int, int, int, EntrySetup&);
+using SetupEntriesFn = void (*)(const Tri*, const int*, int, int, int, int, int, int, int, EntrySetup&, float*);
 
 }  // namespace terralign::raster
