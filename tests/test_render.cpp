@@ -894,7 +894,7 @@ TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows o
 #endif
 }
 
-TEST_CASE("the bin entries' set-up agrees bit for bit on seeded random triangles (AVX-512 vs scalar)") {
+TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit for bit on seeded random triangles (AVX-512 vs scalar)") {
 #if defined(TERRALIGN_HAVE_AVX2)
   if (!cpu_has_avx512()) {
     MESSAGE("this CPU has no AVX-512: nothing to compare");
@@ -908,6 +908,7 @@ TEST_CASE("the bin entries' set-up agrees bit for bit on seeded random triangles
   std::mt19937 rng(99);
   std::uniform_real_distribution<float> u(0, 1);
   int small_total = 0, other_total = 0;
+  long drawn_pixels = 0;
   for (int round = 0; round < 300; ++round) {
     for (Tri& t : tris) {
       const float size = round % 3 == 0 ? 300.0f * u(rng) : 9.0f * u(rng);
@@ -927,6 +928,11 @@ TEST_CASE("the bin entries' set-up agrees bit for bit on seeded random triangles
         t.X[1] = t.X[0];
         t.Y[1] = t.Y[0];
       }
+      // Clockwise on screen, as set-up makes every triangle.
+      if ((std::int64_t{t.X[1]} - t.X[0]) * (t.Y[2] - t.Y[0]) - (std::int64_t{t.Y[1]} - t.Y[0]) * (t.X[2] - t.X[0]) < 0) {
+        std::swap(t.X[1], t.X[2]);
+        std::swap(t.Y[1], t.Y[2]);
+      }
     }
     int ids[EntrySetup::kMax];
     const int n = round % 4 == 3 ? 1 + static_cast<int>(rng() % EntrySetup::kMax) : EntrySetup::kMax;
@@ -936,6 +942,34 @@ TEST_CASE("the bin entries' set-up agrees bit for bit on seeded random triangles
     setup_entries_scalar(tris.data(), ids, n, x0, y0, x1, y1, vw, vh, a, ca.data());
     setup_entries_avx512(tris.data(), ids, n, x0, y0, x1, y1, vw, vh, b, cb.data());
     CHECK(std::memcmp(ca.data(), cb.data(), ca.size() * sizeof(float)) == 0);  // and nothing past n entries
+    // The small entries drawn into a tile's visibility buffers, by the AVX-512 run and by the
+    // scalar edge kernel one by one: the same depths, entries and counts.
+    {
+      const std::ptrdiff_t stride = (x1 - x0 + 1) + 8;
+      std::vector<float> za(static_cast<std::size_t>(stride * (y1 - y0 + 1)), 0.0f), zb = za;
+      std::vector<int> ia(za.size(), -1), ib = ia;
+      int cov_a[EntrySetup::kMax] = {}, cov_b[EntrySetup::kMax] = {};
+      int at = 0;
+      while (at < n) {
+        if (!(a.small >> at & 1)) {
+          ++at;
+          continue;
+        }
+        const int end = draw_small_entries_avx512(b, at, n, x0, y0, zb.data(), ib.data(), stride, 1000, cov_b);
+        for (; at < n && (a.small >> at & 1); ++at) {
+          const std::ptrdiff_t o = (a.y0[at] - y0) * stride + (a.x0[at] - x0);
+          const std::int64_t E[3] = {a.E[0][at], a.E[1][at], a.E[2][at]}, dx[3] = {a.dEx[0][at], a.dEx[1][at], a.dEx[2][at]},
+                             dy[3] = {a.dEy[0][at], a.dEy[1][at], a.dEy[2][at]};
+          cov_a[at] = static_cast<int>(edge_block_scalar(a.w[at], a.h[at], E, dx, dy, a.base[at], a.A[at], a.B[at], 0, 0,
+                                                         za.data() + o, ia.data() + o, stride, 1000 + at));
+        }
+        CHECK(end == at);
+      }
+      CHECK(std::memcmp(za.data(), zb.data(), za.size() * sizeof(float)) == 0);
+      CHECK(ia == ib);
+      CHECK(std::memcmp(cov_a, cov_b, sizeof cov_a) == 0);
+      for (int i = 0; i < n; ++i) drawn_pixels += cov_a[i];
+    }
     CAPTURE(round);
     REQUIRE(a.small == b.small);
     for (int i = 0; i < n; ++i) {
@@ -952,8 +986,9 @@ TEST_CASE("the bin entries' set-up agrees bit for bit on seeded random triangles
       for (int k = 0; k < 3; ++k) CHECK((a.E[k][i] == b.E[k][i] && a.dEx[k][i] == b.dEx[k][i] && a.dEy[k][i] == b.dEy[k][i]));
     }
   }
-  MESSAGE(small_total << " small entries, " << other_total << " others");
+  MESSAGE(small_total << " small entries, " << other_total << " others, " << drawn_pixels << " pixels drawn");
   CHECK(small_total > 500);
+  CHECK(drawn_pixels > small_total);  // more than a pixel each, on average
   CHECK(other_total > 500);
 #else
   MESSAGE("no x86 vector build: nothing to compare");

@@ -60,6 +60,9 @@ void setup_entries_scalar(const Tri* tris, const int* ids, int n, int x0, int y0
     s.y0[i] = b.y0;
     s.w[i] = b.x1 - b.x0 + 1;
     s.h[i] = b.y1 - b.y0 + 1;
+    s.base[i] = t.C[0];
+    s.A[i] = t.A[0];
+    s.B[i] = t.B[0];
     const std::int32_t px = b.x0 * (1 << kSubBits), py = b.y0 * (1 << kSubBits);
     for (int k = 0; k < 3; ++k) {
       const int k1 = (k + 1) % 3;

@@ -109,6 +109,7 @@ struct Renderer::Impl {
   EmitQuadRowFn emit_quad_row = emit_quad_row_scalar;
   ProjectPostsFn project_posts = project_posts_scalar;
   SetupEntriesFn setup_entries = setup_entries_scalar;
+  DrawSmallEntriesFn draw_small_entries = nullptr;  // where built; else draw_small_entries_edge32()
   const char* simd = "scalar";
   std::unique_ptr<ThreadPool> pool;
 
@@ -166,6 +167,8 @@ struct Renderer::Impl {
   }
   bool chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const;
   void raster_tile(int tile, int thread);
+  int draw_small_entries_edge32(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
+                                int e0, int* covered) const;
   void deal_bands(int units);
   template <class F>
   void claim_units(int thread, F&& draw);
@@ -396,6 +399,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.emit_quad_row = emit_quad_row_avx512;
     m.project_posts = project_posts_avx512;
     m.setup_entries = setup_entries_avx512;
+    m.draw_small_entries = draw_small_entries_avx512;
     m.simd = "avx512";
   }
 #endif
@@ -684,6 +688,19 @@ inline float footprint_log2(T A0, T B0, T A1, T B1, T A2, T B2, T wx, T wy, T z)
 
 }  // namespace
 
+// draw_small_entries (geometry_kernels.hpp) through the edge_block32 kernel.
+int Renderer::Impl::draw_small_entries_edge32(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id,
+                                              std::ptrdiff_t stride, int e0, int* covered) const {
+  int i = from;
+  for (; i < n && (s.small >> i & 1); ++i) {
+    const std::ptrdiff_t at = (s.y0[i] - y0) * stride + (s.x0[i] - x0);
+    const std::int32_t E[3] = {s.E[0][i], s.E[1][i], s.E[2][i]};
+    const std::int32_t dEx[3] = {s.dEx[0][i], s.dEx[1][i], s.dEx[2][i]}, dEy[3] = {s.dEy[0][i], s.dEy[1][i], s.dEy[2][i]};
+    covered[i] = static_cast<int>(edge_block32(s.w[i], s.h[i], E, dEx, dEy, s.base[i], s.A[i], s.B[i], 0, 0, z + at, id + at, stride, e0 + i));
+  }
+  return i;
+}
+
 void Renderer::Impl::raster_tile(int tile, int thread) {
   const int tx = tile % tiles_x, ty = tile / tiles_x;
   const int x0 = tx * kTileW, y0 = ty * kTileH;
@@ -706,144 +723,141 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   // fitted in double).
   float* coef = tile_coef[static_cast<std::size_t>(thread)].data();
   // Entries are set up 16 at a time (setup_entries(): the small ones for the 32-bit edge kernel,
-  // and every entry's planes), then drawn one by one in bin order.
+  // and every entry's planes), then drawn in bin order: runs of small entries by
+  // draw_small_entries(), the others one by one.
   alignas(64) EntrySetup setup;
+  int covered[EntrySetup::kMax];
+  // The footprint's bound over entry e's pixels in the tile (setup_entries() left +inf): where
+  // it shows a layer magnified, its pixels skip their own footprints. It costs about what a few
+  // pixels' footprints do, so entries covering fewer pixels (most of a view over a detailed DEM)
+  // go without.
+  auto footprint_bound = [&](int e, long pixels, int bx0, int bx1, int by0, int by1) {
+    if (!resolve_here || pixels < kBoundMinPixels) return;
+    float* c = coef + kPlaneFloats * e;
+    c[9] = plane_footprint_bound_log2(c, static_cast<float>(bx0 - x0), static_cast<float>(bx1 - x0),
+                                      static_cast<float>(by0 - y0), static_cast<float>(by1 - y0));
+  };
   for (int e0 = 0; e0 < count; e0 += EntrySetup::kMax) {
     const int batch = std::min(EntrySetup::kMax, count - e0);
     setup_entries(tris.get(), bin_entries.get() + first + e0, batch, x0, y0, x1, y1, vw, vh, setup, coef + kPlaneFloats * e0);
+    // A view's triangles outgrow the caches: fetch the next batch's while drawing this one.
+    for (int i = e0 + EntrySetup::kMax; i < std::min(count, e0 + 2 * EntrySetup::kMax); ++i)
+      __builtin_prefetch(&tris[static_cast<std::size_t>(bin_entries[static_cast<std::size_t>(first + i)])]);
     const std::uint32_t small = edge_block32 ? setup.small : 0u;
     for (int i = 0; i < batch; ++i) {
       const int e = e0 + i;
+      if (small >> i & 1) {
+        const int end = draw_small_entries ? draw_small_entries(setup, i, batch, x0, y0, tz, tid, stride, e0, covered)
+                                           : draw_small_entries_edge32(setup, i, batch, x0, y0, tz, tid, stride, e0, covered);
+        for (int j = i; j < end; ++j) {
+          frags += covered[j];
+          footprint_bound(e0 + j, covered[j], setup.x0[j], setup.x0[j] + setup.w[j] - 1, setup.y0[j], setup.y0[j] + setup.h[j] - 1);
+        }
+        i = end - 1;
+        continue;
+      }
       const long frags_before = frags;
       const Tri& t = tris[static_cast<std::size_t>(bin_entries[static_cast<std::size_t>(first + e)])];
-      if (e + EntrySetup::kMax < count) {
-        // A view's triangles outgrow the caches: fetch the next batch's while drawing this one.
-        __builtin_prefetch(&tris[static_cast<std::size_t>(bin_entries[static_cast<std::size_t>(first + e + EntrySetup::kMax)])]);
+      const PixelBox tb = box(t);  // and the entry's pixels in this tile:
+      const int bx0 = std::max(tb.x0, x0), bx1 = std::min(tb.x1, x1);
+      const int by0 = std::max(tb.y0, y0), by1 = std::min(tb.y1, y1);
+      if (bx0 > bx1 || by0 > by1) continue;
+      // Edge k runs from vertex k to vertex k+1; inside: E > 0, or E == 0 on a top or left
+      // edge (clockwise on screen with y down: top = horizontal going right, left = going up).
+      // The bias folds the rule into one test, E >= 0.
+      std::int64_t E[3], dEx[3], dEy[3];
+      std::int32_t dx32[3], dy32[3];
+      const std::int64_t px = static_cast<std::int64_t>(bx0) << kSubBits, py = static_cast<std::int64_t>(by0) << kSubBits;
+      for (int k = 0; k < 3; ++k) {
+        const int k1 = (k + 1) % 3;
+        const std::int64_t ex = std::int64_t{t.X[k1]} - t.X[k], ey = std::int64_t{t.Y[k1]} - t.Y[k];
+        const bool top_left = (ey == 0 && ex > 0) || ey < 0;
+        E[k] = ex * (py - t.Y[k]) - ey * (px - t.X[k]) - (top_left ? 0 : 1);
+        dEx[k] = -ey * (std::int64_t{1} << kSubBits);
+        dEy[k] = ex * (std::int64_t{1} << kSubBits);
+        // For the 32-bit kernel: narrowing is modular, so the slopes may wrap while every
+        // pixel's value in a block whose corners fit is exact.
+        dx32[k] = static_cast<std::int32_t>(dEx[k]);
+        dy32[k] = static_cast<std::int32_t>(dEy[k]);
       }
-      int bx0, bx1, by0, by1;  // the entry's pixels in this tile
-      if (small >> i & 1) {
-        // Its box is in the tile, and 1/z there is its plane's C.
-        bx0 = setup.x0[i];
-        by0 = setup.y0[i];
-        bx1 = bx0 + setup.w[i] - 1;
-        by1 = by0 + setup.h[i] - 1;
-        const std::int32_t E[3] = {setup.E[0][i], setup.E[1][i], setup.E[2][i]};
-        const std::int32_t dx32[3] = {setup.dEx[0][i], setup.dEx[1][i], setup.dEx[2][i]};
-        const std::int32_t dy32[3] = {setup.dEy[0][i], setup.dEy[1][i], setup.dEy[2][i]};
+      // 1/z relative to the box corner, in float (exact enough for the depth test only).
+      const float A = t.A[0], B = t.B[0];
+      const float base = static_cast<float>(plane_at(t, 0, bx0 - tb.x0, by0 - tb.y0));
+      // A triangle within one block (most triangles over a detailed DEM cover a few pixels):
+      // straight to the edge kernel, its values bounded by |E| + 7 |dEx| + 7 |dEy| per edge.
+      bool one_block = edge_block32 && bx1 - bx0 < 8 && by1 - by0 < 8;
+      if (one_block) {
+        std::int64_t reach = 0;
+        for (int k = 0; k < 3; ++k) reach = std::max(reach, std::abs(E[k]) + 7 * (std::abs(dEx[k]) + std::abs(dEy[k])));
+        one_block = reach <= std::numeric_limits<std::int32_t>::max();
+      }
+      if (one_block) {
+        const std::int32_t c32[3] = {static_cast<std::int32_t>(E[0]), static_cast<std::int32_t>(E[1]), static_cast<std::int32_t>(E[2])};
         const std::ptrdiff_t at = (by0 - y0) * stride + (bx0 - x0);
-        frags += edge_block32(setup.w[i], setup.h[i], E, dx32, dy32, t.C[0], t.A[0], t.B[0], 0, 0, tz + at, tid + at, stride, e);
-      } else {
-        const PixelBox tb = box(t);
-        bx0 = std::max(tb.x0, x0);
-        bx1 = std::min(tb.x1, x1);
-        by0 = std::max(tb.y0, y0);
-        by1 = std::min(tb.y1, y1);
-        if (bx0 > bx1 || by0 > by1) continue;
-        // Edge k runs from vertex k to vertex k+1; inside: E > 0, or E == 0 on a top or left
-        // edge (clockwise on screen with y down: top = horizontal going right, left = going up).
-        // The bias folds the rule into one test, E >= 0.
-        std::int64_t E[3], dEx[3], dEy[3];
-        std::int32_t dx32[3], dy32[3];
-        const std::int64_t px = static_cast<std::int64_t>(bx0) << kSubBits, py = static_cast<std::int64_t>(by0) << kSubBits;
-        for (int k = 0; k < 3; ++k) {
-          const int k1 = (k + 1) % 3;
-          const std::int64_t ex = std::int64_t{t.X[k1]} - t.X[k], ey = std::int64_t{t.Y[k1]} - t.Y[k];
-          const bool top_left = (ey == 0 && ex > 0) || ey < 0;
-          E[k] = ex * (py - t.Y[k]) - ey * (px - t.X[k]) - (top_left ? 0 : 1);
-          dEx[k] = -ey * (std::int64_t{1} << kSubBits);
-          dEy[k] = ex * (std::int64_t{1} << kSubBits);
-          // For the 32-bit kernel: narrowing is modular, so the slopes may wrap while every
-          // pixel's value in a block whose corners fit is exact.
-          dx32[k] = static_cast<std::int32_t>(dEx[k]);
-          dy32[k] = static_cast<std::int32_t>(dEy[k]);
+        frags += edge_block32(bx1 - bx0 + 1, by1 - by0 + 1, c32, dx32, dy32, base, A, B, 0, 0, tz + at, tid + at, stride, e);
+      }
+      // 8 x 8 blocks: the edge functions are linear, so their values at a block's corners say
+      // whether the block is wholly inside (no per-pixel test), wholly outside one edge
+      // (skipped), or crossed (tested per pixel, in the edge kernel). Blocks are taken 4 x 4 at
+      // a time, and the group's corners first: a large triangle covers or misses most groups
+      // wholly, whose blocks then need no test of their own.
+      struct Corners {
+        bool outside = false, inside = true, fits32 = true;
+        std::int64_t c00[3] = {0, 0, 0};
+      };
+      auto classify = [&](int cx0, int cy0, int cx1, int cy1) {
+        Corners q;
+        for (int k = 0; k < 3 && !q.outside; ++k) {
+          const std::int64_t c00 = E[k] + dEx[k] * (cx0 - bx0) + dEy[k] * (cy0 - by0);
+          const std::int64_t c10 = c00 + dEx[k] * (cx1 - cx0), c01 = c00 + dEy[k] * (cy1 - cy0);
+          const std::int64_t c11 = c10 + dEy[k] * (cy1 - cy0);
+          const std::int64_t lo = std::min(std::min(c00, c10), std::min(c01, c11));
+          const std::int64_t hi = std::max(std::max(c00, c10), std::max(c01, c11));
+          q.c00[k] = c00;
+          q.outside = hi < 0;
+          q.inside = q.inside && lo >= 0;
+          q.fits32 = q.fits32 && lo >= std::numeric_limits<std::int32_t>::min() && hi <= std::numeric_limits<std::int32_t>::max();
         }
-        // 1/z relative to the box corner, in float (exact enough for the depth test only).
-        const float A = t.A[0], B = t.B[0];
-        const float base = static_cast<float>(plane_at(t, 0, bx0 - tb.x0, by0 - tb.y0));
-        // A triangle within one block (most triangles over a detailed DEM cover a few pixels):
-        // straight to the edge kernel, its values bounded by |E| + 7 |dEx| + 7 |dEy| per edge.
-        bool one_block = edge_block32 && bx1 - bx0 < 8 && by1 - by0 < 8;
-        if (one_block) {
-          std::int64_t reach = 0;
-          for (int k = 0; k < 3; ++k) reach = std::max(reach, std::abs(E[k]) + 7 * (std::abs(dEx[k]) + std::abs(dEy[k])));
-          one_block = reach <= std::numeric_limits<std::int32_t>::max();
-        }
-        if (one_block) {
-          const std::int32_t c32[3] = {static_cast<std::int32_t>(E[0]), static_cast<std::int32_t>(E[1]), static_cast<std::int32_t>(E[2])};
-          const std::ptrdiff_t at = (by0 - y0) * stride + (bx0 - x0);
-          frags += edge_block32(bx1 - bx0 + 1, by1 - by0 + 1, c32, dx32, dy32, base, A, B, 0, 0, tz + at, tid + at, stride, e);
-        }
-        // 8 x 8 blocks: the edge functions are linear, so their values at a block's corners say
-        // whether the block is wholly inside (no per-pixel test), wholly outside one edge
-        // (skipped), or crossed (tested per pixel, in the edge kernel). Blocks are taken 4 x 4 at
-        // a time, and the group's corners first: a large triangle covers or misses most groups
-        // wholly, whose blocks then need no test of their own.
-        struct Corners {
-          bool outside = false, inside = true, fits32 = true;
-          std::int64_t c00[3] = {0, 0, 0};
-        };
-        auto classify = [&](int cx0, int cy0, int cx1, int cy1) {
-          Corners q;
-          for (int k = 0; k < 3 && !q.outside; ++k) {
-            const std::int64_t c00 = E[k] + dEx[k] * (cx0 - bx0) + dEy[k] * (cy0 - by0);
-            const std::int64_t c10 = c00 + dEx[k] * (cx1 - cx0), c01 = c00 + dEy[k] * (cy1 - cy0);
-            const std::int64_t c11 = c10 + dEy[k] * (cy1 - cy0);
-            const std::int64_t lo = std::min(std::min(c00, c10), std::min(c01, c11));
-            const std::int64_t hi = std::max(std::max(c00, c10), std::max(c01, c11));
-            q.c00[k] = c00;
-            q.outside = hi < 0;
-            q.inside = q.inside && lo >= 0;
-            q.fits32 = q.fits32 && lo >= std::numeric_limits<std::int32_t>::min() && hi <= std::numeric_limits<std::int32_t>::max();
+        return q;
+      };
+      auto covered_block = [&](int bx, int by, int ex1, int ey1) {
+        const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by - y0) * stride + (bx - x0);
+        depth_block(ex1 - bx + 1, ey1 - by + 1, base, A, B, bx - bx0, by - by0, tz + at, tid + at, stride, e);
+        frags += static_cast<long>(ex1 - bx + 1) * (ey1 - by + 1);
+      };
+      for (int qy0 = by0; qy0 <= by1 && !one_block; qy0 += 32) {
+        const int qy1 = std::min(qy0 + 31, by1);
+        for (int qx0 = bx0; qx0 <= bx1; qx0 += 32) {
+          const int qx1 = std::min(qx0 + 31, bx1);
+          const Corners group = classify(qx0, qy0, qx1, qy1);
+          if (group.outside) continue;
+          if (group.inside) {  // the whole group in one call (kDepthBlockMaxW: 32 columns)
+            covered_block(qx0, qy0, qx1, qy1);
+            continue;
           }
-          return q;
-        };
-        auto covered_block = [&](int bx, int by, int ex1, int ey1) {
-          const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by - y0) * stride + (bx - x0);
-          depth_block(ex1 - bx + 1, ey1 - by + 1, base, A, B, bx - bx0, by - by0, tz + at, tid + at, stride, e);
-          frags += static_cast<long>(ex1 - bx + 1) * (ey1 - by + 1);
-        };
-        for (int qy0 = by0; qy0 <= by1 && !one_block; qy0 += 32) {
-          const int qy1 = std::min(qy0 + 31, by1);
-          for (int qx0 = bx0; qx0 <= bx1; qx0 += 32) {
-            const int qx1 = std::min(qx0 + 31, bx1);
-            const Corners group = classify(qx0, qy0, qx1, qy1);
-            if (group.outside) continue;
-            if (group.inside) {  // the whole group in one call (kDepthBlockMaxW: 32 columns)
-              covered_block(qx0, qy0, qx1, qy1);
-              continue;
-            }
-            for (int by = qy0; by <= qy1; by += 8) {
-              const int ey1 = std::min(by + 7, qy1);
-              for (int bx = qx0; bx <= qx1; bx += 8) {
-                const int ex1 = std::min(bx + 7, qx1);
-                const Corners q = classify(bx, by, ex1, ey1);
-                if (q.outside) continue;
-                const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by - y0) * stride + (bx - x0);
-                if (q.inside) {
-                  covered_block(bx, by, ex1, ey1);
-                } else if (q.fits32 && edge_block32) {
-                  const std::int32_t c32[3] = {static_cast<std::int32_t>(q.c00[0]), static_cast<std::int32_t>(q.c00[1]),
-                                               static_cast<std::int32_t>(q.c00[2])};
-                  frags += edge_block32(ex1 - bx + 1, ey1 - by + 1, c32, dx32, dy32, base, A, B, bx - bx0, by - by0, tz + at,
-                                        tid + at, stride, e);
-                } else {
-                  frags += edge_block(ex1 - bx + 1, ey1 - by + 1, q.c00, dEx, dEy, base, A, B, bx - bx0, by - by0, tz + at,
+          for (int by = qy0; by <= qy1; by += 8) {
+            const int ey1 = std::min(by + 7, qy1);
+            for (int bx = qx0; bx <= qx1; bx += 8) {
+              const int ex1 = std::min(bx + 7, qx1);
+              const Corners q = classify(bx, by, ex1, ey1);
+              if (q.outside) continue;
+              const std::ptrdiff_t at = static_cast<std::ptrdiff_t>(by - y0) * stride + (bx - x0);
+              if (q.inside) {
+                covered_block(bx, by, ex1, ey1);
+              } else if (q.fits32 && edge_block32) {
+                const std::int32_t c32[3] = {static_cast<std::int32_t>(q.c00[0]), static_cast<std::int32_t>(q.c00[1]),
+                                             static_cast<std::int32_t>(q.c00[2])};
+                frags += edge_block32(ex1 - bx + 1, ey1 - by + 1, c32, dx32, dy32, base, A, B, bx - bx0, by - by0, tz + at,
                                       tid + at, stride, e);
-                }
+              } else {
+                frags += edge_block(ex1 - bx + 1, ey1 - by + 1, q.c00, dEx, dEy, base, A, B, bx - bx0, by - by0, tz + at,
+                                    tid + at, stride, e);
               }
             }
           }
         }
       }
-      // The footprint's bound over the entry's box in the tile (setup_entries() left +inf):
-      // where it shows a layer magnified, its pixels skip their own footprints. It costs about
-      // what a few pixels' footprints do, so small triangles (most of a view over a detailed
-      // DEM) go without.
-      if (resolve_here && frags - frags_before >= kBoundMinPixels) {
-        float* c = coef + kPlaneFloats * e;
-        c[9] = plane_footprint_bound_log2(c, static_cast<float>(bx0 - x0), static_cast<float>(bx1 - x0),
-                                          static_cast<float>(by0 - y0), static_cast<float>(by1 - y0));
-      }
+      footprint_bound(e, frags - frags_before, bx0, bx1, by0, by1);
     }
   }
   RasterScratch& scratch = raster_scratch[static_cast<std::size_t>(thread)];

@@ -196,6 +196,7 @@ struct EntrySetup {
   std::uint32_t small;  // bit i: entry i is small
   alignas(64) std::int32_t x0[kMax], y0[kMax], w[kMax], h[kMax];  // small entries' pixel boxes
   alignas(64) std::int32_t E[3][kMax], dEx[3][kMax], dEy[3][kMax];
+  alignas(64) float base[kMax], A[kMax], B[kMax];  // small entries' 1/z at the box's corner (C), and its slopes
 };
 // Entries tris[ids[i]], i < n <= 16, of the tile whose pixels are x0 .. x1, y0 .. y1 in a
 // vw x vh view; their planes to coef[kPlaneFloats i ...].
@@ -206,5 +207,15 @@ void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0
                           EntrySetup& s, float* coef);
 #endif
 using SetupEntriesFn = void (*)(const Tri*, const int*, int, int, int, int, int, int, int, EntrySetup&, float*);
+
+// Draws the small entries of a set-up batch from entry `from` on, in order, up to the first
+// that is not small (or n): each as edge_block32 (shade_kernels.hpp) draws its box into the
+// tile's visibility buffers z and id (row stride `stride`, the tile's corner at pixel x0, y0)
+// as entry e0 + i. covered[i] gets the pixels each covers. Returns where it stopped.
+#if defined(TERRALIGN_HAVE_AVX2)
+int draw_small_entries_avx512(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
+                              int e0, int* covered);
+#endif
+using DrawSmallEntriesFn = int (*)(const EntrySetup&, int, int, int, int, float*, int*, std::ptrdiff_t, int, int*);
 
 }  // namespace terralign::raster
