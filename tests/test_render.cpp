@@ -751,12 +751,16 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   CHECK(blocks_partly > 20);  // edges cross many of the blocks (not all in or all out)
 }
 
+// Whether this CPU runs the AVX-512 kernels; if not, the test says so and compares nothing.
+[[maybe_unused]] bool avx512_here() {
+  if (cpu_has_avx512()) return true;
+  MESSAGE("this CPU has no AVX-512: nothing to compare");
+  return false;
+}
+
 TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (AVX-512 vs scalar)") {
 #if defined(TERRALIGN_HAVE_AVX2)
-  if (!cpu_has_avx512()) {
-    MESSAGE("this CPU has no AVX-512: nothing to compare");
-    return;
-  }
+  if (!avx512_here()) return;
   // A camera 300 m up looking 40 degrees from nadir over posts up to 3 km away: some behind
   // it, some beyond the guard band, some without a height (NaN, infinite).
   PostFrame f{};
@@ -833,10 +837,7 @@ TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (A
 
 TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows of quads (AVX-512 vs scalar)") {
 #if defined(TERRALIGN_HAVE_AVX2)
-  if (!cpu_has_avx512()) {
-    MESSAGE("this CPU has no AVX-512: nothing to compare");
-    return;
-  }
+  if (!avx512_here()) return;
   // Two rows of 17 vertices a grid: screen positions over and around a 200 x 120 view, some
   // rows coarse (triangles of tens of pixels), some fine (most triangles cover no pixel
   // centre), corners repeated (no area) and rows crossed (triangles turned either way).
@@ -896,10 +897,7 @@ TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows o
 
 TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit for bit on seeded random triangles (AVX-512 vs scalar)") {
 #if defined(TERRALIGN_HAVE_AVX2)
-  if (!cpu_has_avx512()) {
-    MESSAGE("this CPU has no AVX-512: nothing to compare");
-    return;
-  }
+  if (!avx512_here()) return;
   // Triangles of under a pixel to hundreds of pixels over and around a 300 x 200 view, seen
   // from the tile at pixels 128 .. 255, 24 .. 47: small ones inside it, across its edges,
   // outside it, and large ones.

@@ -118,9 +118,9 @@ using ProjectPostsFn = bool (*)(const PostFrame&, const float*, const float*, co
 // y_world/z the planes q(x, y) = A (x - x0) + B (y - y0) + C in pixel coordinates (centres at
 // integers), (x0, y0) the corner of its pixel box (pixel_box()). Fitted in double, kept in
 // float relative to that corner: one cache line a triangle (kUnsharedAlign is the line), where
-// the planes in double at the image's corner took 112 bytes (the triangle array of a
-// renderer, max_triangles a thread, 59 MB a thread at the default, is now 34 MB). A pixel's
-// 1/z from the float planes is within about 1e-7 relative of the double ones.
+// the planes in double at the image's corner took 112 bytes (with the renderer's 8-byte tile
+// span beside each, max_triangles a thread take 38 MB a thread at the default, were 59 MB). A
+// pixel's 1/z from the float planes is within about 1e-7 relative of the double ones.
 struct alignas(kUnsharedAlign) Tri {
   std::int32_t X[3], Y[3];  // fixed point, kSubBits
   float A[3], B[3], C[3];   // [0]: 1/z, [1]: wx/z, [2]: wy/z

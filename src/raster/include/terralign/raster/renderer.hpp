@@ -6,10 +6,13 @@
 //     vertical error projects to at most `lod_error_px` pixels (skirts hide the cracks
 //     between levels). A constant-height map is one flat grid.
 //  2. Geometry: chunk vertices to the camera frame (float, relative to a local origin of the
-//     map), clipping at the near plane and a guard band, projection, triangles binned into
-//     screen tiles.
+//     map), clipping at the near plane and a guard band, projection, triangle set-up (a row
+//     of a chunk's quads at a time where no clipping is needed), triangles binned into
+//     screen tiles (geometry_kernels.hpp).
 //  3. Visibility: per tile, fixed-point edge functions (8 sub-pixel bits, top-left fill
-//     rule) and a depth test on 1/z give each pixel its nearest triangle.
+//     rule) and a depth test on 1/z give each pixel its nearest triangle; entries are set up
+//     16 at a time, and triangles within one 8 x 8 block of the tile (most over a detailed
+//     DEM) drawn by 32-bit edge kernels.
 //  4. Resolve: per pixel, depth along the optical axis and the world (x, y) of the surface
 //     point, perspective-correct from the triangle's planes (fitted in double, evaluated in
 //     float relative to the tile's corner).
