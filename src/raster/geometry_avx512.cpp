@@ -3,8 +3,10 @@
 // -ffp-contract=off and this file is built without -mfma), so the results are the scalar
 // kernels' bit for bit. The vertex stage takes 16 posts a vector (their projections in two
 // halves of eight doubles); the triangle set-up takes eight quads' first triangles in one set
-// of vectors and their second triangles in another, and copies the kept ones out lane by lane
-// in quad order, transposed to one triangle a vector.
+// of vectors and their second triangles in another, and stores the kept ones in quad order,
+// transposed to one triangle a vector; the entries' set-up takes 16 entries' triangles
+// transposed to one field a vector; a run of small entries is drawn by the AVX2 edge kernel,
+// inlined.
 #include <terralign/raster/geometry_kernels.hpp>
 
 #include <immintrin.h>
@@ -107,6 +109,15 @@ inline void setup8(const Vert8& a, const Vert8& b, const Vert8& c, __mmask8 lane
   _mm256_store_si256(reinterpret_cast<__m256i*>(t.box[3]), by1);
 }
 
+// (C + A dx) + B dy in double for eight lanes of one half (h) of 16, then float.
+inline __m256 plane_at_corner(__m512 C, __m512 A, __m512 B, __m512i dx, __m512i dy, int h) {
+  auto half_ps = [h](__m512 v) {
+    return _mm512_cvtps_pd(h ? _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(v), 1)) : _mm512_castps512_ps256(v));
+  };
+  auto half_pi = [h](__m512i v) { return _mm512_cvtepi32_pd(h ? _mm512_extracti64x4_epi64(v, 1) : _mm512_castsi512_si256(v)); };
+  return _mm512_cvtpd_ps(_mm512_add_pd(_mm512_add_pd(half_ps(C), _mm512_mul_pd(half_ps(A), half_pi(dx))), _mm512_mul_pd(half_ps(B), half_pi(dy))));
+}
+
 }  // namespace
 
 bool project_posts_avx512(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
@@ -198,19 +209,6 @@ int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, int vw, 
   }
   return count;
 }
-
-namespace {
-
-// (C + A dx) + B dy in double for eight lanes of one half (h) of 16, then float.
-inline __m256 plane_at_corner(__m512 C, __m512 A, __m512 B, __m512i dx, __m512i dy, int h) {
-  auto half_ps = [h](__m512 v) {
-    return _mm512_cvtps_pd(h ? _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(v), 1)) : _mm512_castps512_ps256(v));
-  };
-  auto half_pi = [h](__m512i v) { return _mm512_cvtepi32_pd(h ? _mm512_extracti64x4_epi64(v, 1) : _mm512_castsi512_si256(v)); };
-  return _mm512_cvtpd_ps(_mm512_add_pd(_mm512_add_pd(half_ps(C), _mm512_mul_pd(half_ps(A), half_pi(dx))), _mm512_mul_pd(half_ps(B), half_pi(dy))));
-}
-
-}  // namespace
 
 void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
                           EntrySetup& s, float* coef) {

@@ -718,9 +718,8 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   long frags = 0;
   const int first = tile_start[static_cast<std::size_t>(tile)];
   const int count = tile_count[static_cast<std::size_t>(tile)];
-  // Pinhole camera: each entry that covers a pixel gets its planes in float relative to the
-  // tile's corner, for the resolve below (depth to about 3e-7 relative: the planes were
-  // fitted in double).
+  // Each entry gets its planes in float relative to the tile's corner, for the resolve below
+  // (a pinhole camera's; depth to about 3e-7 relative: the planes were fitted in double).
   float* coef = tile_coef[static_cast<std::size_t>(thread)].data();
   // Entries are set up 16 at a time (setup_entries(): the small ones for the 32-bit edge kernel,
   // and every entry's planes), then drawn in bin order: runs of small entries by

@@ -189,8 +189,8 @@ TL_INLINE Fetched fetch16(const ShadeParams& p, int level, __m512 x, __m512 y) {
   return f;
 }
 
-// A chain's levels (at most kMaxMipLevels, 16) by level, one lane each: the per-level values fetch16_lanes()
-// picks by each lane's level.
+// A chain's levels (at most kMaxMipLevels, 16), one lane each: the per-level values that
+// fetch16_lanes() picks by each lane's level.
 struct LevelTable {
   __m512 a0, a1, a2, b0, b1, b2;
   __m512i off, wid, hei;
