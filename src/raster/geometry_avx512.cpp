@@ -72,11 +72,17 @@ inline void setup8(const Vert8& a, const Vert8& b, const Vert8& c, __mmask8 lane
   __mmask8 keep = static_cast<__mmask8>(lanes & _mm512_cmpneq_epi64_mask(area, _mm512_setzero_si512()));
   const __m256i X1 = _mm256_mask_blend_epi32(flip, b.X, c.X), X2 = _mm256_mask_blend_epi32(flip, c.X, b.X);
   const __m256i Y1 = _mm256_mask_blend_epi32(flip, b.Y, c.Y), Y2 = _mm256_mask_blend_epi32(flip, c.Y, b.Y);
+  // pixel_box(): the first pixel centre at or after the least corner, the last at or before
+  // the greatest, clamped to the view.
   const __m256i half_up = _mm256_set1_epi32((1 << kSubBits) - 1), zero = _mm256_setzero_si256();
-  const __m256i bx0 = _mm256_max_epi32(zero, _mm256_srai_epi32(_mm256_add_epi32(_mm256_min_epi32(_mm256_min_epi32(a.X, X1), X2), half_up), kSubBits));
-  const __m256i by0 = _mm256_max_epi32(zero, _mm256_srai_epi32(_mm256_add_epi32(_mm256_min_epi32(_mm256_min_epi32(a.Y, Y1), Y2), half_up), kSubBits));
-  const __m256i bx1 = _mm256_min_epi32(_mm256_set1_epi32(vw - 1), _mm256_srai_epi32(_mm256_max_epi32(_mm256_max_epi32(a.X, X1), X2), kSubBits));
-  const __m256i by1 = _mm256_min_epi32(_mm256_set1_epi32(vh - 1), _mm256_srai_epi32(_mm256_max_epi32(_mm256_max_epi32(a.Y, Y1), Y2), kSubBits));
+  auto first = [&](__m256i p, __m256i q, __m256i r) {
+    return _mm256_max_epi32(zero, _mm256_srai_epi32(_mm256_add_epi32(_mm256_min_epi32(_mm256_min_epi32(p, q), r), half_up), kSubBits));
+  };
+  auto last = [&](__m256i p, __m256i q, __m256i r, int size) {
+    return _mm256_min_epi32(_mm256_set1_epi32(size - 1), _mm256_srai_epi32(_mm256_max_epi32(_mm256_max_epi32(p, q), r), kSubBits));
+  };
+  const __m256i bx0 = first(a.X, X1, X2), by0 = first(a.Y, Y1, Y2);
+  const __m256i bx1 = last(a.X, X1, X2, vw), by1 = last(a.Y, Y1, Y2, vh);
   keep = static_cast<__mmask8>(keep & _mm256_cmple_epi32_mask(bx0, bx1) & _mm256_cmple_epi32_mask(by0, by1));
   const __m512d e1x = _mm512_sub_pd(b.sx, a.sx), e1y = _mm512_sub_pd(b.sy, a.sy);
   const __m512d e2x = _mm512_sub_pd(c.sx, a.sx), e2y = _mm512_sub_pd(c.sy, a.sy);
@@ -115,7 +121,8 @@ inline __m256 plane_at_corner(__m512 C, __m512 A, __m512 B, __m512i dx, __m512i 
     return _mm512_cvtps_pd(h ? _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(v), 1)) : _mm512_castps512_ps256(v));
   };
   auto half_pi = [h](__m512i v) { return _mm512_cvtepi32_pd(h ? _mm512_extracti64x4_epi64(v, 1) : _mm512_castsi512_si256(v)); };
-  return _mm512_cvtpd_ps(_mm512_add_pd(_mm512_add_pd(half_ps(C), _mm512_mul_pd(half_ps(A), half_pi(dx))), _mm512_mul_pd(half_ps(B), half_pi(dy))));
+  const __m512d c_plus_a = _mm512_add_pd(half_ps(C), _mm512_mul_pd(half_ps(A), half_pi(dx)));
+  return _mm512_cvtpd_ps(_mm512_add_pd(c_plus_a, _mm512_mul_pd(half_ps(B), half_pi(dy))));
 }
 
 }  // namespace
@@ -134,8 +141,8 @@ bool project_posts_avx512(const PostFrame& f, const float* x, const float* y, co
     const __m512 dx = _mm512_sub_ps(X, _mm512_set1_ps(f.t[0])), dy = _mm512_sub_ps(Y, _mm512_set1_ps(f.t[1]));
     const __m512 dz = _mm512_sub_ps(_mm512_mask_mov_ps(Z, none, zero), _mm512_set1_ps(f.t[2]));
     auto row = [&](int i) {
-      return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_set1_ps(f.R[3 * i]), dx), _mm512_mul_ps(_mm512_set1_ps(f.R[3 * i + 1]), dy)),
-                           _mm512_mul_ps(_mm512_set1_ps(f.R[3 * i + 2]), dz));
+      const __m512 xy = _mm512_add_ps(_mm512_mul_ps(_mm512_set1_ps(f.R[3 * i]), dx), _mm512_mul_ps(_mm512_set1_ps(f.R[3 * i + 1]), dy));
+      return _mm512_add_ps(xy, _mm512_mul_ps(_mm512_set1_ps(f.R[3 * i + 2]), dz));
     };
     const __m512 cx = row(0), cy = row(1), cz = row(2);
     _mm512_mask_storeu_ps(cv.x + k, lanes, cx);
@@ -144,7 +151,8 @@ bool project_posts_avx512(const PostFrame& f, const float* x, const float* y, co
     _mm512_mask_storeu_ps(cv.wx + k, lanes, X);
     _mm512_mask_storeu_ps(cv.wy + k, lanes, Y);
     // clip_distance() of each plane, >= 0 inside.
-    const __m512 d[5] = {_mm512_sub_ps(cz, _mm512_set1_ps(f.near)), _mm512_sub_ps(cx, _mm512_mul_ps(_mm512_set1_ps(f.guard[0]), cz)),
+    const __m512 d[5] = {_mm512_sub_ps(cz, _mm512_set1_ps(f.near)),
+                         _mm512_sub_ps(cx, _mm512_mul_ps(_mm512_set1_ps(f.guard[0]), cz)),
                          _mm512_sub_ps(_mm512_mul_ps(_mm512_set1_ps(f.guard[1]), cz), cx),
                          _mm512_sub_ps(cy, _mm512_mul_ps(_mm512_set1_ps(f.guard[2]), cz)),
                          _mm512_sub_ps(_mm512_mul_ps(_mm512_set1_ps(f.guard[3]), cz), cy)};
@@ -167,15 +175,17 @@ bool project_posts_avx512(const PostFrame& f, const float* x, const float* y, co
       const __m512d iz = _mm512_div_pd(_mm512_set1_pd(1.0), part(cz));
       const __m512d sx = _mm512_add_pd(_mm512_mul_pd(_mm512_mul_pd(_mm512_set1_pd(f.fx), part(cx)), iz), _mm512_set1_pd(f.cx));
       const __m512d sy = _mm512_add_pd(_mm512_mul_pd(_mm512_mul_pd(_mm512_set1_pd(f.fy), part(cy)), iz), _mm512_set1_pd(f.cy));
+      // round_fixed(): the nearest integer by adding and taking away 1.5 * 2^52.
       const __m512d magic = _mm512_set1_pd(6755399441055744.0), sub = _mm512_set1_pd(1 << kSubBits);
+      auto fixed = [&](__m512d v) { return _mm512_cvtpd_epi32(_mm512_sub_pd(_mm512_add_pd(_mm512_mul_pd(v, sub), magic), magic)); };
       const int kh = k + 8 * h;
       _mm512_mask_storeu_pd(proj.iz + kh, half, iz);
       _mm512_mask_storeu_pd(proj.sx + kh, half, sx);
       _mm512_mask_storeu_pd(proj.sy + kh, half, sy);
       _mm512_mask_storeu_pd(proj.qx + kh, half, _mm512_mul_pd(part(X), iz));
       _mm512_mask_storeu_pd(proj.qy + kh, half, _mm512_mul_pd(part(Y), iz));
-      _mm256_mask_storeu_epi32(proj.X + kh, half, _mm512_cvtpd_epi32(_mm512_sub_pd(_mm512_add_pd(_mm512_mul_pd(sx, sub), magic), magic)));
-      _mm256_mask_storeu_epi32(proj.Y + kh, half, _mm512_cvtpd_epi32(_mm512_sub_pd(_mm512_add_pd(_mm512_mul_pd(sy, sub), magic), magic)));
+      _mm256_mask_storeu_epi32(proj.X + kh, half, fixed(sx));
+      _mm256_mask_storeu_epi32(proj.Y + kh, half, fixed(sy));
     }
   }
   return all;
@@ -219,8 +229,10 @@ void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0
   const __m512i X[3] = {f[0], f[1], f[2]}, Y[3] = {f[3], f[4], f[5]};
   const __mmask16 lanes = static_cast<__mmask16>((1u << n) - 1);
   const __m512i half_up = _mm512_set1_epi32((1 << kSubBits) - 1), zero = _mm512_setzero_si512();
-  const __m512i xmin = _mm512_min_epi32(_mm512_min_epi32(X[0], X[1]), X[2]), xmax = _mm512_max_epi32(_mm512_max_epi32(X[0], X[1]), X[2]);
-  const __m512i ymin = _mm512_min_epi32(_mm512_min_epi32(Y[0], Y[1]), Y[2]), ymax = _mm512_max_epi32(_mm512_max_epi32(Y[0], Y[1]), Y[2]);
+  const __m512i xmin = _mm512_min_epi32(_mm512_min_epi32(X[0], X[1]), X[2]);
+  const __m512i xmax = _mm512_max_epi32(_mm512_max_epi32(X[0], X[1]), X[2]);
+  const __m512i ymin = _mm512_min_epi32(_mm512_min_epi32(Y[0], Y[1]), Y[2]);
+  const __m512i ymax = _mm512_max_epi32(_mm512_max_epi32(Y[0], Y[1]), Y[2]);
   const __m512i bx0 = _mm512_max_epi32(zero, _mm512_srai_epi32(_mm512_add_epi32(xmin, half_up), kSubBits));
   const __m512i by0 = _mm512_max_epi32(zero, _mm512_srai_epi32(_mm512_add_epi32(ymin, half_up), kSubBits));
   const __m512i bx1 = _mm512_min_epi32(_mm512_set1_epi32(vw - 1), _mm512_srai_epi32(xmax, kSubBits));
@@ -230,8 +242,8 @@ void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0
   __m512i c[16];
   for (int q = 0; q < 3; ++q) {
     const __m512 A = _mm512_castsi512_ps(f[6 + q]), B = _mm512_castsi512_ps(f[9 + q]), C = _mm512_castsi512_ps(f[12 + q]);
-    c[3 * q] = _mm512_castpd_si512(_mm512_insertf64x4(_mm512_castps_pd(_mm512_castps256_ps512(plane_at_corner(C, A, B, dx, dy, 0))),
-                                                      _mm256_castps_pd(plane_at_corner(C, A, B, dx, dy, 1)), 1));
+    const __m256 lo = plane_at_corner(C, A, B, dx, dy, 0), hi = plane_at_corner(C, A, B, dx, dy, 1);
+    c[3 * q] = _mm512_castpd_si512(_mm512_insertf64x4(_mm512_castps_pd(_mm512_castps256_ps512(lo)), _mm256_castps_pd(hi), 1));
     c[3 * q + 1] = f[6 + q];
     c[3 * q + 2] = f[9 + q];
   }
@@ -264,7 +276,8 @@ void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0
     const __m512i ex = _mm512_sub_epi32(X[k1], X[k]), ey = _mm512_sub_epi32(Y[k1], Y[k]);
     const __mmask16 top_left = static_cast<__mmask16>(
         (_mm512_cmpeq_epi32_mask(ey, zero) & _mm512_cmpgt_epi32_mask(ex, zero)) | _mm512_cmplt_epi32_mask(ey, zero));
-    const __m512i e = _mm512_sub_epi32(_mm512_mullo_epi32(ex, _mm512_sub_epi32(py, Y[k])), _mm512_mullo_epi32(ey, _mm512_sub_epi32(px, X[k])));
+    const __m512i e =
+        _mm512_sub_epi32(_mm512_mullo_epi32(ex, _mm512_sub_epi32(py, Y[k])), _mm512_mullo_epi32(ey, _mm512_sub_epi32(px, X[k])));
     _mm512_store_si512(s.E[k], _mm512_mask_sub_epi32(e, static_cast<__mmask16>(~top_left), e, one));
     _mm512_store_si512(s.dEx[k], _mm512_slli_epi32(_mm512_sub_epi32(zero, ey), kSubBits));
     _mm512_store_si512(s.dEy[k], _mm512_slli_epi32(ex, kSubBits));
