@@ -940,8 +940,9 @@ TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit fo
     setup_entries_scalar(tris.data(), ids, n, x0, y0, x1, y1, vw, vh, a, ca.data());
     setup_entries_avx512(tris.data(), ids, n, x0, y0, x1, y1, vw, vh, b, cb.data());
     CHECK(std::memcmp(ca.data(), cb.data(), ca.size() * sizeof(float)) == 0);  // and nothing past n entries
-    // The small entries drawn into a tile's visibility buffers, by the AVX-512 run and by the
-    // scalar edge kernel one by one: the same depths, entries and counts.
+    // The small entries drawn into a tile's visibility buffers, by the AVX2 run (which the
+    // AVX-512 renderer uses too) and by the scalar edge kernel one by one: the same depths,
+    // entries and counts.
     {
       const std::ptrdiff_t stride = (x1 - x0 + 1) + 8;
       std::vector<float> za(static_cast<std::size_t>(stride * (y1 - y0 + 1)), 0.0f), zb = za;
@@ -953,7 +954,7 @@ TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit fo
           ++at;
           continue;
         }
-        const int end = draw_small_entries_avx512(b, at, n, x0, y0, zb.data(), ib.data(), stride, 1000, cov_b);
+        const int end = draw_small_entries_avx2(b, at, n, x0, y0, zb.data(), ib.data(), stride, 1000, cov_b);
         for (; at < n && (a.small >> at & 1); ++at) {
           const std::ptrdiff_t o = (a.y0[at] - y0) * stride + (a.x0[at] - x0);
           const std::int64_t E[3] = {a.E[0][at], a.E[1][at], a.E[2][at]}, dx[3] = {a.dEx[0][at], a.dEx[1][at], a.dEx[2][at]},

@@ -5,15 +5,12 @@
 // halves of eight doubles); the triangle set-up takes eight quads' first triangles in one set
 // of vectors and their second triangles in another, and stores the kept ones in quad order,
 // transposed to one triangle a vector; the entries' set-up takes 16 entries' triangles
-// transposed to one field a vector; a run of small entries is drawn by the AVX2 edge kernel,
-// inlined.
+// transposed to one field a vector.
 #include <terralign/raster/geometry_kernels.hpp>
 
 #include <immintrin.h>
 
 #include <cmath>
-
-#include "edge_avx2.hpp"
 
 namespace terralign::raster {
 namespace {
@@ -282,19 +279,6 @@ void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0
     _mm512_store_si512(s.dEx[k], _mm512_slli_epi32(_mm512_sub_epi32(zero, ey), kSubBits));
     _mm512_store_si512(s.dEy[k], _mm512_slli_epi32(ex, kSubBits));
   }
-}
-
-int draw_small_entries_avx512(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
-                              int e0, int* covered) {
-  int i = from;
-  for (; i < n && (s.small >> i & 1); ++i) {
-    const std::ptrdiff_t at = (s.y0[i] - y0) * stride + (s.x0[i] - x0);
-    const std::int32_t E[3] = {s.E[0][i], s.E[1][i], s.E[2][i]};
-    const std::int32_t dEx[3] = {s.dEx[0][i], s.dEx[1][i], s.dEx[2][i]}, dEy[3] = {s.dEy[0][i], s.dEy[1][i], s.dEy[2][i]};
-    covered[i] = static_cast<int>(
-        edge_block32_avx2_inline(s.w[i], s.h[i], E, dEx, dEy, s.base[i], s.A[i], s.B[i], 0, 0, z + at, id + at, stride, e0 + i));
-  }
-  return i;
 }
 
 }  // namespace terralign::raster

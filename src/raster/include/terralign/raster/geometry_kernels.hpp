@@ -211,10 +211,11 @@ using SetupEntriesFn = void (*)(const Tri*, const int*, int, int, int, int, int,
 // Draws the small entries of a set-up batch from entry `from` on, in order, up to the first
 // that is not small (or n): each as edge_block32 (shade_kernels.hpp) draws its box into the
 // tile's visibility buffers z and id (row stride `stride`, the tile's corner at pixel x0, y0)
-// as entry e0 + i. covered[i] gets the pixels each covers. Returns where it stopped.
+// as entry e0 + i. covered[i] gets the pixels each covers. Returns where it stopped. (The
+// AVX2 build, with the edge kernel inlined, serves the AVX-512 renderer too.)
 #if defined(TERRALIGN_HAVE_AVX2)
-int draw_small_entries_avx512(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
-                              int e0, int* covered);
+int draw_small_entries_avx2(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
+                            int e0, int* covered);
 #endif
 using DrawSmallEntriesFn = int (*)(const EntrySetup&, int, int, int, int, float*, int*, std::ptrdiff_t, int, int*);
 
