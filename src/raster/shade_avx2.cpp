@@ -4,7 +4,6 @@
 // texels come from row loads and permutes where its taps lie in a window of a few texel rows
 // and 8 columns (window_taps), from gathers elsewhere. A row's tail (n % 8) runs the scalar
 // kernel. Also the AVX2 depth and edge kernels.
-#include <terralign/raster/geometry_kernels.hpp>
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <cmath>
@@ -542,19 +541,6 @@ long edge_block_avx2(int w, int h, const std::int64_t* E, const std::int64_t* dE
 long edge_block32_avx2(int w, int h, const std::int32_t* E, const std::int32_t* dEx, const std::int32_t* dEy, float base,
                        float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e) {
   return edge_block32_avx2_inline(w, h, E, dEx, dEy, base, A, B, dx, dy, z, id, stride, e);
-}
-
-int draw_small_entries_avx2(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
-                            int e0, int* covered) {
-  int i = from;
-  for (; i < n && (s.small >> i & 1); ++i) {
-    const std::ptrdiff_t at = (s.y0[i] - y0) * stride + (s.x0[i] - x0);
-    const std::int32_t E[3] = {s.E[0][i], s.E[1][i], s.E[2][i]};
-    const std::int32_t dEx[3] = {s.dEx[0][i], s.dEx[1][i], s.dEx[2][i]}, dEy[3] = {s.dEy[0][i], s.dEy[1][i], s.dEy[2][i]};
-    covered[i] = static_cast<int>(
-        edge_block32_avx2_inline(s.w[i], s.h[i], E, dEx, dEy, s.base[i], s.A[i], s.B[i], 0, 0, z + at, id + at, stride, e0 + i));
-  }
-  return i;
 }
 
 }  // namespace terralign::raster

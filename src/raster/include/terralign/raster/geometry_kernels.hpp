@@ -203,6 +203,8 @@ struct EntrySetup {
 void setup_entries_scalar(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
                           EntrySetup& s, float* coef);
 #if defined(TERRALIGN_HAVE_AVX2)
+void setup_entries_avx2(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
+                        EntrySetup& s, float* coef);
 void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
                           EntrySetup& s, float* coef);
 #endif

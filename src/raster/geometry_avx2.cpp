@@ -1,0 +1,149 @@
+// The AVX2 builds of the rasterizer's entry kernels (geometry_kernels.hpp): the set-up of a
+// tile's entries eight at a time (two halves of a batch of 16) from their transposed
+// triangles, and the drawing of a run of small entries through the inlined 32-bit edge kernel
+// (which the AVX-512 renderer uses too). Each step is the scalar build's operation lane by
+// lane, in its order (the raster target says -ffp-contract=off: -mfma fuses nothing), so the
+// results are the scalar kernels' bit for bit.
+#include <terralign/raster/geometry_kernels.hpp>
+
+#include <immintrin.h>
+
+#include <cmath>
+
+#include "edge_avx2.hpp"
+
+namespace terralign::raster {
+namespace {
+
+// rows[i] <- column i of the 8 x 8 matrix of 32-bit elements whose row j is rows[j].
+inline void transpose8(__m256i* rows) {
+  __m256i t[8], u[8];
+  for (int i = 0; i < 4; ++i) {
+    t[2 * i] = _mm256_unpacklo_epi32(rows[2 * i], rows[2 * i + 1]);
+    t[2 * i + 1] = _mm256_unpackhi_epi32(rows[2 * i], rows[2 * i + 1]);
+  }
+  for (int i = 0; i < 2; ++i) {
+    u[4 * i] = _mm256_unpacklo_epi64(t[4 * i], t[4 * i + 2]);
+    u[4 * i + 1] = _mm256_unpackhi_epi64(t[4 * i], t[4 * i + 2]);
+    u[4 * i + 2] = _mm256_unpacklo_epi64(t[4 * i + 1], t[4 * i + 3]);
+    u[4 * i + 3] = _mm256_unpackhi_epi64(t[4 * i + 1], t[4 * i + 3]);
+  }
+  // 128-bit lane L of u[4 i + j] holds column 4 L + j of rows 4 i .. 4 i + 3.
+  for (int j = 0; j < 4; ++j) {
+    rows[j] = _mm256_permute2x128_si256(u[j], u[4 + j], 0x20);
+    rows[4 + j] = _mm256_permute2x128_si256(u[j], u[4 + j], 0x31);
+  }
+}
+
+// (C + A dx) + B dy in double, four lanes at a time, then float.
+inline __m256 plane_at_corner(__m256 C, __m256 A, __m256 B, __m256i dx, __m256i dy) {
+  __m128 half[2];
+  for (int h = 0; h < 2; ++h) {
+    auto pd = [h](__m256 v) { return _mm256_cvtps_pd(h ? _mm256_extractf128_ps(v, 1) : _mm256_castps256_ps128(v)); };
+    auto pi = [h](__m256i v) { return _mm256_cvtepi32_pd(h ? _mm256_extracti128_si256(v, 1) : _mm256_castsi256_si128(v)); };
+    const __m256d c_plus_a = _mm256_add_pd(pd(C), _mm256_mul_pd(pd(A), pi(dx)));
+    half[h] = _mm256_cvtpd_ps(_mm256_add_pd(c_plus_a, _mm256_mul_pd(pd(B), pi(dy))));
+  }
+  return _mm256_set_m128(half[1], half[0]);
+}
+
+// Entries 8 h .. 8 h + 7 of a batch (those below n).
+inline void setup_half(const Tri* tris, const int* ids, int n, int h, int x0, int y0, int x1, int y1, int vw, int vh,
+                       EntrySetup& s, float* coef) {
+  const int e0 = 8 * h, m = n - e0 < 8 ? n - e0 : 8;
+  // The triangles' fields 0-7 and 8-15, one triangle a row, then one field a row.
+  __m256i lo[8], hi[8];
+  for (int i = 0; i < 8; ++i) {
+    const auto* t = reinterpret_cast<const __m256i*>(&tris[ids[e0 + (i < m ? i : 0)]]);
+    lo[i] = _mm256_loadu_si256(t);
+    hi[i] = _mm256_loadu_si256(t + 1);
+  }
+  transpose8(lo);
+  transpose8(hi);
+  const __m256i X[3] = {lo[0], lo[1], lo[2]}, Y[3] = {lo[3], lo[4], lo[5]};
+  const __m256i A[3] = {lo[6], lo[7], hi[0]}, B[3] = {hi[1], hi[2], hi[3]}, C[3] = {hi[4], hi[5], hi[6]};
+  const __m256i half_up = _mm256_set1_epi32((1 << kSubBits) - 1), zero = _mm256_setzero_si256();
+  const __m256i xmin = _mm256_min_epi32(_mm256_min_epi32(X[0], X[1]), X[2]);
+  const __m256i xmax = _mm256_max_epi32(_mm256_max_epi32(X[0], X[1]), X[2]);
+  const __m256i ymin = _mm256_min_epi32(_mm256_min_epi32(Y[0], Y[1]), Y[2]);
+  const __m256i ymax = _mm256_max_epi32(_mm256_max_epi32(Y[0], Y[1]), Y[2]);
+  const __m256i bx0 = _mm256_max_epi32(zero, _mm256_srai_epi32(_mm256_add_epi32(xmin, half_up), kSubBits));
+  const __m256i by0 = _mm256_max_epi32(zero, _mm256_srai_epi32(_mm256_add_epi32(ymin, half_up), kSubBits));
+  const __m256i bx1 = _mm256_min_epi32(_mm256_set1_epi32(vw - 1), _mm256_srai_epi32(xmax, kSubBits));
+  const __m256i by1 = _mm256_min_epi32(_mm256_set1_epi32(vh - 1), _mm256_srai_epi32(ymax, kSubBits));
+  // Planes at the tile's corner, one quantity a row (c[0 .. 9], then zeros), transposed to one
+  // entry a row: its first eight floats from the first transpose, c[8], c[9] from the second.
+  const __m256i dx = _mm256_sub_epi32(_mm256_set1_epi32(x0), bx0), dy = _mm256_sub_epi32(_mm256_set1_epi32(y0), by0);
+  __m256i c[8], d[8];
+  for (int q = 0; q < 3; ++q) {
+    const __m256 at = plane_at_corner(_mm256_castsi256_ps(C[q]), _mm256_castsi256_ps(A[q]), _mm256_castsi256_ps(B[q]), dx, dy);
+    const __m256i row[3] = {_mm256_castps_si256(at), A[q], B[q]};
+    for (int r = 0; r < 3; ++r) (3 * q + r < 8 ? c[3 * q + r] : d[3 * q + r - 8]) = row[r];
+  }
+  d[1] = _mm256_castps_si256(_mm256_set1_ps(INFINITY));
+  for (int r = 2; r < 8; ++r) d[r] = zero;
+  transpose8(c);
+  transpose8(d);
+  for (int i = 0; i < m; ++i) {
+    float* out = coef + kPlaneFloats * (e0 + i);
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out), c[i]);
+    _mm_storel_epi64(reinterpret_cast<__m128i*>(out + 8), _mm256_castsi256_si128(d[i]));
+  }
+  // Small: corners spanning under 8 pixels each way, the box non-empty and in the tile.
+  const __m256i eight = _mm256_set1_epi32(8 << kSubBits);
+  __m256i small = _mm256_and_si256(_mm256_cmpgt_epi32(eight, _mm256_sub_epi32(xmax, xmin)),
+                                   _mm256_cmpgt_epi32(eight, _mm256_sub_epi32(ymax, ymin)));
+  const __m256i outside = _mm256_or_si256(
+      _mm256_or_si256(_mm256_cmpgt_epi32(_mm256_set1_epi32(x0), bx0), _mm256_cmpgt_epi32(bx1, _mm256_set1_epi32(x1))),
+      _mm256_or_si256(_mm256_cmpgt_epi32(_mm256_set1_epi32(y0), by0), _mm256_cmpgt_epi32(by1, _mm256_set1_epi32(y1))));
+  const __m256i empty = _mm256_or_si256(_mm256_cmpgt_epi32(bx0, bx1), _mm256_cmpgt_epi32(by0, by1));
+  small = _mm256_andnot_si256(_mm256_or_si256(outside, empty), small);
+  const unsigned bits = static_cast<unsigned>(_mm256_movemask_ps(_mm256_castsi256_ps(small))) & ((1u << m) - 1);
+  s.small |= bits << e0;
+  if (bits == 0) return;
+  const __m256i one = _mm256_set1_epi32(1);
+  auto store = [e0](std::int32_t* dst, __m256i v) { _mm256_storeu_si256(reinterpret_cast<__m256i*>(dst + e0), v); };
+  store(s.x0, bx0);
+  store(s.y0, by0);
+  store(s.w, _mm256_add_epi32(_mm256_sub_epi32(bx1, bx0), one));
+  store(s.h, _mm256_add_epi32(_mm256_sub_epi32(by1, by0), one));
+  _mm256_storeu_si256(reinterpret_cast<__m256i*>(s.base + e0), C[0]);
+  _mm256_storeu_si256(reinterpret_cast<__m256i*>(s.A + e0), A[0]);
+  _mm256_storeu_si256(reinterpret_cast<__m256i*>(s.B + e0), B[0]);
+  const __m256i px = _mm256_slli_epi32(bx0, kSubBits), py = _mm256_slli_epi32(by0, kSubBits);
+  for (int k = 0; k < 3; ++k) {
+    const int k1 = (k + 1) % 3;
+    const __m256i ex = _mm256_sub_epi32(X[k1], X[k]), ey = _mm256_sub_epi32(Y[k1], Y[k]);
+    const __m256i top_left = _mm256_or_si256(_mm256_and_si256(_mm256_cmpeq_epi32(ey, zero), _mm256_cmpgt_epi32(ex, zero)),
+                                             _mm256_cmpgt_epi32(zero, ey));
+    const __m256i e =
+        _mm256_sub_epi32(_mm256_mullo_epi32(ex, _mm256_sub_epi32(py, Y[k])), _mm256_mullo_epi32(ey, _mm256_sub_epi32(px, X[k])));
+    // Less one where the edge is not top or left: adding ~top_left (-1 there, 0 elsewhere).
+    store(s.E[k], _mm256_add_epi32(e, _mm256_xor_si256(top_left, _mm256_set1_epi32(-1))));
+    store(s.dEx[k], _mm256_slli_epi32(_mm256_sub_epi32(zero, ey), kSubBits));
+    store(s.dEy[k], _mm256_slli_epi32(ex, kSubBits));
+  }
+}
+
+}  // namespace
+
+void setup_entries_avx2(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh, EntrySetup& s,
+                        float* coef) {
+  s.small = 0;
+  for (int h = 0; 8 * h < n; ++h) setup_half(tris, ids, n, h, x0, y0, x1, y1, vw, vh, s, coef);
+}
+
+int draw_small_entries_avx2(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
+                            int e0, int* covered) {
+  int i = from;
+  for (; i < n && (s.small >> i & 1); ++i) {
+    const std::ptrdiff_t at = (s.y0[i] - y0) * stride + (s.x0[i] - x0);
+    const std::int32_t E[3] = {s.E[0][i], s.E[1][i], s.E[2][i]};
+    const std::int32_t dEx[3] = {s.dEx[0][i], s.dEx[1][i], s.dEx[2][i]}, dEy[3] = {s.dEy[0][i], s.dEy[1][i], s.dEy[2][i]};
+    covered[i] = static_cast<int>(
+        edge_block32_avx2_inline(s.w[i], s.h[i], E, dEx, dEy, s.base[i], s.A[i], s.B[i], 0, 0, z + at, id + at, stride, e0 + i));
+  }
+  return i;
+}
+
+}  // namespace terralign::raster
