@@ -547,6 +547,41 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   CHECK(opaque > n / 2);
   for (const Kernels& k : vector_kernels) compare_shading(k);
   texels.swap(saved);  // back to the texture with no-data and transparency
+  {
+    // A chain of more than eight levels (the AVX2 kernel picks a lane's level from two vectors
+    // of eight), lanes straddling levels 5-9: each vector's 16 lanes at footprints around one
+    // of those levels, the lanes' levels differing.
+    const std::vector<MipLevel> big = mip_chain(600, 520, 16);
+    REQUIRE(big.size() >= 10);
+    std::vector<std::uint32_t> bt{0xffffffffu};
+    for (const MipLevel& L : big)
+      for (int k = 0; k < L.width * L.height; ++k) bt.push_back(rng() | 0xff000000u);
+    bt.push_back(0xffffffffu);
+    const std::vector<LevelCoords> bc = level_coords(big, 1.0, 1.0, 0.0, 2.0, 0.0, 1.0);
+    const ShadeParams bp{bt.data(), big.data(), bc.data(), static_cast<int>(big.size()), 0.0f};
+    std::uniform_real_distribution<float> where(-20, 620), jitter(-0.6f, 0.6f);
+    for (int i = 0; i < n; i += 16) {
+      const float level = 5.0f + static_cast<float>((i / 16) % 5);
+      const float x = where(rng), y = where(rng);
+      for (int j = i; j < std::min(n, i + 16); ++j) {
+        wx[j] = x + 40.0f * static_cast<float>(j - i);
+        wy[j] = y;
+        lf[j] = level + jitter(rng);
+      }
+    }
+    std::vector<std::uint8_t> rgb_b(3 * n), val_b(n);
+    shade_row_scalar(n, wx.data(), wy.data(), lf.data(), rgb_b.data(), val_b.data(), bp);
+    int shaded = 0;
+    for (auto v : val_b) shaded += v != 0;
+    CHECK(shaded > n / 2);
+    for (const Kernels& k : vector_kernels) {
+      CAPTURE(std::string(k.name));
+      std::vector<std::uint8_t> rgb_v(3 * n), val_v(n);
+      k.shade(n, wx.data(), wy.data(), lf.data(), rgb_v.data(), val_v.data(), bp);
+      CHECK(rgb_b == rgb_v);
+      CHECK(val_b == val_v);
+    }
+  }
 
   // The fused kernel: a row of 93 pixels (vectors and a tail) seeing five tilted planes in
   // runs of every length from 1 to 9, vectors of one plane, of several, and of none (-1), shading two layers (the second's texel coordinates and bias differ). Each plane

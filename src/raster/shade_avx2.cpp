@@ -135,6 +135,45 @@ struct Fetched {
 };
 
 // The taps of 8 lanes seeing world (x, y) at one level.
+// Whether every lane's four taps (x0 .. x0 + 1, y0 .. y0 + 1) lie inside its level
+// (0 <= x0 < w - 1 and 0 <= y0 < h - 1): most vectors.
+TL_INLINE bool all_interior(__m256i x0, __m256i y0, __m256i wid, __m256i hei) {
+  const __m256i zero = _mm256_setzero_si256(), ione = _mm256_set1_epi32(1);
+  const __m256i interior = _mm256_andnot_si256(
+      _mm256_or_si256(_mm256_cmpgt_epi32(zero, x0), _mm256_cmpgt_epi32(zero, y0)),
+      _mm256_and_si256(_mm256_cmpgt_epi32(_mm256_sub_epi32(wid, ione), x0), _mm256_cmpgt_epi32(_mm256_sub_epi32(hei, ione), y0)));
+  return _mm256_movemask_epi8(interior) == -1;
+}
+
+// Taps (x0 .. x0 + 1, y0 .. y0 + 1) by gathers from the levels whose first texel, width and
+// height each lane's off, wid and hei give.
+TL_INLINE void gather_taps(const int* texels, __m256i x0, __m256i y0, __m256i off, __m256i wid, __m256i hei, Taps& t) {
+  const __m256i zero = _mm256_setzero_si256(), ione = _mm256_set1_epi32(1);
+  if (all_interior(x0, y0, wid, hei)) {
+    const __m256i row0 = _mm256_add_epi32(off, _mm256_add_epi32(_mm256_mullo_epi32(y0, wid), x0));
+    const __m256i row1 = _mm256_add_epi32(row0, wid);
+    t.t00 = _mm256_i32gather_epi32(texels, row0, 4);
+    t.t10 = _mm256_i32gather_epi32(texels, _mm256_add_epi32(row0, ione), 4);
+    t.t01 = _mm256_i32gather_epi32(texels, row1, 4);
+    t.t11 = _mm256_i32gather_epi32(texels, _mm256_add_epi32(row1, ione), 4);
+    return;
+  }
+  // Each tap clamped into the level for its fetch, and 0 where it lies outside.
+  const __m256i wm1 = _mm256_sub_epi32(wid, ione), hm1 = _mm256_sub_epi32(hei, ione);
+  auto tap = [&](int kx, int ky) {
+    const __m256i tx = _mm256_add_epi32(x0, _mm256_set1_epi32(kx)), ty = _mm256_add_epi32(y0, _mm256_set1_epi32(ky));
+    const __m256i in_x = _mm256_andnot_si256(_mm256_cmpgt_epi32(zero, tx), _mm256_cmpgt_epi32(wid, tx));
+    const __m256i in_y = _mm256_andnot_si256(_mm256_cmpgt_epi32(zero, ty), _mm256_cmpgt_epi32(hei, ty));
+    const __m256i xc = _mm256_min_epi32(_mm256_max_epi32(tx, zero), wm1), yc = _mm256_min_epi32(_mm256_max_epi32(ty, zero), hm1);
+    const __m256i at = _mm256_add_epi32(off, _mm256_add_epi32(_mm256_mullo_epi32(yc, wid), xc));
+    return _mm256_and_si256(_mm256_i32gather_epi32(texels, at, 4), _mm256_and_si256(in_x, in_y));
+  };
+  t.t00 = tap(0, 0);
+  t.t10 = tap(1, 0);
+  t.t01 = tap(0, 1);
+  t.t11 = tap(1, 1);
+}
+
 TL_INLINE Fetched fetch8(const ShadeParams& p, int level, __m256 x, __m256 y) {
   const MipLevel& L = p.levels[level];
   const LevelCoords& k = p.coords[level];
@@ -146,38 +185,57 @@ TL_INLINE Fetched fetch8(const ShadeParams& p, int level, __m256 x, __m256 y) {
                              _mm256_mul_ps(_mm256_set1_ps(k.b2), y)));
   const __m256i x0 = _mm256_srai_epi32(f.U, 8), y0 = _mm256_srai_epi32(f.V, 8);
   const __m256i wid = _mm256_set1_epi32(L.width), hei = _mm256_set1_epi32(L.height);
-  const __m256i zero = _mm256_setzero_si256(), ione = _mm256_set1_epi32(1);
-  const __m256i wm1 = _mm256_sub_epi32(wid, ione), hm1 = _mm256_sub_epi32(hei, ione);
-  Taps& t = f.t;
-  // 0 <= x0 < w - 1 and 0 <= y0 < h - 1 in every lane (most vectors): all four taps inside.
-  const __m256i interior = _mm256_andnot_si256(
-      _mm256_or_si256(_mm256_cmpgt_epi32(zero, x0), _mm256_cmpgt_epi32(zero, y0)),
-      _mm256_and_si256(_mm256_cmpgt_epi32(wm1, x0), _mm256_cmpgt_epi32(hm1, y0)));
-  if (_mm256_movemask_epi8(interior) == -1) {
-    if (!window_taps(L, texels, x0, y0, t)) {
-      const __m256i row0 = _mm256_add_epi32(_mm256_set1_epi32(L.offset), _mm256_add_epi32(_mm256_mullo_epi32(y0, wid), x0));
-      const __m256i row1 = _mm256_add_epi32(row0, wid);
-      t.t00 = _mm256_i32gather_epi32(texels, row0, 4);
-      t.t10 = _mm256_i32gather_epi32(texels, _mm256_add_epi32(row0, ione), 4);
-      t.t01 = _mm256_i32gather_epi32(texels, row1, 4);
-      t.t11 = _mm256_i32gather_epi32(texels, _mm256_add_epi32(row1, ione), 4);
-    }
-  } else {
-    // Each tap clamped into the level for its fetch, and 0 where it lies outside.
-    const __m256i off = _mm256_set1_epi32(L.offset);
-    auto tap = [&](int kx, int ky) {
-      const __m256i tx = _mm256_add_epi32(x0, _mm256_set1_epi32(kx)), ty = _mm256_add_epi32(y0, _mm256_set1_epi32(ky));
-      const __m256i in_x = _mm256_andnot_si256(_mm256_cmpgt_epi32(zero, tx), _mm256_cmpgt_epi32(wid, tx));
-      const __m256i in_y = _mm256_andnot_si256(_mm256_cmpgt_epi32(zero, ty), _mm256_cmpgt_epi32(hei, ty));
-      const __m256i xc = _mm256_min_epi32(_mm256_max_epi32(tx, zero), wm1), yc = _mm256_min_epi32(_mm256_max_epi32(ty, zero), hm1);
-      const __m256i at = _mm256_add_epi32(off, _mm256_add_epi32(_mm256_mullo_epi32(yc, wid), xc));
-      return _mm256_and_si256(_mm256_i32gather_epi32(texels, at, 4), _mm256_and_si256(in_x, in_y));
-    };
-    t.t00 = tap(0, 0);
-    t.t10 = tap(1, 0);
-    t.t01 = tap(0, 1);
-    t.t11 = tap(1, 1);
+  if (!all_interior(x0, y0, wid, hei) || !window_taps(L, texels, x0, y0, f.t))
+    gather_taps(texels, x0, y0, _mm256_set1_epi32(L.offset), wid, hei, f.t);
+  return f;
+}
+
+// A chain's levels (at most kMaxMipLevels, 16), one lane each in two vectors of eight: the
+// per-level values that fetch8_lanes() picks by each lane's level.
+struct LevelTable {
+  __m256 a0[2], a1[2], a2[2], b0[2], b1[2], b2[2];
+  __m256i off[2], wid[2], hei[2];
+};
+
+TL_INLINE LevelTable level_table(const ShadeParams& p) {
+  alignas(32) float c[6][16] = {};
+  alignas(32) int d[3][16] = {};
+  for (int l = 0; l < p.n_levels && l < kMaxMipLevels; ++l) {
+    const LevelCoords& k = p.coords[l];
+    c[0][l] = k.a0; c[1][l] = k.a1; c[2][l] = k.a2;
+    c[3][l] = k.b0; c[4][l] = k.b1; c[5][l] = k.b2;
+    d[0][l] = p.levels[l].offset; d[1][l] = p.levels[l].width; d[2][l] = p.levels[l].height;
   }
+  LevelTable T;
+  for (int h = 0; h < 2; ++h) {
+    T.a0[h] = _mm256_load_ps(c[0] + 8 * h);
+    T.a1[h] = _mm256_load_ps(c[1] + 8 * h);
+    T.a2[h] = _mm256_load_ps(c[2] + 8 * h);
+    T.b0[h] = _mm256_load_ps(c[3] + 8 * h);
+    T.b1[h] = _mm256_load_ps(c[4] + 8 * h);
+    T.b2[h] = _mm256_load_ps(c[5] + 8 * h);
+    T.off[h] = _mm256_load_si256(reinterpret_cast<const __m256i*>(d[0] + 8 * h));
+    T.wid[h] = _mm256_load_si256(reinterpret_cast<const __m256i*>(d[1] + 8 * h));
+    T.hei[h] = _mm256_load_si256(reinterpret_cast<const __m256i*>(d[2] + 8 * h));
+  }
+  return T;
+}
+
+// fetch8() with each lane at its own level (a vector whose lanes straddle levels): the same
+// coordinates and taps lane by lane, by gathers.
+TL_INLINE Fetched fetch8_lanes(const ShadeParams& p, const LevelTable& T, __m256i level, __m256 x, __m256 y) {
+  const __m256i high = _mm256_cmpgt_epi32(level, _mm256_set1_epi32(7));
+  auto pick = [&](const __m256* v) {
+    return _mm256_blendv_ps(_mm256_permutevar8x32_ps(v[0], level), _mm256_permutevar8x32_ps(v[1], level), _mm256_castsi256_ps(high));
+  };
+  auto pick_i = [&](const __m256i* v) {
+    return _mm256_blendv_epi8(_mm256_permutevar8x32_epi32(v[0], level), _mm256_permutevar8x32_epi32(v[1], level), high);
+  };
+  Fetched f;
+  f.U = fixed8(_mm256_add_ps(_mm256_add_ps(pick(T.a0), _mm256_mul_ps(pick(T.a1), x)), _mm256_mul_ps(pick(T.a2), y)));
+  f.V = fixed8(_mm256_add_ps(_mm256_add_ps(pick(T.b0), _mm256_mul_ps(pick(T.b1), x)), _mm256_mul_ps(pick(T.b2), y)));
+  const __m256i x0 = _mm256_srai_epi32(f.U, 8), y0 = _mm256_srai_epi32(f.V, 8);
+  gather_taps(reinterpret_cast<const int*>(p.texels), x0, y0, pick_i(T.off), pick_i(T.wid), pick_i(T.hei), f.t);
   return f;
 }
 
@@ -279,6 +337,8 @@ TL_INLINE void shade_chunk(const ShadeParams& p, int vectors, const __m256* x, c
   }
   __m256 xs[kChunkVectors], ys[kChunkVectors];
   Levels8 lv[kChunkVectors];
+  LevelTable table;
+  bool have_table = false;
   Sample8 s[kChunkVectors];
   bool any[kChunkVectors];
   // Lanes without terrain compute on (0, 0) and are cleared at the end.
@@ -311,17 +371,19 @@ TL_INLINE void shade_chunk(const ShadeParams& p, int vectors, const __m256* x, c
       s[v] = {lerp15(s[v].rb, s1.rb, l.t), lerp15(s[v].ga, s1.ga, l.t)};
       continue;
     }
-    // Lanes at different levels: every level from the least l0 to the greatest l1, each lane
-    // taking its own two.
-    const __m256i l1 = _mm256_min_epi32(_mm256_add_epi32(l.l0, _mm256_set1_epi32(1)), _mm256_set1_epi32(top));
-    Sample8 s0{_mm256_setzero_si256(), _mm256_setzero_si256()}, s1 = s0;
-    for (int level = l.lo; level <= (l.hi < top ? l.hi + 1 : top); ++level) {
-      const Sample8 at = filter8(fetch8(p, level, xs[v], ys[v]));
-      const __m256i first = _mm256_cmpeq_epi32(l.l0, _mm256_set1_epi32(level));
-      const __m256i second = _mm256_cmpeq_epi32(l1, _mm256_set1_epi32(level));
-      s0 = {_mm256_blendv_epi8(s0.rb, at.rb, first), _mm256_blendv_epi8(s0.ga, at.ga, first)};
-      s1 = {_mm256_blendv_epi8(s1.rb, at.rb, second), _mm256_blendv_epi8(s1.ga, at.ga, second)};
+    // Lanes at different levels: each lane's two, by gathers (one sample where no lane's
+    // fraction needs the second).
+    if (!have_table) {
+      table = level_table(p);
+      have_table = true;
     }
+    const Sample8 s0 = filter8(fetch8_lanes(p, table, l.l0, xs[v], ys[v]));
+    if (_mm256_testz_si256(_mm256_and_si256(l.t, _mm256_castps_si256(terrain[v])), l.t)) {
+      s[v] = s0;
+      continue;
+    }
+    const __m256i l1 = _mm256_min_epi32(_mm256_add_epi32(l.l0, _mm256_set1_epi32(1)), _mm256_set1_epi32(top));
+    const Sample8 s1 = filter8(fetch8_lanes(p, table, l1, xs[v], ys[v]));
     s[v] = {lerp15(s0.rb, s1.rb, l.t), lerp15(s0.ga, s1.ga, l.t)};
   }
   for (int v = 0; v < vectors; ++v) {
