@@ -1,7 +1,8 @@
-// The AVX2 builds of the rasterizer's entry kernels (geometry_kernels.hpp): the set-up of a
-// tile's entries eight at a time (two halves of a batch of 16) from their transposed
-// triangles, and the drawing of a run of small entries through the inlined 32-bit edge kernel
-// (which the AVX-512 renderer uses too). Each step is the scalar build's operation lane by
+// The AVX2 builds of geometry kernels (geometry_kernels.hpp): the vertex stage, eight posts a
+// vector (the rest of a row by the scalar build); the set-up of a tile's entries eight at a
+// time (two halves of a batch of 16) from their transposed triangles; and the drawing of a
+// run of small entries through the inlined 32-bit edge kernel (which the AVX-512 renderer
+// uses too). Each step is the scalar build's operation lane by
 // lane, in its order (the raster target says -ffp-contract=off: -mfma fuses nothing), so the
 // results are the scalar kernels' bit for bit.
 #include <terralign/raster/geometry_kernels.hpp>
@@ -126,6 +127,65 @@ inline void setup_half(const Tri* tris, const int* ids, int n, int h, int x0, in
 }
 
 }  // namespace
+
+bool project_posts_avx2(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
+                        const ProjGrid& proj, std::uint8_t* out, bool* no_height) {
+  const __m256 zero = _mm256_setzero_ps();
+  bool all = true;
+  int a0 = 0;
+  for (; a0 + 8 <= n; a0 += 8) {
+    const int k = k0 + a0;
+    const __m256 X = _mm256_loadu_ps(x + a0), Y = _mm256_loadu_ps(y + a0), Z = _mm256_loadu_ps(z + a0);
+    const __m256 none = _mm256_cmp_ps(_mm256_sub_ps(Z, Z), zero, _CMP_NEQ_UQ);  // NaN or infinite
+    const __m256 dx = _mm256_sub_ps(X, _mm256_set1_ps(f.t[0])), dy = _mm256_sub_ps(Y, _mm256_set1_ps(f.t[1]));
+    const __m256 dz = _mm256_sub_ps(_mm256_blendv_ps(Z, zero, none), _mm256_set1_ps(f.t[2]));
+    auto row = [&](int i) {
+      const __m256 xy = _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(f.R[3 * i]), dx), _mm256_mul_ps(_mm256_set1_ps(f.R[3 * i + 1]), dy));
+      return _mm256_add_ps(xy, _mm256_mul_ps(_mm256_set1_ps(f.R[3 * i + 2]), dz));
+    };
+    const __m256 cx = row(0), cy = row(1), cz = row(2);
+    _mm256_storeu_ps(cv.x + k, cx);
+    _mm256_storeu_ps(cv.y + k, cy);
+    _mm256_storeu_ps(cv.z + k, cz);
+    _mm256_storeu_ps(cv.wx + k, X);
+    _mm256_storeu_ps(cv.wy + k, Y);
+    // clip_distance() of each plane, >= 0 inside.
+    const __m256 d[5] = {_mm256_sub_ps(cz, _mm256_set1_ps(f.near)),
+                         _mm256_sub_ps(cx, _mm256_mul_ps(_mm256_set1_ps(f.guard[0]), cz)),
+                         _mm256_sub_ps(_mm256_mul_ps(_mm256_set1_ps(f.guard[1]), cz), cx),
+                         _mm256_sub_ps(cy, _mm256_mul_ps(_mm256_set1_ps(f.guard[2]), cz)),
+                         _mm256_sub_ps(_mm256_mul_ps(_mm256_set1_ps(f.guard[3]), cz), cy)};
+    int in[5];
+    for (int p = 0; p < 5; ++p) in[p] = _mm256_movemask_ps(_mm256_cmp_ps(d[p], zero, _CMP_GE_OQ));
+    const int empty = _mm256_movemask_ps(none);
+    for (int i = 0; i < 8; ++i) {
+      std::uint8_t code = 0;
+      for (int p = 0; p < 5; ++p) code = static_cast<std::uint8_t>(code | ((in[p] >> i & 1) ? 0 : 1) << p);
+      out[k + i] = code;
+      no_height[k + i] = (empty >> i & 1) != 0;
+    }
+    all = all && (in[0] & in[1] & in[2] & in[3] & in[4] & ~empty & 0xFF) == 0xFF;
+    // project_vertex() in two halves of four, every lane (those outside hold scratch).
+    const __m256d magic = _mm256_set1_pd(6755399441055744.0), sub = _mm256_set1_pd(1 << kSubBits);
+    auto fixed = [&](__m256d v) { return _mm256_cvtpd_epi32(_mm256_sub_pd(_mm256_add_pd(_mm256_mul_pd(v, sub), magic), magic)); };
+    for (int h = 0; h < 2; ++h) {
+      auto part = [h](__m256 v) { return _mm256_cvtps_pd(h ? _mm256_extractf128_ps(v, 1) : _mm256_castps256_ps128(v)); };
+      const __m256d iz = _mm256_div_pd(_mm256_set1_pd(1.0), part(cz));
+      const __m256d sx = _mm256_add_pd(_mm256_mul_pd(_mm256_mul_pd(_mm256_set1_pd(f.fx), part(cx)), iz), _mm256_set1_pd(f.cx));
+      const __m256d sy = _mm256_add_pd(_mm256_mul_pd(_mm256_mul_pd(_mm256_set1_pd(f.fy), part(cy)), iz), _mm256_set1_pd(f.cy));
+      const int kh = k + 4 * h;
+      _mm256_storeu_pd(proj.iz + kh, iz);
+      _mm256_storeu_pd(proj.sx + kh, sx);
+      _mm256_storeu_pd(proj.sy + kh, sy);
+      _mm256_storeu_pd(proj.qx + kh, _mm256_mul_pd(part(X), iz));
+      _mm256_storeu_pd(proj.qy + kh, _mm256_mul_pd(part(Y), iz));
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(proj.X + kh), fixed(sx));
+      _mm_storeu_si128(reinterpret_cast<__m128i*>(proj.Y + kh), fixed(sy));
+    }
+  }
+  if (a0 < n) all = project_posts_scalar(f, x + a0, y + a0, z + a0, n - a0, k0 + a0, cv, proj, out, no_height) && all;
+  return all;
+}
 
 void setup_entries_avx2(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh, EntrySetup& s,
                         float* coef) {

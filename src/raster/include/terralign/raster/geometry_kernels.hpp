@@ -108,6 +108,8 @@ inline ProjVert project_vertex(const PostFrame& f, const ClipVert& v) {
 bool project_posts_scalar(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
                           const ProjGrid& proj, std::uint8_t* out, bool* no_height);
 #if defined(TERRALIGN_HAVE_AVX2)
+bool project_posts_avx2(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
+                        const ProjGrid& proj, std::uint8_t* out, bool* no_height);
 bool project_posts_avx512(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
                           const ProjGrid& proj, std::uint8_t* out, bool* no_height);
 #endif
