@@ -788,13 +788,6 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   CHECK(blocks_partly > 20);  // edges cross many of the blocks (not all in or all out)
 }
 
-// Whether this CPU runs the AVX-512 kernels; if not, the test says so and compares nothing.
-[[maybe_unused]] bool avx512_here() {
-  if (cpu_has_avx512()) return true;
-  MESSAGE("this CPU has no AVX-512: nothing to compare");
-  return false;
-}
-
 TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (AVX2, AVX-512 vs scalar)") {
 #if defined(TERRALIGN_HAVE_AVX2)
   std::vector<std::pair<const char*, ProjectPostsFn>> builds;
@@ -879,9 +872,15 @@ TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (A
 #endif
 }
 
-TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows of quads (AVX-512 vs scalar)") {
+TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows of quads (AVX2, AVX-512 vs scalar)") {
 #if defined(TERRALIGN_HAVE_AVX2)
-  if (!avx512_here()) return;
+  std::vector<std::pair<const char*, EmitQuadRowFn>> builds;
+  if (cpu_has_avx2()) builds.emplace_back("avx2", emit_quad_row_avx2);
+  if (cpu_has_avx512()) builds.emplace_back("avx512", emit_quad_row_avx512);
+  if (builds.empty()) {
+    MESSAGE("this CPU has no AVX2: nothing to compare");
+    return;
+  }
   // Two rows of 17 vertices a grid: screen positions over and around a 200 x 120 view, some
   // rows coarse (triangles of tens of pixels), some fine (most triangles cover no pixel
   // centre), corners repeated (no area) and rows crossed (triangles turned either way).
@@ -919,14 +918,17 @@ TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows o
     Tri ts[2 * kChunkQuads], tv[2 * kChunkQuads];
     PixelBox bs[2 * kChunkQuads], bv[2 * kChunkQuads];
     const int cs = emit_quad_row_scalar(g, 0, kChunkQuads + 1, n, 200, 120, ts, bs);
-    const int cv = emit_quad_row_avx512(g, 0, kChunkQuads + 1, n, 200, 120, tv, bv);
-    REQUIRE(cs == cv);
-    for (int k = 0; k < cs; ++k) {
+    for (const auto& [name, emit] : builds) {
+      CAPTURE(std::string(name));
       CAPTURE(round);
-      CAPTURE(k);
-      CHECK(std::memcmp(&ts[k], &tv[k], offsetof(Tri, C) + sizeof(ts[k].C)) == 0);
-      CHECK((bs[k].x0 == bv[k].x0 && bs[k].y0 == bv[k].y0 && bs[k].x1 == bv[k].x1 && bs[k].y1 == bv[k].y1));
-      CHECK(bs[k].x0 <= bs[k].x1);
+      const int cv = emit(g, 0, kChunkQuads + 1, n, 200, 120, tv, bv);
+      REQUIRE(cs == cv);
+      for (int k = 0; k < cs; ++k) {
+        CAPTURE(k);
+        CHECK(std::memcmp(&ts[k], &tv[k], offsetof(Tri, C) + sizeof(ts[k].C)) == 0);
+        CHECK((bs[k].x0 == bv[k].x0 && bs[k].y0 == bv[k].y0 && bs[k].x1 == bv[k].x1 && bs[k].y1 == bv[k].y1));
+        CHECK(bs[k].x0 <= bs[k].x1);
+      }
     }
     kept_total += cs;
     rejected_total += 2 * n - cs;

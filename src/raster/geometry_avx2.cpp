@@ -1,5 +1,7 @@
 // The AVX2 builds of geometry kernels (geometry_kernels.hpp): the vertex stage, eight posts a
-// vector (the rest of a row by the scalar build); the set-up of a tile's entries eight at a
+// vector (the rest of a row by the scalar build); the triangle set-up, four quads' first
+// triangles in one set of vectors and their second in another (the planes in four doubles a
+// vector), the kept ones copied out lane by lane in quad order; the set-up of a tile's entries eight at a
 // time (two halves of a batch of 16) from their transposed triangles; and the drawing of a
 // run of small entries through the inlined 32-bit edge kernel (which the AVX-512 renderer
 // uses too). Each step is the scalar build's operation lane by
@@ -126,7 +128,103 @@ inline void setup_half(const Tri* tris, const int* ids, int n, int h, int x0, in
   }
 }
 
+// Four vertices, one a lane.
+struct Vert4 {
+  __m256d sx, sy, iz, qx, qy;
+  __m128i X, Y;
+};
+
+inline Vert4 load4(const ProjGrid& g, int k) {
+  return {_mm256_loadu_pd(g.sx + k), _mm256_loadu_pd(g.sy + k), _mm256_loadu_pd(g.iz + k), _mm256_loadu_pd(g.qx + k),
+          _mm256_loadu_pd(g.qy + k), _mm_loadu_si128(reinterpret_cast<const __m128i*>(g.X + k)),
+          _mm_loadu_si128(reinterpret_cast<const __m128i*>(g.Y + k))};
+}
+
+// Four triangles set up, field by field, and the lanes kept (bit i: lane i).
+struct Tri4 {
+  alignas(16) std::int32_t X[3][4], Y[3][4];
+  alignas(16) float A[3][4], B[3][4], C[3][4];
+  alignas(16) std::int32_t box[4][4];
+  int keep;
+};
+
+inline void setup4(const Vert4& a, const Vert4& b, const Vert4& c, int vw, int vh, Tri4& t) {
+  // The doubled area, in 64 bits: differences of corners inside the guard band fit 31 bits.
+  const __m256i dx1 = _mm256_cvtepi32_epi64(_mm_sub_epi32(b.X, a.X)), dy2 = _mm256_cvtepi32_epi64(_mm_sub_epi32(c.Y, a.Y));
+  const __m256i dy1 = _mm256_cvtepi32_epi64(_mm_sub_epi32(b.Y, a.Y)), dx2 = _mm256_cvtepi32_epi64(_mm_sub_epi32(c.X, a.X));
+  const __m256i area = _mm256_sub_epi64(_mm256_mul_epi32(dx1, dy2), _mm256_mul_epi32(dy1, dx2));
+  // One 32-bit lane a triangle: the area's sign and whether it is 0.
+  const __m256i pick = _mm256_setr_epi32(1, 3, 5, 7, 0, 2, 4, 6);
+  const __m256i zero64 = _mm256_setzero_si256();
+  const __m128i flip = _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(_mm256_cmpgt_epi64(zero64, area), pick));
+  const __m128i none = _mm256_castsi256_si128(_mm256_permutevar8x32_epi32(_mm256_cmpeq_epi64(area, zero64), pick));
+  const __m128i X1 = _mm_blendv_epi8(b.X, c.X, flip), X2 = _mm_blendv_epi8(c.X, b.X, flip);
+  const __m128i Y1 = _mm_blendv_epi8(b.Y, c.Y, flip), Y2 = _mm_blendv_epi8(c.Y, b.Y, flip);
+  // pixel_box(): the first pixel centre at or after the least corner, the last at or before
+  // the greatest, clamped to the view.
+  const __m128i half_up = _mm_set1_epi32((1 << kSubBits) - 1), zero = _mm_setzero_si128();
+  const __m128i bx0 = _mm_max_epi32(zero, _mm_srai_epi32(_mm_add_epi32(_mm_min_epi32(_mm_min_epi32(a.X, X1), X2), half_up), kSubBits));
+  const __m128i by0 = _mm_max_epi32(zero, _mm_srai_epi32(_mm_add_epi32(_mm_min_epi32(_mm_min_epi32(a.Y, Y1), Y2), half_up), kSubBits));
+  const __m128i bx1 = _mm_min_epi32(_mm_set1_epi32(vw - 1), _mm_srai_epi32(_mm_max_epi32(_mm_max_epi32(a.X, X1), X2), kSubBits));
+  const __m128i by1 = _mm_min_epi32(_mm_set1_epi32(vh - 1), _mm_srai_epi32(_mm_max_epi32(_mm_max_epi32(a.Y, Y1), Y2), kSubBits));
+  const __m128i empty = _mm_or_si128(_mm_cmpgt_epi32(bx0, bx1), _mm_cmpgt_epi32(by0, by1));
+  const __m256d e1x = _mm256_sub_pd(b.sx, a.sx), e1y = _mm256_sub_pd(b.sy, a.sy);
+  const __m256d e2x = _mm256_sub_pd(c.sx, a.sx), e2y = _mm256_sub_pd(c.sy, a.sy);
+  const __m256d det = _mm256_sub_pd(_mm256_mul_pd(e1x, e2y), _mm256_mul_pd(e2x, e1y));
+  const int flat = _mm256_movemask_pd(_mm256_cmp_pd(det, _mm256_setzero_pd(), _CMP_EQ_OQ));  // det == 0
+  t.keep = ~(_mm_movemask_ps(_mm_castsi128_ps(_mm_or_si128(none, empty))) | flat) & 0xF;
+  if (t.keep == 0) return;
+  const __m256d inv_det = _mm256_div_pd(_mm256_set1_pd(1.0), det);
+  const __m256d ox = _mm256_sub_pd(_mm256_cvtepi32_pd(bx0), a.sx), oy = _mm256_sub_pd(_mm256_cvtepi32_pd(by0), a.sy);
+  const __m256d* q[3][3] = {{&a.iz, &b.iz, &c.iz}, {&a.qx, &b.qx, &c.qx}, {&a.qy, &b.qy, &c.qy}};
+  for (int k = 0; k < 3; ++k) {
+    const __m256d d1 = _mm256_sub_pd(*q[k][1], *q[k][0]), d2 = _mm256_sub_pd(*q[k][2], *q[k][0]);
+    const __m256d A = _mm256_mul_pd(_mm256_sub_pd(_mm256_mul_pd(d1, e2y), _mm256_mul_pd(d2, e1y)), inv_det);
+    const __m256d B = _mm256_mul_pd(_mm256_sub_pd(_mm256_mul_pd(d2, e1x), _mm256_mul_pd(d1, e2x)), inv_det);
+    const __m256d C = _mm256_add_pd(_mm256_add_pd(*q[k][0], _mm256_mul_pd(A, ox)), _mm256_mul_pd(B, oy));
+    _mm_store_ps(t.A[k], _mm256_cvtpd_ps(A));
+    _mm_store_ps(t.B[k], _mm256_cvtpd_ps(B));
+    _mm_store_ps(t.C[k], _mm256_cvtpd_ps(C));
+  }
+  const __m128i* corners[6] = {&a.X, &X1, &X2, &a.Y, &Y1, &Y2};
+  for (int k = 0; k < 3; ++k) {
+    _mm_store_si128(reinterpret_cast<__m128i*>(t.X[k]), *corners[k]);
+    _mm_store_si128(reinterpret_cast<__m128i*>(t.Y[k]), *corners[3 + k]);
+  }
+  _mm_store_si128(reinterpret_cast<__m128i*>(t.box[0]), bx0);
+  _mm_store_si128(reinterpret_cast<__m128i*>(t.box[1]), by0);
+  _mm_store_si128(reinterpret_cast<__m128i*>(t.box[2]), bx1);
+  _mm_store_si128(reinterpret_cast<__m128i*>(t.box[3]), by1);
+}
+
+inline void copy_out(const Tri4& t, int i, Tri& out, PixelBox& box) {
+  for (int k = 0; k < 3; ++k) {
+    out.X[k] = t.X[k][i];
+    out.Y[k] = t.Y[k][i];
+    out.A[k] = t.A[k][i];
+    out.B[k] = t.B[k][i];
+    out.C[k] = t.C[k][i];
+  }
+  box = {t.box[0][i], t.box[1][i], t.box[2][i], t.box[3][i]};
+}
+
 }  // namespace
+
+int emit_quad_row_avx2(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes) {
+  int count = 0, a0 = 0;
+  Tri4 first, second;
+  for (; a0 + 4 <= n; a0 += 4) {
+    const Vert4 v00 = load4(g, top + a0), v10 = load4(g, top + a0 + 1), v01 = load4(g, bottom + a0), v11 = load4(g, bottom + a0 + 1);
+    setup4(v00, v10, v11, vw, vh, first);
+    setup4(v00, v11, v01, vw, vh, second);
+    for (int i = 0; i < 4; ++i) {
+      if (first.keep >> i & 1) copy_out(first, i, out[count], boxes[count]), ++count;
+      if (second.keep >> i & 1) copy_out(second, i, out[count], boxes[count]), ++count;
+    }
+  }
+  if (a0 < n) count += emit_quad_row_scalar(g, top + a0, bottom + a0, n - a0, vw, vh, out + count, boxes + count);
+  return count;
+}
 
 bool project_posts_avx2(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
                         const ProjGrid& proj, std::uint8_t* out, bool* no_height) {

@@ -387,6 +387,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.edge_block = edge_block_avx2;
     m.edge_block32 = edge_block32_avx2;
     m.project_posts = project_posts_avx2;
+    m.emit_quad_row = emit_quad_row_avx2;
     m.setup_entries = setup_entries_avx2;
     m.draw_small_entries = draw_small_entries_avx2;
     m.simd = "avx2";

@@ -180,6 +180,7 @@ inline bool setup_triangle(const ProjVert& a, const ProjVert& b, const ProjVert&
 // to out and boxes (room for 2 n each). Returns how many.
 int emit_quad_row_scalar(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes);
 #if defined(TERRALIGN_HAVE_AVX2)
+int emit_quad_row_avx2(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes);
 int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes);
 #endif
 using EmitQuadRowFn = int (*)(const ProjGrid&, int, int, int, int, int, Tri*, PixelBox*);
