@@ -788,15 +788,23 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   CHECK(blocks_partly > 20);  // edges cross many of the blocks (not all in or all out)
 }
 
+#if defined(TERRALIGN_HAVE_AVX2)
+// The vector builds of a kernel this CPU runs, by name; none (and a message saying so) on a
+// CPU without AVX2.
+template <class Fn>
+std::vector<std::pair<const char*, Fn>> vector_builds(Fn avx2, Fn avx512) {
+  std::vector<std::pair<const char*, Fn>> builds;
+  if (cpu_has_avx2()) builds.emplace_back("avx2", avx2);
+  if (cpu_has_avx512()) builds.emplace_back("avx512", avx512);
+  if (builds.empty()) MESSAGE("this CPU has no AVX2: nothing to compare");
+  return builds;
+}
+#endif
+
 TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (AVX2, AVX-512 vs scalar)") {
 #if defined(TERRALIGN_HAVE_AVX2)
-  std::vector<std::pair<const char*, ProjectPostsFn>> builds;
-  if (cpu_has_avx2()) builds.emplace_back("avx2", project_posts_avx2);
-  if (cpu_has_avx512()) builds.emplace_back("avx512", project_posts_avx512);
-  if (builds.empty()) {
-    MESSAGE("this CPU has no AVX2: nothing to compare");
-    return;
-  }
+  const auto builds = vector_builds<ProjectPostsFn>(project_posts_avx2, project_posts_avx512);
+  if (builds.empty()) return;
   // A camera 300 m up looking 40 degrees from nadir over posts up to 3 km away: some behind
   // it, some beyond the guard band, some without a height (NaN, infinite).
   PostFrame f{};
@@ -874,13 +882,8 @@ TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (A
 
 TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows of quads (AVX2, AVX-512 vs scalar)") {
 #if defined(TERRALIGN_HAVE_AVX2)
-  std::vector<std::pair<const char*, EmitQuadRowFn>> builds;
-  if (cpu_has_avx2()) builds.emplace_back("avx2", emit_quad_row_avx2);
-  if (cpu_has_avx512()) builds.emplace_back("avx512", emit_quad_row_avx512);
-  if (builds.empty()) {
-    MESSAGE("this CPU has no AVX2: nothing to compare");
-    return;
-  }
+  const auto builds = vector_builds<EmitQuadRowFn>(emit_quad_row_avx2, emit_quad_row_avx512);
+  if (builds.empty()) return;
   // Two rows of 17 vertices a grid: screen positions over and around a 200 x 120 view, some
   // rows coarse (triangles of tens of pixels), some fine (most triangles cover no pixel
   // centre), corners repeated (no area) and rows crossed (triangles turned either way).
@@ -943,13 +946,8 @@ TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows o
 
 TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit for bit on seeded random triangles (AVX2, AVX-512 vs scalar)") {
 #if defined(TERRALIGN_HAVE_AVX2)
-  std::vector<std::pair<const char*, SetupEntriesFn>> builds;
-  if (cpu_has_avx2()) builds.emplace_back("avx2", setup_entries_avx2);
-  if (cpu_has_avx512()) builds.emplace_back("avx512", setup_entries_avx512);
-  if (builds.empty()) {
-    MESSAGE("this CPU has no AVX2: nothing to compare");
-    return;
-  }
+  const auto builds = vector_builds<SetupEntriesFn>(setup_entries_avx2, setup_entries_avx512);
+  if (builds.empty()) return;
   // Triangles of under a pixel to hundreds of pixels over and around a 300 x 200 view, seen
   // from the tile at pixels 128 .. 255, 24 .. 47: small ones inside it, across its edges,
   // outside it, and large ones.
