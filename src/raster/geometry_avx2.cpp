@@ -1,10 +1,10 @@
-// The AVX2 builds of geometry kernels (geometry_kernels.hpp): the vertex stage, eight posts a
-// vector (the rest of a row by the scalar build); the triangle set-up, four quads' first
-// triangles in one set of vectors and their second in another (the planes in four doubles a
-// vector), the kept ones copied out lane by lane in quad order; the set-up of a tile's entries eight at a
-// time (two halves of a batch of 16) from their transposed triangles; and the drawing of a
-// run of small entries through the inlined 32-bit edge kernel (which the AVX-512 renderer
-// uses too). Each step is the scalar build's operation lane by
+// The AVX2 builds of the geometry kernels (geometry_kernels.hpp): the vertex stage, eight
+// posts a vector (a row's last post by the scalar build); the triangle set-up, four quads'
+// first triangles in one set of vectors and their second in another (the planes in four
+// doubles a vector), the kept ones copied out lane by lane in quad order; the set-up of a
+// tile's entries eight at a time (two halves of a batch of 16) from their transposed
+// triangles; and the drawing of a run of small entries through the inlined 32-bit edge kernel
+// (which the AVX-512 renderer uses too). Each step is the scalar build's operation lane by
 // lane, in its order (the raster target says -ffp-contract=off: -mfma fuses nothing), so the
 // results are the scalar kernels' bit for bit.
 #include <terralign/raster/geometry_kernels.hpp>
