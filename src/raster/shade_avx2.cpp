@@ -198,14 +198,10 @@ struct LevelTable {
 };
 
 TL_INLINE LevelTable level_table(const ShadeParams& p) {
-  alignas(32) float c[6][16] = {};
-  alignas(32) int d[3][16] = {};
-  for (int l = 0; l < p.n_levels && l < kMaxMipLevels; ++l) {
-    const LevelCoords& k = p.coords[l];
-    c[0][l] = k.a0; c[1][l] = k.a1; c[2][l] = k.a2;
-    c[3][l] = k.b0; c[4][l] = k.b1; c[5][l] = k.b2;
-    d[0][l] = p.levels[l].offset; d[1][l] = p.levels[l].width; d[2][l] = p.levels[l].height;
-  }
+  LevelArrays a;
+  level_arrays(p, a);
+  const float (*c)[kMaxMipLevels] = a.coefficient;
+  const std::int32_t (*d)[kMaxMipLevels] = a.level;
   LevelTable T;
   for (int h = 0; h < 2; ++h) {
     T.a0[h] = _mm256_load_ps(c[0] + 8 * h);

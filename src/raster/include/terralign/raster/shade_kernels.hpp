@@ -87,6 +87,25 @@ struct ShadeParams {
   float lod_bias;               // added to log2(footprint in metres): -log2(texel size)
 };
 
+// A chain's per-level values one array a quantity, kMaxMipLevels each (zero past the chain):
+// coefficient[0 .. 5] = a0, a1, a2, b0, b1, b2 of coords, level[0 .. 2] = offset, width,
+// height. The vector kernels load them as tables from which each lane picks its own level.
+struct LevelArrays {
+  alignas(64) float coefficient[6][kMaxMipLevels];
+  alignas(64) std::int32_t level[3][kMaxMipLevels];
+};
+inline void level_arrays(const ShadeParams& p, LevelArrays& a) {
+  a = LevelArrays{};
+  for (int l = 0; l < p.n_levels && l < kMaxMipLevels; ++l) {
+    const LevelCoords& k = p.coords[l];
+    const float c[6] = {k.a0, k.a1, k.a2, k.b0, k.b1, k.b2};
+    for (int q = 0; q < 6; ++q) a.coefficient[q][l] = c[q];
+    a.level[0][l] = p.levels[l].offset;
+    a.level[1][l] = p.levels[l].width;
+    a.level[2][l] = p.levels[l].height;
+  }
+}
+
 // A pixel's levels: l0 alone where t == 0, else lerped towards l1 by t (15 bits).
 struct LevelPair {
   int l0, l1, t;
