@@ -6,18 +6,39 @@
 namespace terralign::raster {
 
 float chunk_screen_error_px(const TerrainChunk& c, float error, const Eigen::Matrix3f& R_C_W, const Eigen::Vector3f& t_local,
-                            float f, float near_m) {
+                            float f, float near_m, int cells) {
+  // The box cut into cells x cells columns (each the box's full height), each bounded by its
+  // own corners; the columns share their corners: (cells + 1)^2 x 2 points.
+  constexpr int kMaxPts = kMaxErrorCells + 1;
+  cells = std::min(std::max(cells, 1), kMaxErrorCells);
+  const int pts = cells + 1;
   const Eigen::Vector3f up = R_C_W.col(2);
-  float n2_max = 0.0f, z_min = INFINITY;
-  for (int k = 0; k < 8; ++k) {
-    const Eigen::Vector3f p =
-        R_C_W * (Eigen::Vector3f(k & 1 ? c.max_x : c.min_x, k & 2 ? c.max_y : c.min_y, k & 4 ? c.max_z : c.min_z) - t_local);
-    const float nx = up.x() * p.z() - p.x() * up.z(), ny = up.y() * p.z() - p.y() * up.z();
-    n2_max = std::max(n2_max, nx * nx + ny * ny);
-    z_min = std::min(z_min, p.z());
-  }
-  if (!(z_min > near_m)) return INFINITY;
-  return error * f * std::sqrt(n2_max) / (z_min * z_min);
+  float n2[2][kMaxPts][kMaxPts], z[2][kMaxPts][kMaxPts];
+  for (int h = 0; h < 2; ++h)
+    for (int b = 0; b < pts; ++b)
+      for (int a = 0; a < pts; ++a) {
+        const float x = c.min_x + (c.max_x - c.min_x) * static_cast<float>(a) / static_cast<float>(cells);
+        const float y = c.min_y + (c.max_y - c.min_y) * static_cast<float>(b) / static_cast<float>(cells);
+        const Eigen::Vector3f p = R_C_W * (Eigen::Vector3f(x, y, h ? c.max_z : c.min_z) - t_local);
+        const float nx = up.x() * p.z() - p.x() * up.z(), ny = up.y() * p.z() - p.y() * up.z();
+        n2[h][b][a] = nx * nx + ny * ny;
+        z[h][b][a] = p.z();
+      }
+  float worst = 0.0f;
+  for (int b = 0; b < cells; ++b)
+    for (int a = 0; a < cells; ++a) {
+      float n2_max = 0.0f, z_min = INFINITY;
+      for (int h = 0; h < 2; ++h)
+        for (int k = 0; k < 4; ++k) {
+          n2_max = std::max(n2_max, n2[h][b + (k >> 1)][a + (k & 1)]);
+          z_min = std::min(z_min, z[h][b + (k >> 1)][a + (k & 1)]);
+        }
+      // A point moved by +-error along up keeps its N and comes as near as z - error |u_z|.
+      const float z_near = z_min - error * std::abs(up.z());
+      if (!(z_near > near_m)) return INFINITY;
+      worst = std::max(worst, std::sqrt(n2_max) / (z_min * z_near));
+    }
+  return error * f * worst;
 }
 
 Terrain Terrain::build(const geo::Map& map, double ox, double oy, double oz) {

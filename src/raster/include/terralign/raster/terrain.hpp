@@ -29,14 +29,18 @@ struct TerrainChunk {
 };
 
 // The most a point of chunk c's box moves on screen, in pixels of a pinhole camera with focal
-// f, when moved up or down by `error` metres (chunk errors are vertical): f e |N| / z^2 to
-// first order, N = (u_x z - x u_z, u_y z - y u_z) for the point's camera-frame position
-// (x, y, z) and the camera-frame up u = R_C_W (0, 0, 1). |N| is convex in the point, so the
-// box's corners bound it, and its least depth bounds 1 / z^2. Seen straight down, N is the
-// point's offset from the optical axis: a vertical error shows only off the axis. +inf where
-// the box reaches nearer than near_m. t_local: the camera's position.
+// f, when moved up or down by `error` metres (chunk errors are vertical): f e |N| / (z z'),
+// N = (u_x z - x u_z, u_y z - y u_z) for the point's camera-frame position (x, y, z) and the
+// camera-frame up u = R_C_W (0, 0, 1), z' = z +- e u_z its moved depth (N does not change
+// along u). |N| is convex in the point, so a box's corners bound it, and its least depth
+// bounds 1 / (z z'). Seen straight down, N is the point's offset from the optical axis: a
+// vertical error shows only off the axis. +inf where the box, moved, reaches nearer than near_m. t_local: the camera's position. `cells` > 1 cuts the box
+// into cells x cells full-height columns and bounds each by its own corners (up to
+// kMaxErrorCells): in an oblique view one box's far |N| over its near z^2 overstates the error
+// by the square of its depth ratio, which the columns mostly remove.
+constexpr int kMaxErrorCells = 4;
 float chunk_screen_error_px(const TerrainChunk& c, float error, const Eigen::Matrix3f& R_C_W, const Eigen::Vector3f& t_local,
-                            float f, float near_m);
+                            float f, float near_m, int cells = 1);
 
 class Terrain {
  public:
