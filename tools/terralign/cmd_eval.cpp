@@ -72,8 +72,10 @@ struct Method {
   int iterations;  // 0: init
   bool learned = false;
   std::vector<double> epe_m, angle, trans, epe_px, ms;
+  std::vector<Eigen::Vector3d> position_error;  // estimated camera centre - true one, map x y z (east north up)
   std::vector<char> ok;  // reported converged
   std::vector<double> cost_init, cost_final, residual_init, residual_final, sharpness;
+  std::vector<double> sigma_position, sigma_angle, residual_correlation;  // the covariance's (m, deg: root of its trace)
   std::vector<int> iterations_used;  // LM iterations over all levels
   std::vector<const char*> reason;
   int converged = 0;
@@ -251,6 +253,10 @@ int run_eval(const std::vector<std::string>& argv) {
         m.residual_init.push_back(out->residual_init);
         m.residual_final.push_back(out->residual_final);
         m.sharpness.push_back(out->sharpness);
+        // (no covariance where not converged: NaN, left out of the JSON)
+        m.sigma_angle.push_back(out->converged ? std::sqrt(out->covariance.topLeftCorner<3, 3>().trace()) * 180.0 / kPi : NAN);
+        m.sigma_position.push_back(out->converged ? std::sqrt(out->covariance.bottomRightCorner<3, 3>().trace()) : NAN);
+        m.residual_correlation.push_back(out->residual_correlation);
         m.iterations_used.push_back(out->iterations);
         m.reason.push_back(out->reason);
       } else {
@@ -269,6 +275,9 @@ int run_eval(const std::vector<std::string>& argv) {
       m.trans.push_back(e.trans_m);
       m.epe_px.push_back(e.epe_px);
       m.ms.push_back(ms);
+      // The estimate as a camera pose in the map: T_W_live = T_W_ref T_ref_live.
+      const geo::Pose T_live_ref{Eigen::Quaterniond(est.R), est.t};
+      m.position_error.push_back((s.prior * T_live_ref.inverse()).t_W_C - s.truth.t_W_C);
       if (!overlays.empty() && i < 20) {
         iclk::rgb_to_grey(loc.value()->reference().rgb[0].view(), ref_grey);
         iclk::rgb_to_grey(query->rgb[0].view(), query_grey);
@@ -320,15 +329,23 @@ int run_eval(const std::vector<std::string>& argv) {
     mj["converged_within_5px"] = m.converged > 0 ? conv5 / static_cast<double>(m.converged) : 0.0;
     const auto t = stats(m.ms);
     mj["ms"] = t.is_null() ? nlohmann::json(nullptr) : nlohmann::json{{"mean", t["mean"]}, {"median", t["median"]}};
-    // Per pose, for analysis: 2-D EPE, converged, and the costs behind the decision.
+    // Per pose, for analysis: 2-D EPE, converged, the camera centre's error (map axes), the
+    // costs behind the decision and the reported uncertainty.
     for (std::size_t k = 0; k < m.epe_px.size(); ++k) {
-      nlohmann::json sj = {{"epe_px", m.epe_px[k]}, {"epe_m", m.epe_m[k]}, {"converged", m.ok[k] != 0}};
+      const Eigen::Vector3d& dp = m.position_error[k];
+      nlohmann::json sj = {{"epe_px", m.epe_px[k]}, {"epe_m", m.epe_m[k]}, {"converged", m.ok[k] != 0},
+                           {"position_error_m", {dp.x(), dp.y(), dp.z()}}};
       if (k < m.cost_final.size()) {
         sj["cost_init"] = m.cost_init[k];
         sj["cost_final"] = m.cost_final[k];
         sj["residual_init"] = m.residual_init[k];
         sj["residual_final"] = m.residual_final[k];
         sj["sharpness"] = m.sharpness[k];
+        if (std::isfinite(m.sigma_position[k])) {
+          sj["sigma_position_m"] = m.sigma_position[k];
+          sj["sigma_angle_deg"] = m.sigma_angle[k];
+        }
+        sj["residual_correlation"] = m.residual_correlation[k];
         sj["iterations"] = m.iterations_used[k];
         sj["reason"] = m.reason[k];
       }
