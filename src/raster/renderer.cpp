@@ -542,8 +542,8 @@ bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool
   for (int o : out)
     if (o == 8) return false;
   if (c.level == 0) return true;
-  // The box's own bound first (most chunks a view visits are settled by it), the columns'
-  // tighter one only for a chunk it would refine.
+  // The box's own bound first (8 points), the columns' tighter one (50 points) only where the
+  // box's would refine.
   const float f = static_cast<float>(std::max(pinhole.fx, pinhole.fy)), near = static_cast<float>(options.near_m);
   const float lod = static_cast<float>(options.lod_error_px);
   refine = !(chunk_screen_error_px(c, c.error, R_C_W, t_local, f, near) <= lod) &&

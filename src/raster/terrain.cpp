@@ -17,8 +17,9 @@ float chunk_screen_error_px(const TerrainChunk& c, float error, const Eigen::Mat
   for (int h = 0; h < 2; ++h)
     for (int b = 0; b < pts; ++b)
       for (int a = 0; a < pts; ++a) {
-        const float x = c.min_x + (c.max_x - c.min_x) * static_cast<float>(a) / static_cast<float>(cells);
-        const float y = c.min_y + (c.max_y - c.min_y) * static_cast<float>(b) / static_cast<float>(cells);
+        // (the last column at the box's edge exactly, not at min + (max - min) rounded)
+        const float x = a == cells ? c.max_x : c.min_x + (c.max_x - c.min_x) * static_cast<float>(a) / static_cast<float>(cells);
+        const float y = b == cells ? c.max_y : c.min_y + (c.max_y - c.min_y) * static_cast<float>(b) / static_cast<float>(cells);
         const Eigen::Vector3f p = R_C_W * (Eigen::Vector3f(x, y, h ? c.max_z : c.min_z) - t_local);
         const float nx = up.x() * p.z() - p.x() * up.z(), ny = up.y() * p.z() - p.y() * up.z();
         n2[h][b][a] = nx * nx + ny * ny;

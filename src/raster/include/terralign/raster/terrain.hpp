@@ -34,10 +34,11 @@ struct TerrainChunk {
 // camera-frame up u = R_C_W (0, 0, 1), z' = z +- e u_z its moved depth (N does not change
 // along u). |N| is convex in the point, so a box's corners bound it, and its least depth
 // bounds 1 / (z z'). Seen straight down, N is the point's offset from the optical axis: a
-// vertical error shows only off the axis. +inf where the box, moved, reaches nearer than near_m. t_local: the camera's position. `cells` > 1 cuts the box
-// into cells x cells full-height columns and bounds each by its own corners (up to
-// kMaxErrorCells): in an oblique view one box's far |N| over its near z^2 overstates the error
-// by the square of its depth ratio, which the columns mostly remove.
+// vertical error shows only off the axis. +inf where the box, moved, reaches nearer than
+// near_m. t_local: the camera's position. `cells` > 1 cuts the box into cells x cells
+// full-height columns and bounds each by its own corners (up to kMaxErrorCells): in an
+// oblique view one box's far |N| over its near z^2 overstates the error by about the square
+// of its depth ratio, which the columns mostly remove.
 constexpr int kMaxErrorCells = 4;
 float chunk_screen_error_px(const TerrainChunk& c, float error, const Eigen::Matrix3f& R_C_W, const Eigen::Vector3f& t_local,
                             float f, float near_m, int cells = 1);
