@@ -131,6 +131,8 @@ TEST_CASE("a chunk's screen error bound holds at every point of its box moved up
     if (!std::isfinite(bound)) continue;
     ++boxes;
     REQUIRE(std::isfinite(bound_cells));
+    // Points projected in double: the float difference of two projections loses up to 1e-3 of it.
+    const Eigen::Matrix3d R = R_C_W.cast<double>();
     tightest = std::min(tightest, bound_cells / bound);
     loosest = std::max(loosest, bound_cells / bound);
     for (int k = 0; k < 64; ++k) {
@@ -138,8 +140,6 @@ TEST_CASE("a chunk's screen error bound holds at every point of its box moved up
                               c.min_y + h * (k < 8 ? static_cast<float>(k >> 1 & 1) : unit(rng)),
                               c.min_z + tall * (k < 8 ? static_cast<float>(k >> 2 & 1) : unit(rng)));
       for (float sign : {-1.0f, 1.0f}) {
-        // (in double: the float difference of two projections loses up to 1e-3 of it)
-        const Eigen::Matrix3d R = R_C_W.cast<double>();
         const Eigen::Vector3d a = R * (P - t).cast<double>(), b = R * (P + Eigen::Vector3f(0, 0, sign * e) - t).cast<double>();
         const float moved = static_cast<float>(f * std::hypot(b.x() / b.z() - a.x() / a.z(), b.y() / b.z() - a.y() / a.z()));
         worst = std::max(worst, moved / bound);
