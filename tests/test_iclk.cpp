@@ -332,6 +332,50 @@ TEST_CASE("the tilt prior holds the answer's roll and pitch to the prior's and l
   CHECK(b.dot(cov_rot * b) <= s2 * (1 + 1e-9));
 }
 
+TEST_CASE("the agreement test: a second start nearby returns to a basin and settles elsewhere on a lattice") {
+  // Two textures seen from the truth itself (reference and live the same view, so every
+  // level starts and stays at the answer): a smooth one, whose only minimum near the answer is
+  // the answer, and a lattice of period 3 finest-level pixels (3.7 m at 800 m), a minimum
+  // every period. The second start, 2 px away in u and in v (2.8 px), is nearer the lattice's
+  // next minimum (3, 3) than the answer, so it settles there, about 4.2 px away.
+  const geo::CameraModel cam = test::paper_camera();
+  const geo::Pose truth = geo::pose_from_ypr({1000, 800, 800}, 0, 0, 0);
+  const double period_m = 3.0 * 800 / cam.fx;
+  constexpr double kPiD = 3.14159265358979323846;
+  auto texture = [&](bool lattice) {
+    return test::flat_map(0.0, test::make_layer("t", 2400, 1800, 400, 1250, 0.5, [&](int x, int y, std::uint8_t* p) {
+      const double u = 2 * kPiD * x * 0.5 / period_m, v = 2 * kPiD * y * 0.5 / period_m;
+      const double s = lattice ? 50 * (std::sin(u) + std::sin(v))
+                               : 90 * std::sin(x * 0.021) * std::cos(y * 0.013) + 40 * std::sin(x * 0.007 + y * 0.017);
+      p[0] = p[1] = p[2] = static_cast<std::uint8_t>(128 + s);
+    }));
+  };
+  TrackerOptions opt;
+  opt.agree_px = 2;
+  for (bool lattice : {false, true}) {
+    CAPTURE(lattice);
+    const Pair p = render_pair(texture(lattice), cam, truth, truth, "t", "t");
+    Tracker<double, SE3DepthWarp<double>, 1> measured(cam.width, cam.height, opt);
+    const auto& res = measured.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), p.K, SE3<double>::identity());
+    REQUIRE(res.converged);  // no threshold: measured only
+    CHECK(epe_px(p, res.params) < 0.01);
+    MESSAGE(std::string(lattice ? "lattice" : "smooth") << ": the second start settles " << res.disagreement_px << " px away");
+    if (lattice) CHECK(res.disagreement_px > 3);  // 4.2 px to the next minimum, at least most of it
+    else CHECK(res.disagreement_px < 0.05);       // back to the answer, within the steps' tolerance
+    // With a threshold of 1 px between the two, the lattice's answer is reported as failed,
+    // the initial pose returned, and the smooth one stands.
+    opt.max_disagreement_px = 1;
+    Tracker<double, SE3DepthWarp<double>, 1> tested(cam.width, cam.height, opt);
+    const auto& t = tested.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), p.K, SE3<double>::identity());
+    CHECK(t.converged == !lattice);
+    if (lattice) {
+      CHECK(std::string(t.reason).rfind("ambiguous", 0) == 0);
+      CHECK(t.params.t.norm() == 0.0);
+    }
+    opt.max_disagreement_px = 0;
+  }
+}
+
 TEST_CASE("a pair with no texture reports failure instead of a pose") {
   const geo::Map map = test::flat_map(0.0, test::make_layer("grey", 400, 400, 0, 2000, 5.0, [](int, int, std::uint8_t* p) {
     p[0] = p[1] = p[2] = 120;

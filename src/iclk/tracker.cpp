@@ -583,6 +583,16 @@ double Tracker<S, Warp, C>::mean_square_residual(int n) const {
 }
 
 template <class S, class Warp, int C>
+double Tracker<S, Warp, C>::rms_motion_px(const Vec6<double>& d, int n) const {
+  if constexpr (Warp::kNeedsDepth) {
+    const Eigen::Matrix<double, DoF, DoF> M = motion0_.template selfadjointView<Eigen::Lower>();
+    return std::sqrt(std::max(d.dot(M * d), 0.0) / std::max(n, 1));
+  } else {
+    return INFINITY;
+  }
+}
+
+template <class S, class Warp, int C>
 typename Tracker<S, Warp, C>::Params Tracker<S, Warp, C>::shifted(const Params& p, double du, double dv, const Pinhole<S>& K) {
   // Rotations about the camera's y and x axes move the image by about f * angle pixels.
   Eigen::Matrix<S, DoF, 1> nudge = Eigen::Matrix<S, DoF, 1>::Zero();
@@ -716,13 +726,11 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       R.cost_init = wsum > 0 ? cost / wsum : 0;
       R.residual_init = mean_square_residual(n);
     }
-    for (int it = 0; it < opt_.iterations; ++it) {
-      const int valid = evaluate(n, p, K[level], g, Hout, cost, wsum);
-      if (level == 0 && it == 0) R.cost_start = wsum > 0 ? cost / wsum : 0;
-      if (valid < std::max(DoF * 4, level == 0 ? opt_.min_valid_pixels : 0)) {
-        if (level == 0) return fail("too few pixels land inside the live image");
-        break;
-      }
+    // One LM step from q, with the residuals the last evaluate() left (g, Hout): q moves and
+    // the step's size is returned (rad, and m per metre of median depth), or -1 with `why`
+    // set when the step is not finite or exceeds the bound. `level_start`: the first step of
+    // the level, which measures the image noise that weighs the tilt prior.
+    auto lm_step = [&](Params& q, bool level_start, const char*& why) -> double {
       Hv = H - Hout;
       Eigen::Matrix<double, DoF, DoF> A = Hv;
       A.diagonal() *= 1.0 + opt_.lambda;
@@ -731,26 +739,38 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
         // Prior 1/2 e'^T P e' on the rotation e' = log(R_init^T R') - tilt_ after the step:
         // the update R' = R exp(-delta) gives e' = e - delta (first order), so P joins H and
         // P e joins g.
-        if (it == 0) noise = image_noise(n);
+        if (level_start) noise = image_noise(n);
         const Eigen::Matrix3d P = noise * tilt_info;
-        const Eigen::Vector3d e = SE3Log<Params>::of(init, p).template head<3>() - tilt_;
+        const Eigen::Vector3d e = SE3Log<Params>::of(init, q).template head<3>() - tilt_;
         A.template topLeftCorner<3, 3>() += P;
         rhs.template head<3>() += P * e;
       }
       const Eigen::Matrix<double, DoF, 1> delta = A.ldlt().solve(rhs);
-      if (!delta.allFinite()) return fail("numerical failure: the step is not finite");
-      if (Warp::kNeedsDepth) {
-        if (delta.template head<3>().norm() > opt_.max_step_rotation ||
-            delta.template segment<3>(DoF - 3).norm() > opt_.max_step_translation * depth_scale)
-          return fail("diverged: a step exceeded the bound");
-      } else if (delta.norm() > opt_.max_step_rotation) {
-        return fail("diverged: a step exceeded the bound");
+      if (!delta.allFinite()) {
+        why = "numerical failure: the step is not finite";
+        return -1;
       }
-      Warp::update(p, delta.template cast<S>());
+      if (Warp::kNeedsDepth ? delta.template head<3>().norm() > opt_.max_step_rotation ||
+                                  delta.template segment<3>(DoF - 3).norm() > opt_.max_step_translation * depth_scale
+                            : delta.norm() > opt_.max_step_rotation) {
+        why = "diverged: a step exceeded the bound";
+        return -1;
+      }
+      Warp::update(q, delta.template cast<S>());
+      if (!Warp::kNeedsDepth) return delta.norm();
+      return std::max(delta.template head<3>().norm(), delta.template segment<3>(DoF - 3).norm() / depth_scale);
+    };
+    for (int it = 0; it < opt_.iterations; ++it) {
+      const int valid = evaluate(n, p, K[level], g, Hout, cost, wsum);
+      if (level == 0 && it == 0) R.cost_start = wsum > 0 ? cost / wsum : 0;
+      if (valid < std::max(DoF * 4, level == 0 ? opt_.min_valid_pixels : 0)) {
+        if (level == 0) return fail("too few pixels land inside the live image");
+        break;
+      }
+      const char* why = nullptr;
+      const double step = lm_step(p, it == 0, why);
+      if (why) return fail(why);
       ++R.iterations;
-      double step = delta.template head<3>().norm();
-      if (Warp::kNeedsDepth) step = std::max(step, delta.template segment<3>(DoF - 3).norm() / depth_scale);
-      else step = delta.norm();
       if (step < opt_.step_tol) break;
     }
     R.ms_iterations += ms(ti, Clock::now());
@@ -780,10 +800,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
         // of the parameter change (first order, M = sum dW^T dW). A start already at the
         // cost's minimum (TrackerOptions::still_px) is confirmed, not diverged from.
         double moved_px = INFINITY;
-        if constexpr (Warp::kNeedsDepth) {
-          const Eigen::Matrix<double, DoF, DoF> M = motion0_.template selfadjointView<Eigen::Lower>();
-          moved_px = std::sqrt(std::max(moved.dot(M * moved), 0.0) / std::max(n, 1));
-        }
+        if constexpr (Warp::kNeedsDepth) moved_px = rms_motion_px(moved, n);
         if (!(moved_px < opt_.still_px)) return fail("diverged: the final cost is above the cost at the initial pose");
       }
       if (Warp::kNeedsDepth) {
@@ -814,6 +831,25 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
         }
         R.sharpness = R.residual_final > 0 ? least / R.residual_final : 0.0;
         if (R.sharpness < opt_.min_sharpness) return fail("ambiguous: the image agreement is as good a few pixels away");
+      }
+      if constexpr (Warp::kNeedsDepth) {
+        if (opt_.agree_px > 0) {
+          // A second start nearby, the same weights and H: where it settles.
+          const auto ta = Clock::now();
+          Params q = shifted(p, opt_.agree_px, opt_.agree_px, K[0]);
+          bool settled = true;
+          for (int it = 0; it < opt_.agree_iterations && settled; ++it) {
+            const char* why = nullptr;
+            const bool inside = evaluate(n, q, K[0], g, Hout, cost, wsum) >= opt_.min_valid_pixels;
+            const double step = inside ? lm_step(q, false, why) : -1.0;
+            settled = step >= 0;
+            if (settled && step < opt_.step_tol) break;
+          }
+          R.disagreement_px = settled ? rms_motion_px(SE3Log<Params>::of(p, q), n) : INFINITY;
+          R.ms_iterations += ms(ta, Clock::now());
+          if (opt_.max_disagreement_px > 0 && !(R.disagreement_px <= opt_.max_disagreement_px))
+            return fail("ambiguous: a start nearby settles elsewhere");
+        }
       }
     }
   }

@@ -90,6 +90,13 @@ struct TrackerOptions {
   // tracker; the learned one sets them (DeepAligner).
   double probe_px = 0;
   double min_sharpness = 0;
+  // The agreement test (TrackResult::disagreement_px, 6-DoF warp): a second start, the answer
+  // moved by agree_px finest-level pixels in u and in v (0: not measured), takes up to
+  // agree_iterations steps at the finest level with the same weights; a converged answer
+  // whose second start settles more than max_disagreement_px away fails (0: no test).
+  double agree_px = 0;
+  int agree_iterations = 10;
+  double max_disagreement_px = 0;
   // Before the coarsest level's first step (6-DoF warp): the start is moved to the best of
   // the rotations that shift the image by up to k coarsest-level pixels in u and v (whole
   // pixels), each also turned about the optical axis in steps of kCoarseYawStepDeg up to
@@ -139,6 +146,12 @@ struct TrackResult {
   // residual_final. A right answer sits in a narrow valley of the image agreement; a wrong
   // one, where the features do not agree anyway, in a flat one.
   double sharpness = 0;
+  // Whether the answer is a basin (6-DoF warp with agree_px > 0; else 0): the RMS image motion,
+  // finest-level pixels over the used pixels, between the answer and where a second start
+  // TrackerOptions::agree_px away settles (infinite where that run fails). Across many years
+  // a wrong answer is often as deep a minimum as a right one, but a shallower, wider one: a
+  // start nearby returns to a right answer and drifts near a wrong one (README).
+  double disagreement_px = 0;
   // The pose the coarsest level started from: the initial one, or the coarse search's pick
   // (TrackerOptions::coarse_search_px).
   Params coarse_start = Warp::identity();
@@ -223,9 +236,13 @@ class Tracker {
   void learned_weights(int n, int level, const Params& p, const Pinhole<S>& K, LevelWeights& lw);
   double residual_correlation(int n) const;
   double mean_square_residual(int n) const;  // unweighted, of the residuals of the last evaluate()
+  // The RMS image motion over the finest level's n used pixels of a pose change d (6-DoF
+  // warp; first order, sum dW^T dW): finest-level pixels.
+  double rms_motion_px(const Vec6<double>& d, int n) const;
   Params coarse_search(int n, const Params& p, const Pinhole<S>& K);
   // p with the camera turned so the image moves by about (du, dv) pixels of K's level (6-DoF
-  // warp): the sharpness probe's nudge and the coarse search's grid.
+  // warp): the sharpness probe's nudge, the agreement test's second start and the coarse
+  // search's grid.
   static Params shifted(const Params& p, double du, double dv, const Pinhole<S>& K);
   // The reference pixels a level uses (every pixel with depth around it, or the strongest
   // gradient of each block), with their 3-D points, values and Jacobians; returns how many.
