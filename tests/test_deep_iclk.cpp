@@ -132,38 +132,61 @@ TEST_CASE("learned tracker: refuses a size too small for its levels and another 
   MESSAGE(other.error().message);
 }
 
-TEST_CASE("learned tracker: the sharpness test reads its threshold from the weights and fails a flat answer") {
-  const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
+namespace {
+
+// The weights with a line added to their header, after `# levels`.
+nn::WeightFile with_line(nn::WeightFile w, const std::string& line) {
+  const auto at = w.architecture.find("# levels ");
+  REQUIRE(at != std::string::npos);
+  w.architecture.insert(w.architecture.find('\n', at) + 1, line + "\n");
+  return w;
+}
+
+}  // namespace
+
+TEST_CASE("learned tracker: the converged tests read their thresholds from the weights and fail an answer") {
+  const nn::WeightFile shipped = load("weights/deep_iclk_s16.tlw");
+  // The shipped weights carry the agreement test's threshold (training/calibrate_sharpness.py
+  // --test agreement) and, since it replaced it (README), no sharpness threshold.
+  auto agree = iclk::DeepAligner::max_disagreement(shipped);
+  REQUIRE(agree.ok());
+  CHECK(agree.value() == doctest::Approx(0.85));
+  auto none = iclk::DeepAligner::min_sharpness(shipped);
+  REQUIRE(none.ok());
+  CHECK(none.value() == 0.0);
+  const nn::WeightFile weights = with_line(shipped, "# min-sharpness 1.020");
   auto threshold = iclk::DeepAligner::min_sharpness(weights);
   REQUIRE(threshold.ok());
-  CHECK(threshold.value() == doctest::Approx(1.020));  // written by training/calibrate_sharpness.py
+  CHECK(threshold.value() == doctest::Approx(1.020));
   const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
   const Pair p = pair_of(vectors, 0);
-  auto run = [&](double min_sharpness) {
+  auto run = [&](double min_sharpness, double max_disagreement) {
     iclk::TrackerOptions o = parity_options();  // the answer PyTorch also reaches
     o.min_sharpness = min_sharpness;
+    o.max_disagreement_px = max_disagreement;
     auto D = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), o, 1);
     REQUIRE(D.ok());
     return D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
   };
-  // A right same-year answer sits in a valley: its residual 2 px away is higher.
-  const auto right = run(0);  // the weights' threshold
+  // A right same-year answer sits in a narrow valley: its residual 2 px away is higher, and a
+  // start 2 px away in u and v comes back to it.
+  const auto right = run(0, 0);  // the weights' thresholds
   CHECK(right.converged);
   CHECK(right.sharpness >= threshold.value());
-  // Asked for more sharpness than it has, the same answer is reported as failed, with the
-  // prior returned.
-  const auto flat = run(right.sharpness * 1.01);
-  CHECK_FALSE(flat.converged);
-  CHECK(std::string(flat.reason).rfind("ambiguous", 0) == 0);
-  CHECK(flat.params.t.norm() == 0.0f);
-  // A negative threshold turns the test off: the answer stands.
-  CHECK(run(-1).converged);
+  CHECK(right.disagreement_px <= agree.value());
+  MESSAGE("same year: sharpness " << right.sharpness << ", the second start settles " << right.disagreement_px << " px away");
+  // Asked for more than the answer has, either test reports it as failed, with the prior
+  // returned; a negative threshold turns a test off and the answer stands.
+  for (const auto& strict : {run(right.sharpness * 1.01, -1), run(-1, right.disagreement_px * 0.99)}) {
+    CHECK_FALSE(strict.converged);
+    CHECK(std::string(strict.reason).rfind("ambiguous", 0) == 0);
+    CHECK(strict.params.t.norm() == 0.0f);
+  }
+  CHECK(run(-1, -1).converged);
   // A weight file with a malformed threshold is refused, naming the line.
-  nn::WeightFile bad = weights;
-  const auto at = bad.architecture.find("# min-sharpness ");
-  REQUIRE(at != std::string::npos);
-  bad.architecture.replace(at, bad.architecture.find('\n', at) - at, "# min-sharpness nan");
-  auto refused = iclk::DeepAligner::create(bad, p.ref.width(), p.ref.height(), options(), 1);
-  REQUIRE_FALSE(refused.ok());
-  CHECK(refused.error().message.find("# min-sharpness nan") != std::string::npos);
+  for (const char* line : {"# min-sharpness nan", "# max-disagreement-px 0"}) {
+    auto refused = iclk::DeepAligner::create(with_line(shipped, line), p.ref.width(), p.ref.height(), options(), 1);
+    REQUIRE_FALSE(refused.ok());
+    CHECK(refused.error().message.find(line) != std::string::npos);
+  }
 }

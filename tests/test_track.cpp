@@ -163,7 +163,18 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
     CHECK(rows[i][8] == "0");
     if (i < 4) CHECK(rows[i][9].find("ambiguous") != std::string::npos);
   }
+  // --max-disagreement likewise: a same-year second start comes back within microns of a
+  // pixel (tests/test_deep_iclk.cpp), never within 1e-9 px, so every frame fails the same way.
+  REQUIRE(run(cmd + "--max-disagreement 1e-9") == 0);
+  const auto agree_rows = csv_rows(dir + "/sharp.csv");
+  REQUIRE(agree_rows.size() == 12);
+  for (std::size_t i = 0; i < agree_rows.size(); ++i) {
+    CAPTURE(i);
+    CHECK(agree_rows[i][8] == "0");
+    if (i < 4) CHECK(agree_rows[i][9].find("ambiguous: a start nearby") != std::string::npos);
+  }
   check_refused(cmd + "--min-sharpness 1001", dir + "/err.txt", "--min-sharpness '1001' must be in [-1000, 1000]");
+  check_refused(cmd + "--max-disagreement -1001", dir + "/err.txt", "--max-disagreement '-1001' must be in [-1000, 1000]");
   check_refused(cmd + "--coarse-search 17", dir + "/err.txt", "--coarse-search '17' must be an integer in [-1, 16]");
 }
 

@@ -1,14 +1,21 @@
 #!/usr/bin/env python3
-"""Calibrates the learned tracker's sharpness test for one weight file and writes the
-threshold into it as `# min-sharpness X` (read by src/iclk/deep_aligner.cpp).
+"""Calibrates one of the learned tracker's converged tests for one weight file and writes
+its threshold into it (read by src/iclk/deep_aligner.cpp):
 
-The tracker reports an answer as failed when its feature agreement 2 px away is within a
-factor `min-sharpness` of the final one (iclk::TrackResult::sharpness). The threshold keeps
-`--keep` (97 %) of the right converged answers (2-D EPE < 5 px) of an adjacent-year pair on
-calibration poses (seed 11; the README's tables use seed 7), rounded down to 0.005. Runs
-`terralign eval ... --min-sharpness -1 --json` (the test off); Python's standard library only.
+- `--test sharpness` (the default): `# min-sharpness X`. The tracker reports an answer as
+  failed when its feature agreement 2 px away is within a factor X of the final one
+  (iclk::TrackResult::sharpness). Rounded down to 0.005.
+- `--test agreement`: `# max-disagreement-px X`. The tracker reports an answer as failed when
+  a second start 2 working px away in u and v settles more than X px from it
+  (iclk::TrackResult::disagreement_px). Rounded up to 0.05.
+
+The threshold keeps `--keep` (97 %) of the right converged answers (2-D EPE < 5 px) of an
+adjacent-year pair on calibration poses (seed 11; the README's tables use seed 7). Runs
+`terralign eval ... --min-sharpness -1 --max-disagreement -1 --json` (both tests off);
+Python's standard library only.
 
   training/calibrate_sharpness.py weights/deep_iclk_s16.tlw
+  training/calibrate_sharpness.py --test agreement --count 200 weights/deep_iclk_s16.tlw
 """
 import argparse
 import json
@@ -34,6 +41,7 @@ def main():
     p.add_argument("--count", type=int, default=100)
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--keep", type=float, default=0.97, help="share of right converged answers to keep")
+    p.add_argument("--test", choices=("sharpness", "agreement"), default="sharpness")
     a = p.parse_args()
     ref, query = a.pair.split(",")
     with tempfile.TemporaryDirectory() as tmp:
@@ -41,22 +49,34 @@ def main():
         subprocess.run([a.terralign, "eval", "--map", a.map, "--camera", a.camera, "--ref-layer", ref,
                         "--query-layer", query, "--count", str(a.count), "--seed", str(a.seed), "--altitude",
                         "700:900", "--tilt", "10", "--methods", "nn:20", "--weights", a.weights,
-                        "--min-sharpness", "-1", "--json", out], check=True, stdout=subprocess.DEVNULL)
+                        "--min-sharpness", "-1", "--max-disagreement", "-1", "--json", out], check=True, stdout=subprocess.DEVNULL)
         samples = json.load(open(out))["methods"]["nn:20"]["samples"]
-    right = sorted(s["sharpness"] for s in samples if s["converged"] and s["epe_px"] < 5)
-    wrong = [s["sharpness"] for s in samples if s["converged"] and s["epe_px"] >= 5]
+    # Each test as "higher is more likely right": sharpness, and minus the disagreement (a
+    # second start that failed has none in the JSON: infinitely far).
+    sharp = a.test == "sharpness"
+    key, line_key = ("sharpness", "min-sharpness") if sharp else ("disagreement_px", "max-disagreement-px")
+    score = (lambda s: s["sharpness"]) if sharp else (lambda s: -s.get("disagreement_px", math.inf))
+    right = sorted(score(s) for s in samples if s["converged"] and s["epe_px"] < 5)
+    wrong = [score(s) for s in samples if s["converged"] and s["epe_px"] >= 5]
     if len(right) < 20:
         sys.exit(f"{a.weights}: only {len(right)} right converged answers on {ref} -> {query}: too few to calibrate")
     q = right[int(math.floor((1 - a.keep) * (len(right) - 1)))]
-    threshold = math.floor(q / 0.005) * 0.005
+    if not math.isfinite(q):
+        sys.exit(f"{a.weights}: over {100 * (1 - a.keep):.0f} % of the right answers' second starts failed: no threshold")
+    if sharp:
+        threshold = math.floor(q / 0.005) * 0.005
+        text = f"{threshold:.3f}"
+    else:
+        threshold = -math.ceil(-q / 0.05 - 1e-9) * 0.05
+        text = f"{-threshold:.2f}"
     kept = sum(v >= threshold for v in right)
     rejected = sum(v < threshold for v in wrong)
     arch, _ = tlw.architecture(a.weights)
-    lines = [l for l in arch.split("\n") if not l.startswith("# min-sharpness ")]
+    lines = [l for l in arch.split("\n") if not l.startswith(f"# {line_key} ")]
     at = next(i for i, l in enumerate(lines) if l.startswith("# levels ")) + 1
-    lines.insert(at, f"# min-sharpness {threshold:.3f}")
+    lines.insert(at, f"# {line_key} {text}")
     tlw.replace_architecture(a.weights, "\n".join(lines))
-    print(f"{a.weights}: min-sharpness {threshold:.3f} ({ref} -> {query}, {a.count} poses, seed {a.seed}): keeps "
+    print(f"{a.weights}: {line_key} {text} ({key}; {ref} -> {query}, {a.count} poses, seed {a.seed}): keeps "
           f"{kept} of {len(right)} right converged answers, fails {rejected} of {len(wrong)} wrong ones")
 
 

@@ -83,6 +83,14 @@ Result<double> DeepAligner::min_sharpness(const nn::WeightFile& weights) {
   return v;
 }
 
+Result<double> DeepAligner::max_disagreement(const nn::WeightFile& weights) {
+  std::string line;
+  double v = 0;
+  if (comment_value(weights, "max-disagreement-px", line, v) && !(v > 0 && v <= 100))
+    return Error{weights.name + ": '" + line + "': the agreement threshold must be in (0, 100] pixels"};
+  return v;
+}
+
 Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& weights, int width, int height,
                                                          const iclk::TrackerOptions& options, int threads,
                                                          int use_levels) {
@@ -139,11 +147,15 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   o.block.fill(1);
   o.robust = iclk::Robust::None;
   if (o.probe_px == 0) o.probe_px = kProbePx;
+  if (o.agree_px == 0) o.agree_px = kAgreePx;
   if (o.coarse_search_px == 0) o.coarse_search_px = kCoarseSearchPx;
   if (o.coarse_search_yaw_deg == 0) o.coarse_search_yaw_deg = kCoarseSearchYawDeg;
   if (o.coarse_search_px < 0) o.coarse_search_px = 0;  // no search at all
   if (o.min_sharpness == 0) {
     TERRALIGN_TRY_ASSIGN(o.min_sharpness, DeepAligner::min_sharpness(weights));
+  }
+  if (o.max_disagreement_px == 0) {
+    TERRALIGN_TRY_ASSIGN(o.max_disagreement_px, DeepAligner::max_disagreement(weights));
   }
   // Every pixel of four levels: enough work per iteration for the threads to pay off
   // (unlike the sparse classical selection); chunked sums keep the result thread-count free.

@@ -102,6 +102,11 @@ Result<iclk::TrackerOptions> parse_tracker_options(const Args& args) {
   if (!sharp.ok() || !(std::abs(sharp.value()) <= 1000))
     return Error{"--min-sharpness '" + args.get("min-sharpness") + "' must be in [-1000, 1000] (negative: no sharpness test)"};
   opt.min_sharpness = sharp.value();
+  auto agree = args.get_double("max-disagreement", 0.0);
+  if (!agree.ok() || !(std::abs(agree.value()) <= 1000))
+    return Error{"--max-disagreement '" + args.get("max-disagreement") +
+                 "' must be in [-1000, 1000] working pixels (negative: no agreement test)"};
+  opt.max_disagreement_px = agree.value();
   TERRALIGN_TRY_ASSIGN(opt.coarse_search_px, args.get_int("coarse-search", 0, -1, 16));
   return opt;
 }

@@ -74,7 +74,7 @@ struct Method {
   std::vector<double> epe_m, angle, trans, epe_px, ms;
   std::vector<Eigen::Vector3d> position_error;  // estimated camera centre - true one, map x y z (east north up)
   std::vector<char> ok;  // reported converged
-  std::vector<double> cost_init, cost_final, residual_init, residual_final, sharpness;
+  std::vector<double> cost_init, cost_final, residual_init, residual_final, sharpness, disagreement;
   std::vector<double> sigma_position, sigma_angle, residual_correlation;  // the covariance's (m, deg: root of its trace)
   std::vector<int> iterations_used;  // LM iterations over all levels
   std::vector<const char*> reason;
@@ -113,7 +113,7 @@ ImageU8 overlay(const ImageF& ref_grey, const ImageF& depth, const ImageF& query
 int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
-                                 "min-sharpness", "coarse-search", "input-scale", "nn-levels", "imu-tilt", "tilt-prior"}, {});
+                                 "min-sharpness", "max-disagreement", "coarse-search", "input-scale", "nn-levels", "imu-tilt", "tilt-prior"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -253,6 +253,7 @@ int run_eval(const std::vector<std::string>& argv) {
         m.residual_init.push_back(out->residual_init);
         m.residual_final.push_back(out->residual_final);
         m.sharpness.push_back(out->sharpness);
+        m.disagreement.push_back(out->disagreement_px);
         // (no covariance where not converged: NaN, left out of the JSON)
         m.sigma_angle.push_back(out->converged ? std::sqrt(out->covariance.topLeftCorner<3, 3>().trace()) * 180.0 / kPi : NAN);
         m.sigma_position.push_back(out->converged ? std::sqrt(out->covariance.bottomRightCorner<3, 3>().trace()) : NAN);
@@ -341,6 +342,7 @@ int run_eval(const std::vector<std::string>& argv) {
         sj["residual_init"] = m.residual_init[k];
         sj["residual_final"] = m.residual_final[k];
         sj["sharpness"] = m.sharpness[k];
+        if (std::isfinite(m.disagreement[k])) sj["disagreement_px"] = m.disagreement[k];  // else the second start failed
         if (std::isfinite(m.sigma_position[k])) {
           sj["sigma_position_m"] = m.sigma_position[k];
           sj["sigma_angle_deg"] = m.sigma_angle[k];

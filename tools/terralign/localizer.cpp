@@ -136,6 +136,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   out.residual_init = r.residual_init;
   out.residual_final = r.residual_final;
   out.sharpness = r.sharpness;
+  out.disagreement_px = r.disagreement_px;
   out.residual_correlation = r.residual_correlation;
   out.covariance_inflation = r.covariance_inflation;
   out.ms_pyramid = r.ms_pyramid;

@@ -34,6 +34,7 @@ struct LocalizeOutput {
   double cost_init = 0, cost_final = 0;  // mean squared residual of the normalised images
   double residual_init = 0, residual_final = 0;  // the same unweighted (iclk::TrackResult)
   double sharpness = 0;                          // iclk::TrackResult
+  double disagreement_px = 0;                    // iclk::TrackResult
   double residual_correlation = 0, covariance_inflation = 1;  // see iclk::TrackResult
   double ms_render = 0, ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
   double ms_encoder = 0, ms_mestimator = 0;  // learned: both encoders; the M-estimator (inside ms_jacobian)
