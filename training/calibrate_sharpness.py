@@ -15,7 +15,7 @@ adjacent-year pair on calibration poses (seed 11; the README's tables use seed 7
 Python's standard library only.
 
   training/calibrate_sharpness.py weights/deep_iclk_s16.tlw
-  training/calibrate_sharpness.py --test agreement --count 200 weights/deep_iclk_s16.tlw
+  training/calibrate_sharpness.py --test agreement --count 200 --only weights/deep_iclk_s16.tlw
 """
 import argparse
 import json
@@ -42,6 +42,8 @@ def main():
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--keep", type=float, default=0.97, help="share of right converged answers to keep")
     p.add_argument("--test", choices=("sharpness", "agreement"), default="sharpness")
+    p.add_argument("--only", action="store_true",
+                   help="remove the other test's threshold from the weights (its test then off by default)")
     a = p.parse_args()
     ref, query = a.pair.split(",")
     with tempfile.TemporaryDirectory() as tmp:
@@ -72,7 +74,9 @@ def main():
     kept = sum(v >= threshold for v in right)
     rejected = sum(v < threshold for v in wrong)
     arch, _ = tlw.architecture(a.weights)
-    lines = [l for l in arch.split("\n") if not l.startswith(f"# {line_key} ")]
+    other = "max-disagreement-px" if sharp else "min-sharpness"
+    lines = [l for l in arch.split("\n")
+             if not l.startswith(f"# {line_key} ") and not (a.only and l.startswith(f"# {other} "))]
     at = next(i for i, l in enumerate(lines) if l.startswith("# levels ")) + 1
     lines.insert(at, f"# {line_key} {text}")
     tlw.replace_architecture(a.weights, "\n".join(lines))
