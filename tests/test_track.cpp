@@ -130,6 +130,18 @@ TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged an
   for (const char* bad : {"-1", "101", "nan", "wide"})
     check_refused(floor_cmd + "\"" + bad + "\"", dir + "/floor_err.txt",
                   "--registration-floor '" + std::string(bad) + "' must be in [0, 100]");
+  // The classical tracker runs the agreement test by default (its second start comes back to a
+  // same-year answer, so every good frame above stood): asked to come back within 1e-9 px,
+  // which no second start does, each frame fails as ambiguous.
+  REQUIRE(run(tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir + "/list.txt --init \"" +
+              init + "\" --out " + dir + "/agree.csv --max-disagreement 1e-9") == 0);
+  const auto strict = csv_rows(dir + "/agree.csv");
+  REQUIRE(strict.size() == rows.size());
+  for (std::size_t i = 0; i < strict.size(); ++i) {
+    CAPTURE(i);
+    CHECK(strict[i][8] == "0");
+    if (i < 4) CHECK(strict[i][9].find("ambiguous: a start nearby") != std::string::npos);
+  }
 }
 
 TEST_CASE("the learned tracker confirms a prediction that is already right instead of calling it diverged") {

@@ -47,9 +47,9 @@ Result<nn::WeightFile> learned_weights(const Args& args);
 //   year; across years of change the error is larger (README, tracking a flight).
 // --min-sharpness S: the learned tracker's sharpness test (min_sharpness), in [-1000, 1000];
 //   0 (the default): the weight file's '# min-sharpness'; negative: no test.
-// --max-disagreement PX: the learned tracker's agreement test (max_disagreement_px), in
-//   [-1000, 1000] working pixels; 0 (the default): the weight file's '# max-disagreement-px';
-//   negative: no test.
+// --max-disagreement PX: the agreement test (max_disagreement_px), in [-1000, 1000] of each
+//   tracker's working pixels; 0 (the default): each tracker's own (kClassicMaxDisagreementPx,
+//   the weight file's '# max-disagreement-px'); negative: no test.
 // --coarse-search PX: the search before the coarsest level (coarse_search_px), in [-1, 16]
 //   coarsest-level pixels; 0 (the default): each tracker's own (kClassicCoarseSearchPx,
 //   iclk::DeepAligner::kCoarseSearchPx); -1: none.

@@ -102,6 +102,9 @@ int run_align(const std::vector<std::string>& argv) {
   j["converged"] = out->converged;
   j["reason"] = out->reason;
   j["iterations"] = out->iterations;
+  // The converged tests' measures (0 where not measured; where the second start failed, null).
+  j["disagreement_px"] = out->disagreement_px;
+  j["sharpness"] = out->sharpness;
   j["residual_correlation"] = out->residual_correlation;
   j["covariance_inflation"] = out->covariance_inflation;
   j["method"] = method;

@@ -54,11 +54,11 @@ const std::vector<Command>& commands() {
        "fraction, how many converged answers are within 5 px, and the alignment time (nn: with both\n"
        "encoders; neither includes rendering). Methods: init, classic:N, nn:N (the learned tracker,\n"
        "N iterations per level; --weights as for align). --area keeps every footprint inside a part\n"
-       "of the map (e.g. ground the learned tracker was not trained on). The learned tracker's two\n"
-       "converged tests report an answer as failed (the prior): --max-disagreement PX, the agreement\n"
-       "test (default: the weight file's '# max-disagreement-px', 0.85 for the shipped weights;\n"
-       "negative: none), when a second start 2 working px away in u and v settles more than PX\n"
-       "away from it; --min-sharpness S, the sharpness test (default: the weight file's\n"
+       "of the map (e.g. ground the learned tracker was not trained on). Converged tests report an\n"
+       "answer as failed (the prior): --max-disagreement PX, the agreement test of both trackers\n"
+       "(default: 0.95 classic; the weight file's '# max-disagreement-px', 0.85 for the shipped\n"
+       "weights; negative: none), when a second start 2 working px away in u and v settles more\n"
+       "than PX away from it; --min-sharpness S, the learned tracker's sharpness test (default: the weight file's\n"
        "'# min-sharpness', none for the shipped weights; negative: none), when its feature\n"
        "agreement is within a factor S as good 2 px away. --coarse-search sets both trackers' search before the\n"
        "coarsest level (PX coarsest-level pixels each way; default: 4 classic, 2 learned, which also\n"
@@ -104,8 +104,8 @@ const std::vector<Command>& commands() {
        "frames takes its roll and pitch (the heading stays the prior's). --tilt-prior DEG holds\n"
        "each answer's tilt to it with that sigma (as align's).\n"
        "--registration-floor PX: as align's (default 0.1 camera pixels; 0.7 for a map of another year).\n"
-       "--min-sharpness S, --max-disagreement PX and --coarse-search PX: as eval's (the learned\n"
-       "tracker's converged tests, negative: none; the search before the coarsest level, -1: none).\n",
+       "--min-sharpness S, --max-disagreement PX and --coarse-search PX: as eval's (the converged\n"
+       "tests, negative: none; the search before the coarsest level, -1: none).\n",
        run_track},
       {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
        "usage: terralign dataset --map MAP.json --camera CAMERA.json --count N --seed S --out DIR\n"

@@ -47,6 +47,8 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   topt.threads = 1;
   if (topt.coarse_search_px == 0) topt.coarse_search_px = kClassicCoarseSearchPx;
   if (topt.coarse_search_px < 0) topt.coarse_search_px = 0;
+  if (topt.agree_px == 0) topt.agree_px = kClassicAgreePx;
+  if (topt.max_disagreement_px == 0) topt.max_disagreement_px = kClassicMaxDisagreementPx;
   L->tracker_ = std::make_unique<iclk::Tracker<float, iclk::SE3DepthWarp<float>, 1>>(camera.width, camera.height, topt);
   return L;
 }
