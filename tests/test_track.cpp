@@ -62,6 +62,18 @@ std::vector<std::vector<std::string>> csv_rows(const std::string& path) {
   return rows;
 }
 
+// A track CSV of `frames` frames none of which converged, the first four failing for `why`
+// (later ones, their priors left behind at --init, may diverge instead).
+void check_none_converged(const std::string& csv, std::size_t frames, const std::string& why) {
+  const auto rows = csv_rows(csv);
+  REQUIRE(rows.size() == frames);
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    CAPTURE(i);
+    CHECK(rows[i][8] == "0");
+    if (i < 4) CHECK(rows[i][9].find(why) != std::string::npos);
+  }
+}
+
 // Runs `cmd`, which must be refused: a non-zero exit, and stderr (into `err`) naming `want`.
 void check_refused(const std::string& cmd, const std::string& err, const std::string& want) {
   const int rc = std::system((cmd + " >/dev/null 2>" + err).c_str());
@@ -135,13 +147,7 @@ TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged an
   // which no second start does, each frame fails as ambiguous.
   REQUIRE(run(tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir + "/list.txt --init \"" +
               init + "\" --out " + dir + "/agree.csv --max-disagreement 1e-9") == 0);
-  const auto strict = csv_rows(dir + "/agree.csv");
-  REQUIRE(strict.size() == rows.size());
-  for (std::size_t i = 0; i < strict.size(); ++i) {
-    CAPTURE(i);
-    CHECK(strict[i][8] == "0");
-    if (i < 4) CHECK(strict[i][9].find("ambiguous: a start nearby") != std::string::npos);
-  }
+  check_none_converged(dir + "/agree.csv", rows.size(), "ambiguous: a start nearby");
 }
 
 TEST_CASE("the learned tracker confirms a prediction that is already right instead of calling it diverged") {
@@ -168,23 +174,11 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   const std::string cmd = tl + " track --method nn --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
                           "/list.txt --init \"" + first_truth_pose(dir) + "\" --out " + dir + "/sharp.csv ";
   REQUIRE(run(cmd + "--min-sharpness 1000") == 0);
-  const auto rows = csv_rows(dir + "/sharp.csv");
-  REQUIRE(rows.size() == 12);
-  for (std::size_t i = 0; i < rows.size(); ++i) {
-    CAPTURE(i);
-    CHECK(rows[i][8] == "0");
-    if (i < 4) CHECK(rows[i][9].find("ambiguous") != std::string::npos);
-  }
+  check_none_converged(dir + "/sharp.csv", 12, "ambiguous");
   // --max-disagreement likewise: a same-year second start comes back within microns of a
   // pixel (tests/test_deep_iclk.cpp), never within 1e-9 px, so every frame fails the same way.
   REQUIRE(run(cmd + "--max-disagreement 1e-9") == 0);
-  const auto agree_rows = csv_rows(dir + "/sharp.csv");
-  REQUIRE(agree_rows.size() == 12);
-  for (std::size_t i = 0; i < agree_rows.size(); ++i) {
-    CAPTURE(i);
-    CHECK(agree_rows[i][8] == "0");
-    if (i < 4) CHECK(agree_rows[i][9].find("ambiguous: a start nearby") != std::string::npos);
-  }
+  check_none_converged(dir + "/sharp.csv", 12, "ambiguous: a start nearby");
   check_refused(cmd + "--min-sharpness 1001", dir + "/err.txt", "--min-sharpness '1001' must be in [-1000, 1000]");
   check_refused(cmd + "--max-disagreement -1001", dir + "/err.txt", "--max-disagreement '-1001' must be in [-1000, 1000]");
   check_refused(cmd + "--coarse-search 17", dir + "/err.txt", "--coarse-search '17' must be an integer in [-1, 16]");
