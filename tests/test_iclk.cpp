@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <random>
@@ -466,15 +467,27 @@ TEST_CASE("the residual kernel: AVX2 and scalar agree bit for bit, at the edges,
   for (const auto& [i0, i1] : std::vector<std::pair<int, int>>{{0, n}, {3, 998}, {500, 505}}) {
     std::vector<float> r1(n, 7.0f), r2(n, 7.0f);
     std::vector<unsigned char> ok1(n, 9), ok2(n, 9);
+    std::vector<int> out1(n, -1), out2(n, -1);
     Se3EvalSums s1{}, s2{};
+    in.out = out1.data();
     evaluate_se3_scalar(in, i0, i1, r1.data(), ok1.data(), s1);
+    in.out = out2.data();
     evaluate_se3_avx2(in, i0, i1, r2.data(), ok2.data(), s2);
     CHECK(std::memcmp(r1.data(), r2.data(), n * sizeof(float)) == 0);
     CHECK(ok1 == ok2);
     CHECK(std::memcmp(&s1, &s2, sizeof s1) == 0);
+    CHECK(out1 == out2);
     int landed = 0;
-    for (int i = i0; i < i1; ++i) landed += ok1[static_cast<std::size_t>(i)];
+    std::vector<int> left;
+    for (int i = i0; i < i1; ++i) {
+      landed += ok1[static_cast<std::size_t>(i)];
+      if (!ok1[static_cast<std::size_t>(i)]) left.push_back(i);
+    }
     CHECK(s1.valid == landed);
+    // The list names exactly the pixels that did not land, in order, and nothing more.
+    REQUIRE(s1.n_out == static_cast<int>(left.size()));
+    CHECK(std::equal(left.begin(), left.end(), out1.begin()));
+    CHECK(out1[left.size()] == -1);
     if (i1 - i0 > 100) {  // the case is not degenerate: some land, some do not
       CHECK(landed > (i1 - i0) / 4);
       CHECK(landed < i1 - i0);
@@ -487,6 +500,72 @@ TEST_CASE("the residual kernel: AVX2 and scalar agree bit for bit, at the edges,
 #else
   MESSAGE("built without the AVX2 kernel");
 #endif
+}
+
+TEST_CASE("the J^T W J kernels: AVX2 and scalar agree bit for bit, and with a plain sum in double") {
+  using namespace detail;
+  const int n = 1003;
+  std::vector<float> w(n), jac[6];
+  std::mt19937 rng(8);
+  std::uniform_real_distribution<float> U(-1, 1);
+  for (int i = 0; i < n; ++i) w[static_cast<std::size_t>(i)] = i % 7 == 0 ? 0.0f : i % 11 == 0 ? -1.0f : 1.5f + U(rng);
+  w[13] = NAN;
+  for (auto& j : jac) {
+    j.resize(n);
+    for (auto& v : j) v = 10 * U(rng);
+  }
+  jac[2][21] = INFINITY;  // on a pixel of weight 0: it must add nothing, not NaN
+  jac[4][22] = NAN;       // on a pixel of negative weight, likewise
+  const float* J[6];
+  for (int a = 0; a < 6; ++a) J[a] = jac[a].data();
+  std::vector<int> index;
+  for (int i = n - 1; i >= 0; i -= 3) index.push_back(i);  // any order, any gaps
+  // The reference: a plain sum over the pixels whose weight is > 0.
+  auto plain = [&](auto pixels) {
+    double h[21] = {};
+    for (int i : pixels) {
+      const double wd = static_cast<double>(w[static_cast<std::size_t>(i)]);
+      if (!(wd > 0)) continue;
+      int e = 0;
+      for (int a = 0; a < 6; ++a)
+        for (int b = 0; b <= a; ++b, ++e) h[e] += wd * static_cast<double>(jac[a][static_cast<std::size_t>(i)]) * static_cast<double>(jac[b][static_cast<std::size_t>(i)]);
+    }
+    return std::vector<double>(h, h + 21);
+  };
+  auto lanes = [](const OuterSums& s) {
+    std::vector<double> h(21, 0.0);
+    for (int e = 0; e < 21; ++e)
+      for (double v : s.h[e]) h[static_cast<std::size_t>(e)] += v;
+    return h;
+  };
+  // Sums of up to 1000 terms of size <= 300 in double, in another order: within 1e-12 of the
+  // largest entry (the rounding of each order is about 1000 x 1.1e-16 of it).
+  auto close = [](const std::vector<double>& a, const std::vector<double>& b) {
+    double big = 0;
+    for (double v : b) big = std::max(big, std::abs(v));
+    for (std::size_t e = 0; e < a.size(); ++e)
+      if (!(std::abs(a[e] - b[e]) <= 1e-12 * big)) return false;
+    return big > 0;
+  };
+  for (const auto& [i0, i1] : std::vector<std::pair<int, int>>{{0, n}, {3, 998}, {500, 502}}) {
+    std::vector<int> range;
+    for (int i = i0; i < i1; ++i) range.push_back(i);
+    OuterSums s1{}, s3{};
+    outer_sums_scalar(J, w.data(), i0, i1, s1);
+    CHECK(close(lanes(s1), plain(range)));
+    const int count = static_cast<int>(std::min<std::size_t>(index.size(), static_cast<std::size_t>(i1 - i0)));
+    outer_sums_at_scalar(J, w.data(), index.data(), count, s3);
+    CHECK(close(lanes(s3), plain(std::vector<int>(index.begin(), index.begin() + count))));
+#if defined(TERRALIGN_ICLK_AVX2)
+    if (cpu_features().avx2_fma) {
+      OuterSums s2{}, s4{};
+      outer_sums_avx2(J, w.data(), i0, i1, s2);
+      outer_sums_at_avx2(J, w.data(), index.data(), count, s4);
+      CHECK(std::memcmp(&s1, &s2, sizeof s1) == 0);
+      CHECK(std::memcmp(&s3, &s4, sizeof s3) == 0);
+    }
+#endif
+  }
 }
 
 TEST_CASE("an alignment allocates nothing after set-up") {

@@ -38,7 +38,7 @@ void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
   const __m256 cxv = _mm256_set1_ps(in.cx), cyv = _mm256_set1_ps(in.cy);
   __m256 g[6], cost = zero, wsum = zero;
   for (auto& v : g) v = zero;
-  int valid = 0;
+  int valid = 0, n_out = 0;
   for (int i = i0; i < i1; i += kLanes) {
     const int n = std::min(kLanes, i1 - i);
     const __m256i load = _mm256_cmpgt_epi32(_mm256_set1_epi32(n), lane_index);
@@ -79,6 +79,8 @@ void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
     wsum = _mm256_add_ps(wsum, w);
     const int bits = _mm256_movemask_ps(inside);
     valid += __builtin_popcount(static_cast<unsigned>(bits));
+    for (unsigned left = ~static_cast<unsigned>(bits) & ((1u << n) - 1u); left != 0; left &= left - 1u)
+      in.out[n_out++] = i + __builtin_ctz(left);
     if (n == kLanes) {
       _mm256_storeu_ps(r + i, res);
       // The eight mask bits spread to eight bytes of 0 or 1.
@@ -94,6 +96,51 @@ void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
   _mm256_storeu_ps(s.cost, cost);
   _mm256_storeu_ps(s.wsum, wsum);
   s.valid = valid;
+  s.n_out = n_out;
+}
+
+namespace {
+
+// Pixels k of [0, count) in lane k mod kOuterLanes; get(p, k, n) loads the floats of pixels
+// k .. k + n - 1 of array p (zeros past n), four of them.
+template <class Get>
+void outer_sums(const float* const* jac, const float* w, int count, Get get, OuterSums& h) {
+  const __m256d zero = _mm256_setzero_pd();
+  __m256d acc[21];
+  for (int e = 0; e < 21; ++e) acc[e] = _mm256_loadu_pd(h.h[e]);
+  for (int k = 0; k < count; k += kOuterLanes) {
+    const int n = std::min(kOuterLanes, count - k);
+    const __m256d wv = _mm256_cvtps_pd(get(w, k, n));
+    const __m256d use = _mm256_cmp_pd(wv, zero, _CMP_GT_OQ);  // zeros past the end do not pass
+    const __m256d wd = _mm256_and_pd(wv, use);
+    __m256d j[6];
+    for (int a = 0; a < 6; ++a) j[a] = _mm256_and_pd(_mm256_cvtps_pd(get(jac[a], k, n)), use);
+    int e = 0;
+    for (int a = 0; a < 6; ++a) {
+      const __m256d wj = _mm256_mul_pd(wd, j[a]);
+      for (int b = 0; b <= a; ++b, ++e) acc[e] = _mm256_add_pd(acc[e], _mm256_mul_pd(wj, j[b]));
+    }
+  }
+  for (int e = 0; e < 21; ++e) _mm256_storeu_pd(h.h[e], acc[e]);
+}
+
+inline __m128i first_lanes(int n) { return _mm_cmpgt_epi32(_mm_set1_epi32(n), _mm_setr_epi32(0, 1, 2, 3)); }
+
+}  // namespace
+
+void outer_sums_avx2(const float* const* jac, const float* w, int i0, int i1, OuterSums& h) {
+  outer_sums(jac, w, i1 - i0, [i0](const float* p, int k, int n) {
+    return n == kOuterLanes ? _mm_loadu_ps(p + i0 + k) : _mm_maskload_ps(p + i0 + k, first_lanes(n));
+  }, h);
+}
+
+void outer_sums_at_avx2(const float* const* jac, const float* w, const int* index, int count, OuterSums& h) {
+  outer_sums(jac, w, count, [index](const float* p, int k, int n) {
+    if (n == kOuterLanes) return _mm_i32gather_ps(p, _mm_loadu_si128(reinterpret_cast<const __m128i*>(index + k)), 4);
+    const __m128i m = first_lanes(n);
+    const __m128i idx = _mm_and_si128(_mm_maskload_epi32(index + k, m), m);
+    return _mm_mask_i32gather_ps(_mm_setzero_ps(), p, idx, _mm_castsi128_ps(m), 4);
+  }, h);
 }
 
 }  // namespace terralign::iclk::detail

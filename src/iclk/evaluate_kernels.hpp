@@ -26,6 +26,7 @@ struct Se3EvalInput {
   int width, height;          // live level size
   float R[9], t[3];           // T_live_ref, row-major rotation
   float fx, fy, cx, cy;
+  int* out;                   // where the pixels that do not land are listed, in order
 };
 
 struct Se3EvalSums {
@@ -33,14 +34,29 @@ struct Se3EvalSums {
   float cost[kLanes];
   float wsum[kLanes];
   int valid;
+  int n_out;  // entries written to out: i1 - i0 - valid
 };
 
-// Pixels [i0, i1): writes r[i] (0 where the pixel did not land) and ok[i], fills `sums`
+// Pixels [i0, i1): writes r[i] (0 where the pixel did not land), ok[i] and the list of
+// those that did not, fills `sums`
 // (the signature is detail::Se3EvalFn, declared with the tracker).
 
 void evaluate_se3_scalar(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
 #if defined(TERRALIGN_ICLK_AVX2)
 void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
+#endif
+
+// J^T W J of one channel over pixels [i0, i1), added to `h` (the signature is
+// detail::OuterSumsFn): entry k of the lower half (row by row: (0,0), (1,0), (1,1), ...) of
+// pixel i goes to lane (i - i0) mod kOuterLanes, as (w_i J_ia) J_ib in double. A pixel whose
+// weight is not > 0 adds +0, whatever its Jacobian holds.
+void outer_sums_scalar(const float* const* jac, const float* w, int i0, int i1, OuterSums& h);
+// Likewise over the pixels index[0 .. count), index[k] in lane k mod kOuterLanes
+// (detail::OuterSumsAtFn): the pixels that left the image, in evaluate().
+void outer_sums_at_scalar(const float* const* jac, const float* w, const int* index, int count, OuterSums& h);
+#if defined(TERRALIGN_ICLK_AVX2)
+void outer_sums_avx2(const float* const* jac, const float* w, int i0, int i1, OuterSums& h);
+void outer_sums_at_avx2(const float* const* jac, const float* w, const int* index, int count, OuterSums& h);
 #endif
 
 }  // namespace terralign::iclk::detail

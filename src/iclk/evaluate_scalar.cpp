@@ -11,6 +11,7 @@ void evaluate_se3_scalar(const Se3EvalInput& in, int i0, int i1, float* r, unsig
   std::fill(s.cost, s.cost + kLanes, 0.0f);
   std::fill(s.wsum, s.wsum + kLanes, 0.0f);
   s.valid = 0;
+  s.n_out = 0;
   const float* R = in.R;
   const float umax = static_cast<float>(in.width - 1), vmax = static_cast<float>(in.height - 1);
   for (int i = i0; i < i1; ++i) {
@@ -35,12 +36,43 @@ void evaluate_se3_scalar(const Se3EvalInput& in, int i0, int i1, float* r, unsig
       w = in.w[i];
       wr = w * res;
       ++s.valid;
+    } else {
+      in.out[s.n_out++] = i;
     }
     r[i] = res;
     for (int k = 0; k < 6; ++k) s.g[k][lane] += wr * in.jac[k][i];
     s.cost[lane] += wr * res;
     s.wsum[lane] += w;
   }
+}
+
+namespace {
+
+// Pixel at(k) of k in [0, count) into lane k mod kOuterLanes.
+template <class At>
+void outer_sums(const float* const* jac, const float* w, int count, At at, OuterSums& h) {
+  for (int k = 0; k < count; ++k) {
+    const int i = at(k), lane = k % kOuterLanes;
+    const bool use = w[i] > 0.0f;  // NaN compares false
+    const double wd = use ? static_cast<double>(w[i]) : 0.0;
+    double j[6];
+    for (int a = 0; a < 6; ++a) j[a] = use ? static_cast<double>(jac[a][i]) : 0.0;
+    int e = 0;
+    for (int a = 0; a < 6; ++a) {
+      const double wj = wd * j[a];
+      for (int b = 0; b <= a; ++b) h.h[e++][lane] += wj * j[b];
+    }
+  }
+}
+
+}  // namespace
+
+void outer_sums_scalar(const float* const* jac, const float* w, int i0, int i1, OuterSums& h) {
+  outer_sums(jac, w, i1 - i0, [i0](int k) { return i0 + k; }, h);
+}
+
+void outer_sums_at_scalar(const float* const* jac, const float* w, const int* index, int count, OuterSums& h) {
+  outer_sums(jac, w, count, [index](int k) { return index[k]; }, h);
 }
 
 }  // namespace terralign::iclk::detail

@@ -90,6 +90,7 @@ Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& option
   jac_stride_ = n;
   abs_.resize(n);
   partials_.resize(n / kChunk + 1);
+  if (kSe3Kernel) out_index_.resize(partials_.size() * kChunk);
   bands_.resize(kBands);
   pick_.resize(n);  // blocks of one pixel at the finest level at most
   pool_ = std::make_unique<ThreadPool>(std::max(1, opt_.threads));
@@ -104,6 +105,18 @@ void Tracker<S, Warp, C>::pick_kernel() {
     se3_kernel_ = detail::evaluate_se3_scalar;
 #if defined(TERRALIGN_ICLK_AVX2)
     if (opt_.simd && cpu_features().avx2_fma) se3_kernel_ = detail::evaluate_se3_avx2;
+#endif
+  }
+  outer_kernel_ = nullptr;
+  outer_at_kernel_ = nullptr;
+  if constexpr (kOuterKernel) {
+    outer_kernel_ = detail::outer_sums_scalar;
+    outer_at_kernel_ = detail::outer_sums_at_scalar;
+#if defined(TERRALIGN_ICLK_AVX2)
+    if (opt_.simd && cpu_features().avx2_fma) {
+      outer_kernel_ = detail::outer_sums_avx2;
+      outer_at_kernel_ = detail::outer_sums_at_avx2;
+    }
 #endif
   }
 }
@@ -330,11 +343,33 @@ void Tracker<S, Warp, C>::hessian(int n, Eigen::Matrix<double, DoF, DoF>& H) {
     auto* x = static_cast<Ctx*>(c);
     Partial& P = x->t->partials_[static_cast<std::size_t>(chunk)];  // its H_out as the chunk's sum
     P.H_out.setZero();
-    for (int i = chunk * kChunk; i < std::min(x->n, (chunk + 1) * kChunk); ++i) x->t->add_outer(P, i);
+    const int i0 = chunk * kChunk, i1 = std::min(x->n, (chunk + 1) * kChunk);
+    if constexpr (kOuterKernel) {
+      x->t->outer_kernel_sum(P, i0, i1, nullptr, 0);
+    } else {
+      for (int i = i0; i < i1; ++i) x->t->add_outer(P, i);
+    }
   }, &ctx);
   H.setZero();
   for (int i = 0; i < chunks; ++i) H += partials_[static_cast<std::size_t>(i)].H_out;
   H = H.template selfadjointView<Eigen::Lower>();
+}
+
+template <class S, class Warp, int C>
+void Tracker<S, Warp, C>::outer_kernel_sum(Partial& P, int i0, int i1, const int* index, int count) {
+  if constexpr (kOuterKernel) {
+    detail::OuterSums sums{};
+    for (int c = 0; c < C; ++c) {
+      const float* J[DoF];
+      for (int a = 0; a < DoF; ++a) J[a] = &jac(0, c, a);
+      if (index) outer_at_kernel_(J, w_.data(), index, count, sums);
+      else outer_kernel_(J, w_.data(), i0, i1, sums);
+    }
+    int k = 0;
+    for (int a = 0; a < DoF; ++a)
+      for (int b = 0; b <= a; ++b, ++k)
+        for (int l = 0; l < detail::kOuterLanes; ++l) P.H_out(a, b) += sums.h[k][l];
+  }
 }
 
 template <class S, class Warp, int C>
@@ -367,6 +402,7 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
     in.fy = K.fy;
     in.cx = K.cx;
     in.cy = K.cy;
+    in.out = out_index_.data() + static_cast<std::size_t>(chunk) * kChunk;
     detail::Se3EvalSums sums;
     se3_kernel_(in, i0, i1, r_.data(), ok_.data(), sums);
     // Lanes combined in lane order, in double.
@@ -377,8 +413,7 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
     }
     P.valid = sums.valid;
     if (sums.valid == i1 - i0) return;  // every pixel landed: nothing leaves H
-    for (int i = i0; i < i1; ++i)
-      if (!ok_[static_cast<std::size_t>(i)]) add_outer(P, i);
+    outer_kernel_sum(P, 0, 0, in.out, sums.n_out);
     return;
   }
   // Within a chunk the sums run in S (float: vectorisable, and 2048 terms lose less than the

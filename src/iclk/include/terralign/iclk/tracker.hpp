@@ -45,6 +45,13 @@ struct Se3EvalSums;
 // The residual kernel of the 6-DoF warp on one float channel (src/iclk/evaluate_kernels.hpp):
 // pixels [i0, i1), writes r and ok, fills the lane sums.
 using Se3EvalFn = void (*)(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
+// The lower half of a 6 x 6 J^T W J in lanes of double (evaluate_kernels.hpp).
+constexpr int kOuterLanes = 4;
+struct OuterSums {
+  double h[21][kOuterLanes];
+};
+using OuterSumsFn = void (*)(const float* const* jac, const float* w, int i0, int i1, OuterSums& h);
+using OuterSumsAtFn = void (*)(const float* const* jac, const float* w, const int* index, int count, OuterSums& h);
 }  // namespace detail
 
 enum class Robust { None, Huber, Tukey };
@@ -309,6 +316,14 @@ class Tracker {
   // The 6-DoF warp on one float channel has a vector kernel (evaluate_kernels.hpp).
   static constexpr bool kSe3Kernel = std::is_same_v<S, float> && std::is_same_v<Warp, SE3DepthWarp<float>> && C == 1;
   detail::Se3EvalFn se3_kernel_ = nullptr;
+  // J^T W J of the 6-DoF float trackers has one too, whatever the warp and channels.
+  static constexpr bool kOuterKernel = std::is_same_v<S, float> && DoF == 6;
+  detail::OuterSumsFn outer_kernel_ = nullptr;
+  detail::OuterSumsAtFn outer_at_kernel_ = nullptr;
+  std::vector<int> out_index_;  // per chunk, kChunk entries: the pixels that left (evaluate_chunk())
+  // J^T W J through the kernels into P.H_out: of pixels [i0, i1), or of index[0 .. count)
+  // when index is set; the lanes combined in lane order, so every build gives the same bits.
+  void outer_kernel_sum(Partial& P, int i0, int i1, const int* index, int count);
   void pick_kernel();
   TrackResult<Warp> result_;
 };
