@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
@@ -246,6 +247,27 @@ void Tracker<S, Warp, C>::pick_band(int level, Band& band) {
     return true;
   };
   band.count = 0;
+  if (block == 1) {
+    // Every pixel whose 3x3 neighbourhood has depth, without a branch per pixel (what the
+    // loop below picks when blocks are single pixels).
+    auto finite = [](float d) { return std::abs(d) <= std::numeric_limits<float>::max(); };  // NaN: false
+    for (int row = band.row0; row < band.row1; ++row) {
+      const int y = 1 + row;
+      const ImageView<const float> D = L.depth.view();
+      const float *a = D.row(y - 1), *b = D.row(y), *c = D.row(y + 1);
+      int* pick = pick_.data() + static_cast<std::size_t>(row) * static_cast<std::size_t>(pick_cols_);
+      int count = 0;
+      for (int col = 0; col < pick_cols_; ++col) {
+        const int x = 1 + col;
+        bool ok = true;
+        for (int dx = -1; dx <= 1; ++dx) ok = ok & finite(a[x + dx]) & finite(b[x + dx]) & finite(c[x + dx]);
+        pick[col] = ok ? y * L.w + x : -1;
+        count += ok;
+      }
+      band.count += count;
+    }
+    return;
+  }
   for (int row = band.row0; row < band.row1; ++row) {
     const int by = 1 + row * block;
     for (int col = 0; col < pick_cols_; ++col) {
