@@ -518,8 +518,12 @@ TEST_CASE("the J^T W J kernels: AVX2 and scalar agree bit for bit, and with a pl
   jac[4][22] = NAN;       // on a pixel of negative weight, likewise
   const float* J[6];
   for (int a = 0; a < 6; ++a) J[a] = jac[a].data();
-  std::vector<int> index;
-  for (int i = n - 1; i >= 0; i -= 3) index.push_back(i);  // any order, any gaps
+  // Lists in any order with any gaps, and runs of consecutive pixels (of 1 to 9, which the
+  // AVX2 kernel loads plainly where four are in a row).
+  std::vector<int> down, runs;
+  for (int i = n - 1; i >= 0; i -= 3) down.push_back(i);
+  for (int i = 0, len = 1; i < n; i += len + 2, len = len % 9 + 1)
+    for (int k = i; k < std::min(i + len, n); ++k) runs.push_back(k);
   // The reference: a plain sum over the pixels whose weight is > 0.
   auto plain = [&](auto pixels) {
     double h[21] = {};
@@ -550,21 +554,29 @@ TEST_CASE("the J^T W J kernels: AVX2 and scalar agree bit for bit, and with a pl
   for (const auto& [i0, i1] : std::vector<std::pair<int, int>>{{0, n}, {3, 998}, {500, 502}}) {
     std::vector<int> range;
     for (int i = i0; i < i1; ++i) range.push_back(i);
-    OuterSums s1{}, s3{};
+    OuterSums s1{};
     outer_sums_scalar(J, w.data(), i0, i1, s1);
     CHECK(close(lanes(s1), plain(range)));
-    const int count = static_cast<int>(std::min<std::size_t>(index.size(), static_cast<std::size_t>(i1 - i0)));
-    outer_sums_at_scalar(J, w.data(), index.data(), count, s3);
-    CHECK(close(lanes(s3), plain(std::vector<int>(index.begin(), index.begin() + count))));
 #if defined(TERRALIGN_ICLK_AVX2)
     if (cpu_features().avx2_fma) {
-      OuterSums s2{}, s4{};
+      OuterSums s2{};
       outer_sums_avx2(J, w.data(), i0, i1, s2);
-      outer_sums_at_avx2(J, w.data(), index.data(), count, s4);
       CHECK(std::memcmp(&s1, &s2, sizeof s1) == 0);
-      CHECK(std::memcmp(&s3, &s4, sizeof s3) == 0);
     }
 #endif
+    for (const auto* index : {&down, &runs}) {
+      const int count = static_cast<int>(std::min<std::size_t>(index->size(), static_cast<std::size_t>(i1 - i0)));
+      OuterSums s3{};
+      outer_sums_at_scalar(J, w.data(), index->data(), count, s3);
+      CHECK(close(lanes(s3), plain(std::vector<int>(index->begin(), index->begin() + count))));
+#if defined(TERRALIGN_ICLK_AVX2)
+      if (cpu_features().avx2_fma) {
+        OuterSums s4{};
+        outer_sums_at_avx2(J, w.data(), index->data(), count, s4);
+        CHECK(std::memcmp(&s3, &s4, sizeof s3) == 0);
+      }
+#endif
+    }
   }
 }
 

@@ -135,8 +135,15 @@ void outer_sums_avx2(const float* const* jac, const float* w, int i0, int i1, Ou
 }
 
 void outer_sums_at_avx2(const float* const* jac, const float* w, const int* index, int count, OuterSums& h) {
-  outer_sums(jac, w, count, [index](const float* p, int k, int n) {
-    if (n == kOuterLanes) return _mm_i32gather_ps(p, _mm_loadu_si128(reinterpret_cast<const __m128i*>(index + k)), 4);
+  const __m128i steps = _mm_setr_epi32(0, 1, 2, 3);
+  outer_sums(jac, w, count, [index, steps](const float* p, int k, int n) {
+    if (n == kOuterLanes) {
+      // The pixels that leave come in runs along rows: four consecutive ones load plainly.
+      const __m128i idx = _mm_loadu_si128(reinterpret_cast<const __m128i*>(index + k));
+      const __m128i run = _mm_cmpeq_epi32(_mm_sub_epi32(idx, _mm_set1_epi32(index[k])), steps);
+      if (_mm_movemask_epi8(run) == 0xFFFF) return _mm_loadu_ps(p + index[k]);
+      return _mm_i32gather_ps(p, idx, 4);
+    }
     const __m128i m = first_lanes(n);
     const __m128i idx = _mm_and_si128(_mm_maskload_epi32(index + k, m), m);
     return _mm_mask_i32gather_ps(_mm_setzero_ps(), p, idx, _mm_castsi128_ps(m), 4);
