@@ -317,6 +317,34 @@ void Tracker<S, Warp, C>::write_band(int level, const Pinhole<S>& K, Band& band)
   band.motion.setZero();
   band.floor.setZero();
   band.radius2 = 0;
+  // Finest level: motion0_'s share (dW^T dW, lower half) and floor0_'s (dW^T modes, the modes
+  // of the registration floor), summed in S over lanes (the band's k-th pixel in lane k mod
+  // kLanes, 8 pixels' dW gathered first so the sums vectorise), then in double in lane order.
+  // In float, each lane sums at most a band's pixels / 8 terms of one sign pattern: about
+  // 1e-5 relative, far inside what rms_motion_px() and the floor are used for.
+  constexpr int kLanes = 8, kPairs = DoF * (DoF + 1) / 2;
+  S motion[kPairs][kLanes] = {}, floor[DoF][4][kLanes] = {};
+  S wu[DoF][kLanes] = {}, wv[DoF][kLanes] = {}, mu[kLanes] = {}, mv[kLanes] = {};
+  int lanes = 0;
+  auto add_lanes = [&]() {
+    for (int l = lanes; l < kLanes; ++l) {  // unused lanes add zero
+      for (int a = 0; a < DoF; ++a) wu[a][l] = wv[a][l] = S(0);
+      mu[l] = mv[l] = S(0);
+    }
+    int e = 0;
+    for (int a = 0; a < DoF; ++a)
+      for (int b = 0; b <= a; ++b, ++e)
+        for (int l = 0; l < kLanes; ++l) motion[e][l] += wu[a][l] * wu[b][l] + wv[a][l] * wv[b][l];
+    for (int a = 0; a < DoF; ++a)
+      for (int l = 0; l < kLanes; ++l) {
+        // modes: u {1, 0, -dv, du}, v {0, 1, du, dv}
+        floor[a][0][l] += wu[a][l];
+        floor[a][1][l] += wv[a][l];
+        floor[a][2][l] += wv[a][l] * mu[l] - wu[a][l] * mv[l];
+        floor[a][3][l] += wu[a][l] * mu[l] + wv[a][l] * mv[l];
+      }
+    lanes = 0;
+  };
   int n = band.offset;
   const int* pick = pick_.data() + static_cast<std::size_t>(band.row0) * static_cast<std::size_t>(pick_cols_);
   const int blocks = (band.row1 - band.row0) * pick_cols_;
@@ -328,15 +356,14 @@ void Tracker<S, Warp, C>::write_band(int level, const Pinhole<S>& K, Band& band)
     const Vec3<S> X(d * (u - K.cx) / K.fx, d * (v - K.cy) / K.fy, d);
     const typename Warp::Jac dW = Warp::d_warp_d_xi(X, u, v, K);
     if (level == 0) {
-      // motion0_ += dW^T dW (lower half) and floor0_ += dW^T modes, written out: Eigen's
-      // general products cost more per pixel than the arithmetic.
-      const double du = static_cast<double>(u - K.cx), dv = static_cast<double>(v - K.cy);
-      const double modes[2][4] = {{1, 0, -dv, du}, {0, 1, du, dv}};
       for (int a = 0; a < DoF; ++a) {
-        const double wu = static_cast<double>(dW(0, a)), wv = static_cast<double>(dW(1, a));
-        for (int b = 0; b <= a; ++b) band.motion(a, b) += wu * static_cast<double>(dW(0, b)) + wv * static_cast<double>(dW(1, b));
-        for (int m = 0; m < 4; ++m) band.floor(a, m) += wu * modes[0][m] + wv * modes[1][m];
+        wu[a][lanes] = dW(0, a);
+        wv[a][lanes] = dW(1, a);
       }
+      mu[lanes] = u - K.cx;
+      mv[lanes] = v - K.cy;
+      if (++lanes == kLanes) add_lanes();
+      const double du = static_cast<double>(u - K.cx), dv = static_cast<double>(v - K.cy);
       band.radius2 += du * du + dv * dv;
     }
     for (int c = 0; c < C; ++c) {
@@ -351,6 +378,16 @@ void Tracker<S, Warp, C>::write_band(int level, const Pinhole<S>& K, Band& band)
     py_[static_cast<std::size_t>(n)] = X.y();
     pz_[static_cast<std::size_t>(n)] = X.z();
     ++n;
+  }
+  if (level == 0) {
+    if (lanes > 0) add_lanes();
+    int e = 0;
+    for (int a = 0; a < DoF; ++a) {
+      for (int b = 0; b <= a; ++b, ++e)
+        for (int l = 0; l < kLanes; ++l) band.motion(a, b) += static_cast<double>(motion[e][l]);
+      for (int m = 0; m < 4; ++m)
+        for (int l = 0; l < kLanes; ++l) band.floor(a, m) += static_cast<double>(floor[a][m][l]);
+    }
   }
 }
 
