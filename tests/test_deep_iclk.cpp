@@ -182,7 +182,13 @@ TEST_CASE("learned tracker: the converged tests read their thresholds from the w
     CHECK(std::string(strict.reason).rfind("ambiguous", 0) == 0);
     CHECK(strict.params.t.norm() == 0.0f);
   }
-  CHECK(run(-1, -1).converged);
+  const auto off = run(-1, -1);
+  CHECK(off.converged);
+  // With its test off the sharpness probe does not run (0: not measured), and the answer is
+  // the one the probe's run gave: the probe only measures.
+  CHECK(off.sharpness == 0);
+  CHECK(off.params.R == right.params.R);
+  CHECK(off.params.t == right.params.t);
   // A weight file with a malformed threshold is refused, naming the line.
   for (const char* line : {"# min-sharpness nan", "# max-disagreement-px 0"}) {
     auto refused = iclk::DeepAligner::create(with_line(shipped, line), p.ref.width(), p.ref.height(), options(), 1);

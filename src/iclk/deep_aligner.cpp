@@ -146,7 +146,6 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   o.normalize = true;
   o.block.fill(1);
   o.robust = iclk::Robust::None;
-  if (o.probe_px == 0) o.probe_px = kProbePx;
   if (o.agree_px == 0) o.agree_px = kAgreePx;
   if (o.coarse_search_px == 0) o.coarse_search_px = kCoarseSearchPx;
   if (o.coarse_search_yaw_deg == 0) o.coarse_search_yaw_deg = kCoarseSearchYawDeg;
@@ -157,6 +156,9 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   if (o.max_disagreement_px == 0) {
     TERRALIGN_TRY_ASSIGN(o.max_disagreement_px, DeepAligner::max_disagreement(weights));
   }
+  // The sharpness probe (four finest-level residuals, about 2 % of a pair) runs where its test
+  // is on, or where the caller asks for the measure (probe_px > 0: eval); negative: never.
+  if (o.probe_px == 0 && o.min_sharpness > 0) o.probe_px = kProbePx;
   // Every pixel of four levels: enough work per iteration for the threads to pay off
   // (unlike the sparse classical selection); chunked sums keep the result thread-count free.
   o.threads = threads;

@@ -208,7 +208,11 @@ int run_eval(const std::vector<std::string>& argv) {
   if (std::any_of(methods.begin(), methods.end(), [](const Method& m) { return m.learned; })) {
     auto w = learned_weights(args.value());
     if (!w.ok()) return fail(w.error());
-    auto l = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value(), &w.value(), sizes);
+    // eval reports each answer's sharpness (--json; training/calibrate_sharpness.py reads it),
+    // so its probe runs here whether or not the test is on (align and track skip it then).
+    iclk::TrackerOptions lopt = opt;
+    lopt.probe_px = iclk::DeepAligner::kProbePx;
+    auto l = Localizer::create(map.value(), cam, args->get("ref-layer"), lopt, threads.value(), &w.value(), sizes);
     if (!l.ok()) return fail(l.error());
     learned = std::move(l.value());
   }

@@ -34,7 +34,8 @@ class DeepAligner : public iclk::LevelWeights {
   // away): its threshold comes from the weight file (`# min-sharpness X`, written by
   // training/calibrate_sharpness.py for those weights: the features of each network differ)
   // unless the options set one (a negative min_sharpness turns it off); weights without the
-  // line have no test.
+  // line have no test. The measure is taken where the test is on or the options' probe_px
+  // asks for it (0 in TrackResult::sharpness otherwise).
   static constexpr double kProbePx = 2.0;
   // The agreement test (iclk::TrackResult::disagreement_px: where a second start kAgreePx
   // working pixels away in u and in v settles, after up to 10 finest-level steps): its
