@@ -31,6 +31,7 @@ void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
   const __m256i xmax = _mm256_set1_epi32(in.width - 2), ymax = _mm256_set1_epi32(in.height - 2);
   const __m256i stride = _mm256_set1_epi32(static_cast<int>(in.stride));
   const __m256i lane_index = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256i all_ones = _mm256_set1_epi32(-1), seven = _mm256_set1_epi32(kLanes - 1);
   __m256 R[9], t[3];
   for (int k = 0; k < 9; ++k) R[k] = _mm256_set1_ps(in.R[k]);
   for (int k = 0; k < 3; ++k) t[k] = _mm256_set1_ps(in.t[k]);
@@ -63,10 +64,27 @@ void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
     const __m256i y0 = _mm256_min_epi32(_mm256_cvttps_epi32(v), ymax);
     const __m256 fx = _mm256_sub_ps(u, _mm256_cvtepi32_ps(x0)), fy = _mm256_sub_ps(v, _mm256_cvtepi32_ps(y0));
     const __m256i idx = _mm256_add_epi32(_mm256_mullo_epi32(y0, stride), x0);
-    // Each pixel's two horizontal neighbours as one 64-bit load: half the gathered elements.
     __m256 a, b, c, d;
-    pairs(in.live, idx, a, b);
-    pairs(in.live + in.stride, idx, c, d);
+    // Neighbouring reference pixels land near each other: where the eight lanes share a row
+    // and their columns lie at most 7 right of lane 0's (none left of it), each tap is a
+    // permutation of one 8-float load (from that row or the next, at lane 0's column or one
+    // right of it). The same values as the gathers below (lanes that did not land sit at
+    // (0, 0), which rarely passes).
+    const int bx = _mm256_cvtsi256_si32(x0), by = _mm256_cvtsi256_si32(y0);
+    const __m256i dx = _mm256_sub_epi32(x0, _mm256_set1_epi32(bx));
+    const __m256i off_row = _mm256_xor_si256(_mm256_cmpeq_epi32(y0, _mm256_set1_epi32(by)), all_ones);
+    const __m256i off_window = _mm256_or_si256(_mm256_cmpgt_epi32(dx, seven), _mm256_cmpgt_epi32(_mm256_setzero_si256(), dx));
+    if (bx + kLanes + 1 <= in.width && _mm256_testz_si256(_mm256_or_si256(off_row, off_window), all_ones)) {
+      const float* window = in.live + static_cast<std::ptrdiff_t>(by) * in.stride + bx;
+      a = _mm256_permutevar8x32_ps(_mm256_loadu_ps(window), dx);
+      b = _mm256_permutevar8x32_ps(_mm256_loadu_ps(window + 1), dx);
+      c = _mm256_permutevar8x32_ps(_mm256_loadu_ps(window + in.stride), dx);
+      d = _mm256_permutevar8x32_ps(_mm256_loadu_ps(window + in.stride + 1), dx);
+    } else {
+      // Each pixel's two horizontal neighbours as one 64-bit load: half the gathered elements.
+      pairs(in.live, idx, a, b);
+      pairs(in.live + in.stride, idx, c, d);
+    }
     const __m256 gx = _mm256_sub_ps(one, fx);
     const __m256 top = _mm256_add_ps(_mm256_mul_ps(gx, a), _mm256_mul_ps(fx, b));
     const __m256 bot = _mm256_add_ps(_mm256_mul_ps(gx, c), _mm256_mul_ps(fx, d));
