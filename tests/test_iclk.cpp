@@ -418,84 +418,109 @@ TEST_CASE("1, 2 and 3 threads, and the scalar and AVX2 residual kernels, give th
   }
 }
 
+#if defined(TERRALIGN_ICLK_AVX2)
+// The residual kernel's inputs: a W x H live image and n reference points, values, weights
+// and Jacobians (the caller places the points and sets the weights), seen through K =
+// (40, 40, 30, 18) and a pose set with pose().
+struct KernelCase {
+  int W, H, n;
+  std::vector<float> px, py, pz, val, w, live, jac[6];
+  detail::Se3EvalInput in{};
+  KernelCase(int width, int height, int count, std::mt19937& rng, float jac_scale)
+      : W(width), H(height), n(count), px(n), py(n), pz(n), val(n), w(n), live(static_cast<std::size_t>(W) * H) {
+    std::uniform_real_distribution<float> U(-1, 1);
+    for (auto& v : live) v = U(rng);
+    for (auto& v : val) v = U(rng);
+    for (auto& j : jac) {
+      j.resize(static_cast<std::size_t>(n));
+      for (auto& v : j) v = jac_scale * U(rng);
+    }
+    in.px = px.data();
+    in.py = py.data();
+    in.pz = pz.data();
+    in.val = val.data();
+    in.w = w.data();
+    for (int k = 0; k < 6; ++k) in.jac[k] = jac[k].data();
+    in.live = live.data();
+    in.stride = W;
+    in.width = W;
+    in.height = H;
+    in.fx = in.fy = 40.0f;
+    in.cx = 30.0f;
+    in.cy = 18.0f;
+  }
+  void pose(const SE3<float>& T) {
+    for (int a = 0; a < 3; ++a) {
+      for (int b = 0; b < 3; ++b) in.R[3 * a + b] = T.R(a, b);
+      in.t[a] = T.t[a];
+    }
+  }
+  // Both builds over [i0, i1), from outputs filled with markers (r 7, ok 9, out -1): every
+  // output the same bits; the scalar build's returned.
+  struct Run {
+    std::vector<float> r;
+    std::vector<unsigned char> ok;
+    std::vector<int> out;
+    detail::Se3EvalSums s{};
+  };
+  Run both(int i0, int i1) {
+    Run a{std::vector<float>(n, 7.0f), std::vector<unsigned char>(n, 9), std::vector<int>(n, -1)}, b = a;
+    in.out = a.out.data();
+    detail::evaluate_se3_scalar(in, i0, i1, a.r.data(), a.ok.data(), a.s);
+    in.out = b.out.data();
+    detail::evaluate_se3_avx2(in, i0, i1, b.r.data(), b.ok.data(), b.s);
+    CHECK(std::memcmp(a.r.data(), b.r.data(), static_cast<std::size_t>(n) * sizeof(float)) == 0);
+    CHECK(a.ok == b.ok);
+    CHECK(a.out == b.out);
+    CHECK(std::memcmp(&a.s, &b.s, sizeof a.s) == 0);
+    return a;
+  }
+};
+#endif
+
 TEST_CASE("the residual kernel: AVX2 and scalar agree bit for bit, at the edges, behind the camera and on NaN") {
 #if defined(TERRALIGN_ICLK_AVX2)
   if (!cpu_features().avx2_fma) {
     MESSAGE("this CPU has no AVX2: only the scalar kernel runs here");
     return;
   }
-  using namespace detail;
-  const int W = 61, H = 37, n = 1000;
-  std::vector<float> px(n), py(n), pz(n), val(n), w(n), live(static_cast<std::size_t>(W) * H), jac[6];
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> U(-1, 1);
-  for (auto& v : live) v = U(rng);
+  KernelCase k(61, 37, 1000, rng, 10.0f);
+  const int n = k.n;
   for (int i = 0; i < n; ++i) {
     // Depth 100; points spread over 1.4x the image so that some land outside; some behind the
     // camera, some NaN; weights include 0.
-    pz[i] = i % 97 == 0 ? -5.0f : 100.0f;
-    px[i] = 70.0f * U(rng);
-    py[i] = 45.0f * U(rng);
-    if (i % 89 == 0) px[i] = NAN;
-    val[i] = U(rng);
-    w[i] = i % 7 == 0 ? 0.0f : 0.5f + 0.5f * U(rng);
+    const auto j = static_cast<std::size_t>(i);
+    k.pz[j] = i % 97 == 0 ? -5.0f : 100.0f;
+    k.px[j] = 70.0f * U(rng);
+    k.py[j] = 45.0f * U(rng);
+    if (i % 89 == 0) k.px[j] = NAN;
+    k.w[j] = i % 7 == 0 ? 0.0f : 0.5f + 0.5f * U(rng);
   }
-  for (auto& j : jac) {
-    j.resize(n);
-    for (auto& v : j) v = 10 * U(rng);
-  }
-  Se3EvalInput in{};
-  in.px = px.data();
-  in.py = py.data();
-  in.pz = pz.data();
-  in.val = val.data();
-  in.w = w.data();
-  for (int k = 0; k < 6; ++k) in.jac[k] = jac[k].data();
-  in.live = live.data();
-  in.stride = W;
-  in.width = W;
-  in.height = H;
-  const SE3<float> T = SE3<float>::exp((Vec6<float>() << 0.01f, -0.02f, 0.03f, 1.5f, -0.7f, 2.0f).finished());
-  for (int a = 0; a < 3; ++a) {
-    for (int b = 0; b < 3; ++b) in.R[3 * a + b] = T.R(a, b);
-    in.t[a] = T.t[a];
-  }
-  in.fx = in.fy = 40.0f;
-  in.cx = 30.0f;
-  in.cy = 18.0f;
+  k.pose(SE3<float>::exp((Vec6<float>() << 0.01f, -0.02f, 0.03f, 1.5f, -0.7f, 2.0f).finished()));
   // Ranges with a partial last group of eight, and one shorter than a group.
   for (const auto& [i0, i1] : std::vector<std::pair<int, int>>{{0, n}, {3, 998}, {500, 505}}) {
-    std::vector<float> r1(n, 7.0f), r2(n, 7.0f);
-    std::vector<unsigned char> ok1(n, 9), ok2(n, 9);
-    std::vector<int> out1(n, -1), out2(n, -1);
-    Se3EvalSums s1{}, s2{};
-    in.out = out1.data();
-    evaluate_se3_scalar(in, i0, i1, r1.data(), ok1.data(), s1);
-    in.out = out2.data();
-    evaluate_se3_avx2(in, i0, i1, r2.data(), ok2.data(), s2);
-    CHECK(std::memcmp(r1.data(), r2.data(), n * sizeof(float)) == 0);
-    CHECK(ok1 == ok2);
-    CHECK(std::memcmp(&s1, &s2, sizeof s1) == 0);
-    CHECK(out1 == out2);
+    const KernelCase::Run run = k.both(i0, i1);
     int landed = 0;
     std::vector<int> left;
     for (int i = i0; i < i1; ++i) {
-      landed += ok1[static_cast<std::size_t>(i)];
-      if (!ok1[static_cast<std::size_t>(i)]) left.push_back(i);
+      landed += run.ok[static_cast<std::size_t>(i)];
+      if (!run.ok[static_cast<std::size_t>(i)]) left.push_back(i);
     }
-    CHECK(s1.valid == landed);
+    CHECK(run.s.valid == landed);
     // The list names exactly the pixels that did not land, in order, and nothing more.
-    REQUIRE(s1.n_out == static_cast<int>(left.size()));
-    CHECK(std::equal(left.begin(), left.end(), out1.begin()));
-    CHECK(out1[left.size()] == -1);
+    REQUIRE(run.s.n_out == static_cast<int>(left.size()));
+    CHECK(std::equal(left.begin(), left.end(), run.out.begin()));
+    CHECK(run.out[left.size()] == -1);
     if (i1 - i0 > 100) {  // the case is not degenerate: some land, some do not
       CHECK(landed > (i1 - i0) / 4);
       CHECK(landed < i1 - i0);
     }
-    for (const float g : s1.g[0]) CHECK(std::isfinite(g));
+    for (const float g : run.s.g[0]) CHECK(std::isfinite(g));
     // Nothing written outside the range.
-    if (i0 > 0) CHECK((r2[static_cast<std::size_t>(i0 - 1)] == 7.0f && ok2[static_cast<std::size_t>(i0 - 1)] == 9));
-    if (i1 < n) CHECK((r2[static_cast<std::size_t>(i1)] == 7.0f && ok2[static_cast<std::size_t>(i1)] == 9));
+    if (i0 > 0) CHECK((run.r[static_cast<std::size_t>(i0 - 1)] == 7.0f && run.ok[static_cast<std::size_t>(i0 - 1)] == 9));
+    if (i1 < n) CHECK((run.r[static_cast<std::size_t>(i1)] == 7.0f && run.ok[static_cast<std::size_t>(i1)] == 9));
   }
 #else
   MESSAGE("built without the AVX2 kernel");
@@ -508,63 +533,24 @@ TEST_CASE("the residual kernel: AVX2 and scalar agree bit for bit where neighbou
     MESSAGE("this CPU has no AVX2: only the scalar kernel runs here");
     return;
   }
-  using namespace detail;
   // Every pixel of a 61 x 37 reference at depth 100, in row order (as the tracker lists
   // them): warped by the identity and by small motions, runs of eight land in one live row
   // within eight columns (the AVX2 kernel's row-window loads), others straddle two rows or
   // the image's edge (its gathers).
-  const int W = 61, H = 37, n = W * H;
-  const float f = 40.0f, cx = 30.0f, cy = 18.0f;
-  std::vector<float> px(n), py(n), pz(n), val(n), w(n), live(static_cast<std::size_t>(W) * H), jac[6];
   std::mt19937 rng(6);
   std::uniform_real_distribution<float> U(-1, 1);
-  for (auto& v : live) v = U(rng);
-  for (int i = 0; i < n; ++i) {
-    const float u = static_cast<float>(i % W), v = static_cast<float>(i / W);
-    pz[static_cast<std::size_t>(i)] = 100.0f;
-    px[static_cast<std::size_t>(i)] = 100.0f * (u - cx) / f;
-    py[static_cast<std::size_t>(i)] = 100.0f * (v - cy) / f;
-    val[static_cast<std::size_t>(i)] = U(rng);
-    w[static_cast<std::size_t>(i)] = 0.5f + 0.5f * U(rng);
+  KernelCase k(61, 37, 61 * 37, rng, 1.0f);
+  for (int i = 0; i < k.n; ++i) {
+    const auto j = static_cast<std::size_t>(i);
+    k.pz[j] = 100.0f;
+    k.px[j] = 100.0f * (static_cast<float>(i % k.W) - k.in.cx) / k.in.fx;
+    k.py[j] = 100.0f * (static_cast<float>(i / k.W) - k.in.cy) / k.in.fy;
+    k.w[j] = 0.5f + 0.5f * U(rng);
   }
-  for (auto& j : jac) {
-    j.resize(n);
-    for (auto& v : j) v = U(rng);
-  }
-  Se3EvalInput in{};
-  in.px = px.data();
-  in.py = py.data();
-  in.pz = pz.data();
-  in.val = val.data();
-  in.w = w.data();
-  for (int k = 0; k < 6; ++k) in.jac[k] = jac[k].data();
-  in.live = live.data();
-  in.stride = W;
-  in.width = W;
-  in.height = H;
-  in.fx = in.fy = f;
-  in.cx = cx;
-  in.cy = cy;
   for (const Vec6<float>& xi : {Vec6<float>::Zero().eval(), (Vec6<float>() << 0, 0, 0, 0.6f, 0.3f, 0).finished(),
                                 (Vec6<float>() << 0.002f, -0.003f, 0.02f, 1.1f, -0.4f, 0.5f).finished()}) {
-    const SE3<float> T = SE3<float>::exp(xi);
-    for (int a = 0; a < 3; ++a) {
-      for (int b = 0; b < 3; ++b) in.R[3 * a + b] = T.R(a, b);
-      in.t[a] = T.t[a];
-    }
-    std::vector<float> r1(n, 7.0f), r2(n, 7.0f);
-    std::vector<unsigned char> ok1(n, 9), ok2(n, 9);
-    std::vector<int> out1(n, -1), out2(n, -1);
-    Se3EvalSums s1{}, s2{};
-    in.out = out1.data();
-    evaluate_se3_scalar(in, 0, n, r1.data(), ok1.data(), s1);
-    in.out = out2.data();
-    evaluate_se3_avx2(in, 0, n, r2.data(), ok2.data(), s2);
-    CHECK(std::memcmp(r1.data(), r2.data(), n * sizeof(float)) == 0);
-    CHECK(ok1 == ok2);
-    CHECK(out1 == out2);
-    CHECK(std::memcmp(&s1, &s2, sizeof s1) == 0);
-    CHECK(s1.valid > n / 2);  // most land: the case is not degenerate
+    k.pose(SE3<float>::exp(xi));
+    CHECK(k.both(0, k.n).s.valid > k.n / 2);  // most land: the case is not degenerate
   }
 #else
   MESSAGE("built without the AVX2 kernel");
