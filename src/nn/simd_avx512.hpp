@@ -16,17 +16,14 @@ inline __m512 taylor6_avx512(__m512 t) {
   return _mm512_mul_ps(q, t);
 }
 
-// exp(x) - 1 for x <= 0, as expm1_neg_avx2 (same polynomials, same accuracy).
+// exp(x) - 1 for x <= 0, as expm1_neg_avx2 (the same reduction and polynomial).
 inline __m512 expm1_neg_avx512(__m512 x) {
   x = _mm512_max_ps(x, _mm512_set1_ps(-87.0f));
   const __m512 n = _mm512_roundscale_ps(_mm512_mul_ps(x, _mm512_set1_ps(1.44269504088896341f)), _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
   const __m512 r = _mm512_fnmadd_ps(n, _mm512_set1_ps(0.693359375f), x);
   const __m512 rr = _mm512_fnmadd_ps(n, _mm512_set1_ps(-2.12194440e-4f), r);
-  const __m512 er = _mm512_add_ps(taylor6_avx512(rr), _mm512_set1_ps(1.0f));  // exp(r)
-  const __m512i e = _mm512_slli_epi32(_mm512_add_epi32(_mm512_cvtps_epi32(n), _mm512_set1_epi32(127)), 23);
-  const __m512 big = _mm512_sub_ps(_mm512_mul_ps(er, _mm512_castsi512_ps(e)), _mm512_set1_ps(1.0f));
-  const __m512 small = taylor6_avx512(x);
-  return _mm512_mask_blend_ps(_mm512_cmp_ps_mask(x, _mm512_set1_ps(-0.35f), _CMP_GT_OQ), big, small);
+  const __m512 s = _mm512_castsi512_ps(_mm512_slli_epi32(_mm512_add_epi32(_mm512_cvtps_epi32(n), _mm512_set1_epi32(127)), 23));
+  return _mm512_fmadd_ps(s, taylor6_avx512(rr), _mm512_sub_ps(s, _mm512_set1_ps(1.0f)));
 }
 
 struct VecAvx512 {
@@ -38,6 +35,8 @@ struct VecAvx512 {
   static VecAvx512 load(const float* p) { return {_mm512_loadu_ps(p)}; }
   static VecAvx512 set1(float x) { return {_mm512_set1_ps(x)}; }
   void store(float* p) const { _mm512_storeu_ps(p, v); }
+  friend VecAvx512 operator+(VecAvx512 a, VecAvx512 b) { return {_mm512_add_ps(a.v, b.v)}; }
+  friend VecAvx512 operator-(VecAvx512 a, VecAvx512 b) { return {_mm512_sub_ps(a.v, b.v)}; }
   friend VecAvx512 fmadd(VecAvx512 a, VecAvx512 b, VecAvx512 c) { return {_mm512_fmadd_ps(a.v, b.v, c.v)}; }
   friend VecAvx512 elu(VecAvx512 a) {
     const __m512 neg = expm1_neg_avx512(_mm512_min_ps(a.v, _mm512_setzero_ps()));

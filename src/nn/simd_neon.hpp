@@ -22,11 +22,8 @@ inline float32x4_t expm1_neg_neon(float32x4_t x) {
   const float32x4_t n = vrndnq_f32(vmulq_f32(x, vdupq_n_f32(1.44269504088896341f)));
   const float32x4_t r = vfmsq_f32(x, n, vdupq_n_f32(0.693359375f));
   const float32x4_t rr = vfmsq_f32(r, n, vdupq_n_f32(-2.12194440e-4f));
-  const float32x4_t er = vaddq_f32(taylor6_neon(rr), vdupq_n_f32(1.0f));
-  const int32x4_t e = vshlq_n_s32(vaddq_s32(vcvtnq_s32_f32(n), vdupq_n_s32(127)), 23);
-  const float32x4_t big = vsubq_f32(vmulq_f32(er, vreinterpretq_f32_s32(e)), vdupq_n_f32(1.0f));
-  const float32x4_t small = taylor6_neon(x);
-  return vbslq_f32(vcgtq_f32(x, vdupq_n_f32(-0.35f)), small, big);
+  const float32x4_t s = vreinterpretq_f32_s32(vshlq_n_s32(vaddq_s32(vcvtnq_s32_f32(n), vdupq_n_s32(127)), 23));
+  return vfmaq_f32(vsubq_f32(s, vdupq_n_f32(1.0f)), s, taylor6_neon(rr));
 }
 
 struct VecNeon {
@@ -38,6 +35,8 @@ struct VecNeon {
   static VecNeon load(const float* p) { return {vld1q_f32(p)}; }
   static VecNeon set1(float x) { return {vdupq_n_f32(x)}; }
   void store(float* p) const { vst1q_f32(p, v); }
+  friend VecNeon operator+(VecNeon a, VecNeon b) { return {vaddq_f32(a.v, b.v)}; }
+  friend VecNeon operator-(VecNeon a, VecNeon b) { return {vsubq_f32(a.v, b.v)}; }
   friend VecNeon fmadd(VecNeon a, VecNeon b, VecNeon c) { return {vfmaq_f32(c.v, a.v, b.v)}; }
   friend VecNeon elu(VecNeon a) {
     const float32x4_t zero = vdupq_n_f32(0.0f);

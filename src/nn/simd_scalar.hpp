@@ -14,6 +14,8 @@ struct VecScalar {
   static VecScalar load(const float* p) { return {*p}; }
   static VecScalar set1(float x) { return {x}; }
   void store(float* p) const { *p = v; }
+  friend VecScalar operator+(VecScalar a, VecScalar b) { return {a.v + b.v}; }
+  friend VecScalar operator-(VecScalar a, VecScalar b) { return {a.v - b.v}; }
   friend VecScalar fmadd(VecScalar a, VecScalar b, VecScalar c) { return {a.v * b.v + c.v}; }
   friend VecScalar elu(VecScalar a) { return {a.v > 0.0f ? a.v : std::expm1(a.v)}; }
   friend VecScalar relu(VecScalar a) { return {a.v > 0.0f ? a.v : 0.0f}; }
