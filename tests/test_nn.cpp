@@ -31,6 +31,31 @@ bool same_pixels(const Tensor& a, const Tensor& b) {
   return true;
 }
 
+// Every convolution kernel this build and CPU have: name, function, weight block.
+std::vector<std::tuple<const char*, ConvRowsFn, int>> conv_kernels() {
+  std::vector<std::tuple<const char*, ConvRowsFn, int>> k{{"scalar", conv3x3_rows_scalar, 8}};
+#if defined(TERRALIGN_NN_AVX2)
+  if (nn_cpu_has_avx2()) k.emplace_back("avx2", conv3x3_rows_avx2, 8);
+  if (nn_cpu_has_avx512()) k.emplace_back("avx512", conv3x3_rows_avx512, 16);
+#endif
+#if defined(TERRALIGN_NN_NEON)
+  k.emplace_back("neon", conv3x3_rows_neon, 8);
+#endif
+  return k;
+}
+
+double worst_difference(const Tensor& a, const Tensor& b, double& scale) {
+  double worst = 0;
+  scale = 0;
+  for (int y = 0; y < a.h; ++y)
+    for (int x = 0; x < a.w; ++x)
+      for (int k = 0; k < a.c; ++k) {
+        worst = std::max(worst, double(std::abs(a.at(y, x)[k] - b.at(y, x)[k])));
+        scale = std::max(scale, double(std::abs(a.at(y, x)[k])));
+      }
+  return worst;
+}
+
 // Copies channels [c0, c0 + c) of a C x H x W tensor into channels [at, at + c) of t.
 void fill(Tensor& t, const TensorData& chw, int at) {
   const int c = chw.shape[0], h = chw.shape[1], w = chw.shape[2];
@@ -165,7 +190,7 @@ TEST_CASE("parity with PyTorch: Lv et al.'s encoder and M-estimator reproduce ev
 #if defined(TERRALIGN_NN_AVX2) || defined(TERRALIGN_NN_NEON)
 namespace {
 // Each vector kernel against the scalar build on seeded random inputs: FMA rounds once where
-// the scalar build may round twice, and ELU's exp is a polynomial to 2e-7 in the vector
+// the scalar build may round twice, and ELU's exp is a polynomial to 5e-7 in the vector
 // builds (libm in the scalar one), so |scalar - vector| is bounded by 1e-5 of the output's
 // scale. `kernels`: name, function, weight block.
 void check_against_scalar(const std::vector<std::tuple<const char*, ConvRowsFn, int>>& kernels, unsigned seed) {
@@ -191,24 +216,15 @@ void check_against_scalar(const std::vector<std::tuple<const char*, ConvRowsFn, 
         ConvWeights blk = pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu);
         blk.taps.clear();
         conv3x3_rows_scalar(in, blk, b, 0, 13);
-        double worst = 0, scale = 0;
-        for (int y = 0; y < 13; ++y)
-          for (int x = 0; x < 29; ++x) {
-            worst = std::max(worst, double(std::abs(a.at(y, x)[0] - b.at(y, x)[0])));
-            scale = std::max(scale, double(std::abs(a.at(y, x)[0])));
-          }
+        double scale = 0;
+        const double worst = worst_difference(a, b, scale);
         CHECK(worst <= 1e-5 * std::max(scale, 1.0));  // the same sum in another order
       }
       for (const auto& [name, fn, block] : kernels) {
         CAPTURE(name);
         fn(in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu, block), b, 0, 13);
-        double worst = 0, scale = 0;
-        for (int y = 0; y < 13; ++y)
-          for (int x = 0; x < 29; ++x)
-            for (int k = 0; k < cout; ++k) {
-              worst = std::max(worst, double(std::abs(a.at(y, x)[k] - b.at(y, x)[k])));
-              scale = std::max(scale, double(std::abs(a.at(y, x)[k])));
-            }
+        double scale = 0;
+        const double worst = worst_difference(a, b, scale);
         CHECK(worst <= 1e-5 * std::max(scale, 1.0));
       }
     }
@@ -236,6 +252,67 @@ TEST_CASE("the scalar, AVX2 and AVX-512 convolutions agree on seeded random inpu
   if (nn_cpu_has_avx512()) kernels.emplace_back("avx512", conv3x3_rows_avx512, 16);
   check_against_scalar(kernels, 99);
 #endif
+}
+
+
+TEST_CASE("Winograd's convolution agrees with the direct kernel in every build, at every dilation, with rows and columns left unpaired") {
+  // 11 x 17 leaves a row and a column without a partner at dilation 1, two at 2 and three at
+  // 4 (which run the direct kernel), and the split at row 5 cuts a pair at every dilation.
+  // Winograd sums 16 transformed products instead of 9 taps, through transforms whose terms
+  // cancel: the two differ by rounding, a few units in the last place of the largest partial
+  // sums (at most 8.6e-7 of the output's scale here, in every build), bounded by 5e-6 of it;
+  // a wrong tap, sign or offset would be of the order of the output itself.
+  std::mt19937 rng(17);
+  std::normal_distribution<float> n01(0, 1);
+  const int h = 11, w = 17;
+  for (const auto& [name, fn, block] : conv_kernels())
+    for (int dil : {1, 2, 4})
+      for (auto [cin, cout] : {std::pair<int, int>{8, 5}, {16, 16}, {37, 24}, {32, 32}}) {
+        CAPTURE(name);
+        CAPTURE(dil);
+        CAPTURE(cin);
+        CAPTURE(cout);
+        Tensor in, direct, wino, split;
+        in.allocate(h, w, cin);
+        for (Tensor* t : {&direct, &wino, &split}) t->allocate(h, w, cout);
+        for (int y = 0; y < h; ++y)
+          for (int x = 0; x < w; ++x)
+            for (int c = 0; c < cin; ++c) in.at(y, x)[c] = n01(rng);
+        std::vector<float> wt(static_cast<std::size_t>(cout) * cin * 9), bias(static_cast<std::size_t>(cout));
+        for (auto& v : wt) v = n01(rng) * 0.2f;
+        for (auto& v : bias) v = n01(rng);
+        const ConvWeights cw = pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu, block);
+        REQUIRE(!cw.winograd.empty());
+        CHECK(conv_row_align(cw) == 2 * dil);
+        ConvWeights dw = cw;
+        dw.winograd.clear();
+        CHECK(conv_row_align(dw) == 1);
+        fn(in, dw, direct, 0, h);
+        fn(in, cw, wino, 0, h);
+        double scale = 0;
+        const double worst = worst_difference(direct, wino, scale);
+        CHECK(worst <= 5e-6 * std::max(scale, 1.0));
+        CHECK(worst > 0);  // Winograd ran: its rounding differs from the direct sum's somewhere
+        // Bands on multiples of conv_row_align() give the same bytes as one band; a split
+        // inside a pair runs those rows directly: the right values, other rounding.
+        const int a = conv_row_align(cw);
+        fn(in, cw, split, 0, a);
+        fn(in, cw, split, a, h);
+        CHECK(same_pixels(split, wino));
+        fn(in, cw, split, 0, 5);
+        fn(in, cw, split, 5, h);
+        CHECK(worst_difference(direct, split, scale) <= 5e-6 * std::max(scale, 1.0));
+      }
+}
+
+TEST_CASE("the layers Winograd suits: 8 to 128 input channels, more than one output channel") {
+  CHECK(!winograd_suits(3, 16));  // the colour input: its transforms would cost more than they save
+  CHECK(winograd_suits(8, 16));
+  CHECK(winograd_suits(128, 2));
+  CHECK(!winograd_suits(129, 16));  // the stack tile holds 128 channels
+  CHECK(!winograd_suits(16, 1));    // the one-channel kernel's layer
+  std::vector<float> wt(9 * 3 * 16, 0.1f), bias(16, 0.0f);
+  CHECK(pack_conv(wt.data(), bias.data(), 3, 16, 1, Act::Elu).winograd.empty());
 }
 
 TEST_CASE("a forward pass gives the same bytes on 1 and 2 threads and allocates nothing") {
@@ -357,26 +434,9 @@ TEST_CASE("every conv kernel's ELU matches expm1 to 5e-7 (the vector wrappers' e
   in.allocate(1, n, 1);
   out.allocate(1, n, 1);
   for (int i = 0; i < n; ++i) in.at(0, i)[0] = -20.0f + 21.0f * static_cast<float>(i) / n;  // -20 .. 1
-  std::vector<std::pair<const char*, ConvRowsFn>> kernels{{"scalar", conv3x3_rows_scalar}};
-  std::vector<int> blocks{8};
-#if defined(TERRALIGN_NN_AVX2)
-  if (nn_cpu_has_avx2()) {
-    kernels.push_back({"avx2", conv3x3_rows_avx2});
-    blocks.push_back(8);
-  }
-  if (nn_cpu_has_avx512()) {
-    kernels.push_back({"avx512", conv3x3_rows_avx512});
-    blocks.push_back(16);
-  }
-#endif
-#if defined(TERRALIGN_NN_NEON)
-  kernels.push_back({"neon", conv3x3_rows_neon});
-  blocks.push_back(8);
-#endif
-  for (std::size_t k = 0; k < kernels.size(); ++k) {
-    CAPTURE(kernels[k].first);
-    const ConvWeights cw = pack_conv(w.data(), &bias, 1, 1, 1, Act::Elu, blocks[k]);
-    kernels[k].second(in, cw, out, 0, 1);
+  for (const auto& [name, fn, block] : conv_kernels()) {
+    CAPTURE(name);
+    fn(in, pack_conv(w.data(), &bias, 1, 1, 1, Act::Elu, block), out, 0, 1);
     double worst = 0;
     for (int i = 0; i < n; ++i) {
       const double x = in.at(0, i)[0];

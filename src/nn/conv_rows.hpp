@@ -1,9 +1,12 @@
 // The 3x3 convolution (stride 1, padding = dilation), written once against a vector
-// wrapper V (VecScalar or VecAvx2). Included by conv_scalar.cpp and conv_avx2.cpp.
+// wrapper V (VecScalar, VecAvx2, VecAvx512, VecNeon). Included by conv_<isa>.cpp.
 //
-// Register blocking: NP output pixels of one row x NB blocks of V::kBlock output channels;
-// for every tap and input channel, one broadcast of the input value per pixel and one load of
-// the weights per vector feed NP x NB x NV multiply-adds. Reads the halo (zeros) at borders.
+// Two kernels. The direct one: register blocking of NP output pixels of one row x NB blocks
+// of V::kBlock output channels; for every tap and input channel, one broadcast of the input
+// value per pixel and one load of the weights per vector feed NP x NB x NV multiply-adds.
+// Winograd's F(2x2, 3x3) (kernels.hpp) for the layers that suit it: the same register tile,
+// over NT tiles of 2 x 2 outputs instead of NP pixels and 16 transformed taps instead of 9.
+// Both read the halo (zeros) at borders.
 #pragma once
 
 #include <algorithm>
@@ -12,6 +15,13 @@
 #include <terralign/nn/kernels.hpp>
 
 namespace terralign::nn {
+
+template <class V>
+inline V activate(V v, Act act) {
+  if (act == Act::Elu) return elu(v);
+  if (act == Act::Relu) return relu(v);
+  return v;
+}
 
 template <class V, int NP, int NB>
 inline void conv_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int y, int x, int block) {
@@ -43,10 +53,7 @@ inline void conv_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int y
   for (int p = 0; p < NP; ++p) {
     float* op = out.at(y, x + p) + block * BLK;
     for (int k = 0; k < NB * NV; ++k) {
-      V v = acc[p][k];
-      if (w.act == Act::Elu) v = elu(v);
-      else if (w.act == Act::Relu) v = relu(v);
-      v.store(op + k * V::kWidth);
+      activate(acc[p][k], w.act).store(op + k * V::kWidth);
     }
   }
 }
@@ -78,9 +85,7 @@ inline void conv1_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int 
         for (int p = 0; p < NP; ++p) rest[p] += ip[p * cp + ci] * wp[ci];
     }
   for (int p = 0; p < NP; ++p) {
-    V v = V::set1(w.bias[0] + (hsum(acc[p]) + rest[p]));
-    if (w.act == Act::Elu) v = elu(v);
-    else if (w.act == Act::Relu) v = relu(v);
+    const V v = activate(V::set1(w.bias[0] + (hsum(acc[p]) + rest[p])), w.act);
     float* op = out.at(y, x + p);
     // The padded channels the block kernel would have written: zeros (see below).
     for (int k = 0; k < V::kBlock; k += W) V::set1(0.0f).store(op + k);
@@ -88,9 +93,163 @@ inline void conv1_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int 
   }
 }
 
+// The direct kernel over one output pixel x of row y, every block of output channels.
+template <class V, int NP>
+inline void conv_pixels(const Tensor& in, const ConvWeights& w, Tensor& out, int y, int x) {
+  const int blocks = (w.cout + V::kBlock - 1) / V::kBlock;
+  constexpr int NB = V::kTileBlocks;
+  int block = 0;
+  for (; block + NB <= blocks; block += NB) conv_tile<V, NP, NB>(in, w, out, y, x, block);
+  // The remaining blocks: in pairs where the tile is wider than two, then one by one.
+  for (; NB > 2 && block + 2 <= blocks; block += 2) conv_tile<V, NP, 2>(in, w, out, y, x, block);
+  for (; block < blocks; ++block) conv_tile<V, NP, 1>(in, w, out, y, x, block);
+}
+
+// The direct kernel over one output row.
+template <class V>
+inline void conv_row(const Tensor& in, const ConvWeights& w, Tensor& out, int y) {
+  constexpr int NP = V::kTilePixels;
+  int x = 0;
+  for (; x + NP <= out.w; x += NP) conv_pixels<V, NP>(in, w, out, y, x);
+  for (; x < out.w; ++x) conv_pixels<V, 1>(in, w, out, y, x);
+}
+
+// Winograd, step 1: the input transform B^T d B of NT tiles (top-left outputs (y, xs[t])),
+// into U[e][t][ci] for the 16 transformed taps e = 4 i + j. B^T's rows combine a tile's input
+// rows (0 - 2), (1 + 2), (2 - 1), (1 - 3), and its columns the same way; input row/column i of
+// a tile is y + (i - 1) d / x + (i - 1) d. Additions only: every build gives the same bits.
+template <class V>
+inline void winograd_combine(const V* d, V* u, int stride) {
+  u[0] = d[0] - d[2 * stride];
+  u[stride] = d[stride] + d[2 * stride];
+  u[2 * stride] = d[2 * stride] - d[stride];
+  u[3 * stride] = d[stride] - d[3 * stride];
+}
+
+template <class V, int NT>
+inline void winograd_input(const Tensor& in, const ConvWeights& w, int y, const int* xs, float* U) {
+  constexpr int W = V::kWidth;
+  const int d = w.dilation, cin = w.cin;
+  const std::ptrdiff_t step = static_cast<std::ptrdiff_t>(d) * in.cp;
+  const std::ptrdiff_t tap = static_cast<std::ptrdiff_t>(NT) * cin;  // floats between U's taps
+  for (int t = 0; t < NT; ++t) {
+    const float* p = in.at(y - d, xs[t] - d);
+    float* u = U + static_cast<std::ptrdiff_t>(t) * cin;
+    int c = 0;
+    for (; c + W <= cin; c += W) {
+      V v[16], r[16];
+      for (int i = 0; i < 4; ++i)
+        for (int j = 0; j < 4; ++j) v[4 * i + j] = V::load(p + i * in.row * d + j * step + c);
+      for (int j = 0; j < 4; ++j) winograd_combine(v + j, r + j, 4);      // rows
+      for (int i = 0; i < 4; ++i) winograd_combine(r + 4 * i, v + 4 * i, 1);  // columns
+      for (int e = 0; e < 16; ++e) v[e].store(u + e * tap + c);
+    }
+    for (; c < cin; ++c) {  // the same operations, one channel
+      float v[16], r[16];
+      for (int i = 0; i < 4; ++i)
+        for (int j = 0; j < 4; ++j) v[4 * i + j] = p[i * in.row * d + j * step + c];
+      for (int j = 0; j < 4; ++j) winograd_combine(v + j, r + j, 4);
+      for (int i = 0; i < 4; ++i) winograd_combine(r + 4 * i, v + 4 * i, 1);
+      for (int e = 0; e < 16; ++e) u[e * tap + c] = v[e];
+    }
+  }
+}
+
+// Winograd, step 2, for NB blocks of output channels from `block`: the 16 products of U and
+// the transformed filters (a register tile each, as conv_tile) into M[e][t][channel], then the
+// output transform A^T m A (A^T's rows: 0 + 1 + 2, 1 - 2 - 3), the bias and the activation.
+template <class V, int NT, int NB>
+inline void winograd_block(const ConvWeights& w, const float* U, int block, float* M, Tensor& out, int y, const int* xs) {
+  constexpr int BLK = V::kBlock, W = V::kWidth, NV = BLK / W, K = NB * NV;
+  const int cin = w.cin, d = w.dilation;
+  for (int e = 0; e < 16; ++e) {
+    V acc[NT][K];
+    for (int t = 0; t < NT; ++t)
+      for (int k = 0; k < K; ++k) acc[t][k] = V::set1(0.0f);
+    const float* wp[NB];
+    for (int b = 0; b < NB; ++b)
+      wp[b] = w.winograd.data() + (static_cast<std::size_t>(block + b) * 16 + static_cast<std::size_t>(e)) * static_cast<std::size_t>(cin) * BLK;
+    const float* u = U + static_cast<std::ptrdiff_t>(e) * NT * cin;
+    for (int ci = 0; ci < cin; ++ci) {
+      V wv[K];
+      for (int b = 0; b < NB; ++b)
+        for (int j = 0; j < NV; ++j) wv[b * NV + j] = V::load(wp[b] + ci * BLK + j * W);
+      for (int t = 0; t < NT; ++t) {
+        const V a = V::set1(u[t * cin + ci]);
+        for (int k = 0; k < K; ++k) acc[t][k] = fmadd(a, wv[k], acc[t][k]);
+      }
+    }
+    for (int t = 0; t < NT; ++t)
+      for (int k = 0; k < K; ++k) acc[t][k].store(M + ((e * NT + t) * K + k) * W);
+  }
+  for (int t = 0; t < NT; ++t)
+    for (int k = 0; k < K; ++k) {
+      V m[16], c[8];
+      for (int e = 0; e < 16; ++e) m[e] = V::load(M + ((e * NT + t) * K + k) * W);
+      for (int i = 0; i < 4; ++i) {  // columns of each row
+        c[2 * i] = (m[4 * i] + m[4 * i + 1]) + m[4 * i + 2];
+        c[2 * i + 1] = (m[4 * i + 1] - m[4 * i + 2]) - m[4 * i + 3];
+      }
+      const int ch = block * BLK + k * W;
+      const V bias = V::load(w.bias.data() + ch);
+      for (int j = 0; j < 2; ++j) {  // then rows, per output column
+        const V top = (c[j] + c[2 + j]) + c[4 + j], bottom = (c[2 + j] - c[4 + j]) - c[6 + j];
+        activate(top + bias, w.act).store(out.at(y, xs[t] + j * d) + ch);
+        activate(bottom + bias, w.act).store(out.at(y + d, xs[t] + j * d) + ch);
+      }
+    }
+}
+
+// NT tiles of rows y and y + d.
+template <class V, int NT>
+inline void winograd_tiles(const Tensor& in, const ConvWeights& w, Tensor& out, int y, const int* xs) {
+  constexpr int BLK = V::kBlock, NB = V::kTileBlocks;
+  alignas(64) float U[16 * NT * kWinogradMaxCin];
+  alignas(64) float M[16 * NT * NB * BLK];
+  winograd_input<V, NT>(in, w, y, xs, U);
+  const int blocks = (w.cout + BLK - 1) / BLK;
+  int block = 0;
+  for (; block + NB <= blocks; block += NB) winograd_block<V, NT, NB>(w, U, block, M, out, y, xs);
+  for (; NB > 2 && block + 2 <= blocks; block += 2) winograd_block<V, NT, 2>(w, U, block, M, out, y, xs);
+  for (; block < blocks; ++block) winograd_block<V, NT, 1>(w, U, block, M, out, y, xs);
+}
+
+// Winograd over rows [y0, y1): pairs (y, y + d) with y mod 2d < d both inside the band run as
+// tiles; a row whose partner is outside the image (or the band) and a column whose partner is
+// outside the image run the direct kernel.
+template <class V>
+inline void winograd_rows(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1) {
+  constexpr int NT = V::kTilePixels;
+  const int d = w.dilation;
+  for (int y = y0; y < y1; ++y) {
+    const bool top = y % (2 * d) < d;
+    const int partner = top ? y + d : y - d;
+    if (partner < y0 || partner >= y1) {
+      conv_row<V>(in, w, out, y);
+      continue;
+    }
+    if (!top) continue;  // its pair ran with the row above
+    int xs[NT];
+    int n = 0;
+    for (int x = 0; x < out.w; ++x) {
+      if (x % (2 * d) >= d) continue;  // the right column of a tile
+      if (x + d >= out.w) {
+        conv_pixels<V, 1>(in, w, out, y, x);
+        conv_pixels<V, 1>(in, w, out, y + d, x);
+        continue;
+      }
+      xs[n++] = x;
+      if (n == NT) {
+        winograd_tiles<V, NT>(in, w, out, y, xs);
+        n = 0;
+      }
+    }
+    for (int t = 0; t < n; ++t) winograd_tiles<V, 1>(in, w, out, y, xs + t);
+  }
+}
+
 template <class V>
 inline void conv3x3_rows(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1) {
-  constexpr int NP = V::kTilePixels;
   TERRALIGN_DEBUG_ASSERT(w.block == V::kBlock, "conv3x3_rows: weights packed for another kernel");
   if (w.cout == 1 && w.taps.size() == 9 * static_cast<std::size_t>(w.cin)) {  // (bench_nn clears taps for the peer)
     for (int y = y0; y < y1; ++y) {
@@ -100,29 +259,14 @@ inline void conv3x3_rows(const Tensor& in, const ConvWeights& w, Tensor& out, in
     }
     return;
   }
-  const int blocks = (w.cout + V::kBlock - 1) / V::kBlock;
-  constexpr int NB = V::kTileBlocks;
-  for (int y = y0; y < y1; ++y) {
-    int block = 0;
-    for (; block + NB <= blocks; block += NB) {
-      int x = 0;
-      for (; x + NP <= out.w; x += NP) conv_tile<V, NP, NB>(in, w, out, y, x, block);
-      for (; x < out.w; ++x) conv_tile<V, 1, NB>(in, w, out, y, x, block);
-    }
-    // The remaining blocks: in pairs where the tile is wider than two, then one by one.
-    for (; NB > 2 && block + 2 <= blocks; block += 2) {
-      int x = 0;
-      for (; x + NP <= out.w; x += NP) conv_tile<V, NP, 2>(in, w, out, y, x, block);
-      for (; x < out.w; ++x) conv_tile<V, 1, 2>(in, w, out, y, x, block);
-    }
-    for (; block < blocks; ++block) {
-      int x = 0;
-      for (; x + NP <= out.w; x += NP) conv_tile<V, NP, 1>(in, w, out, y, x, block);
-      for (; x < out.w; ++x) conv_tile<V, 1, 1>(in, w, out, y, x, block);
-    }
-    // Padded output channels must stay zero: the next layer reads only cin channels, but
-    // mean and concat read cp; the bias of padded channels is zero, and ELU(0) = 0.
+  // Padded output channels must stay zero: the next layer reads only cin channels, but mean
+  // and concat read cp; the bias and the weights of padded channels are zero, and ELU(0) = 0.
+  if (!w.winograd.empty()) {
+    TERRALIGN_DEBUG_ASSERT(w.cin <= kWinogradMaxCin, "conv3x3_rows: too many input channels for Winograd");
+    winograd_rows<V>(in, w, out, y0, y1);
+    return;
   }
+  for (int y = y0; y < y1; ++y) conv_row<V>(in, w, out, y);
 }
 
 }  // namespace terralign::nn

@@ -31,6 +31,10 @@ bool nn_cpu_has_avx512() {
 #endif
 }
 
+bool winograd_suits(int cin, int cout) { return cin >= kWinogradMinCin && cin <= kWinogradMaxCin && cout > 1; }
+
+int conv_row_align(const ConvWeights& w) { return w.winograd.empty() ? 1 : 2 * w.dilation; }
+
 ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act, int block) {
   ConvWeights w;
   w.block = block;
@@ -48,6 +52,23 @@ ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, i
       for (int k = 0; k < 9; ++k)
         w.packed[((static_cast<std::size_t>(co / block) * 9 + static_cast<std::size_t>(k)) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * B + static_cast<std::size_t>(co % block)] =
             oihw[(static_cast<std::size_t>(co) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * 9 + static_cast<std::size_t>(k)];
+  }
+  if (winograd_suits(cin, cout)) {
+    // U = G g G^T per filter, in double, rounded once.
+    constexpr double G[4][3] = {{1, 0, 0}, {0.5, 0.5, 0.5}, {0.5, -0.5, 0.5}, {0, 0, 1}};
+    w.winograd.assign(static_cast<std::size_t>(blocks) * 16 * static_cast<std::size_t>(cin) * B, 0.0f);
+    for (int co = 0; co < cout; ++co)
+      for (int ci = 0; ci < cin; ++ci) {
+        const float* g = oihw + (static_cast<std::size_t>(co) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * 9;
+        for (int i = 0; i < 4; ++i)
+          for (int j = 0; j < 4; ++j) {
+            double u = 0;
+            for (int ky = 0; ky < 3; ++ky)
+              for (int kx = 0; kx < 3; ++kx) u += G[i][ky] * static_cast<double>(g[ky * 3 + kx]) * G[j][kx];
+            w.winograd[((static_cast<std::size_t>(co / block) * 16 + static_cast<std::size_t>(i * 4 + j)) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * B + static_cast<std::size_t>(co % block)] =
+                static_cast<float>(u);
+          }
+      }
   }
   if (cout == 1) {
     w.taps.resize(9 * static_cast<std::size_t>(cin));

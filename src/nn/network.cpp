@@ -307,6 +307,7 @@ struct StepCtx {
   const ConvWeights* conv;
   ConvRowsFn conv_fn;
   int bands;
+  int align;  // band edges on multiples of this (a Winograd convolution's row pairs)
 };
 constexpr int kMaxConcat = 16;
 }  // namespace
@@ -334,15 +335,18 @@ void Network::forward() {
     // One band of neighbouring output rows a thread (every row costs the same): the threads
     // then share cache lines of the output only where two bands meet. Two-row tasks dealt in
     // turn made the two cores pass lines back and forth every two rows, 7 % of a pair's
-    // deep alignment (bench_localize, interleaved). Rows are independent, so the bytes are the
-    // same however they are split.
-    StepCtx ctx{&s, &tensors_, s.conv >= 0 ? &convs_[static_cast<std::size_t>(s.conv)] : nullptr, conv_, pool_->threads()};
+    // deep alignment (bench_localize, interleaved). Rows are independent (a Winograd
+    // convolution's in pairs, which the band edges keep whole), so the bytes are the same
+    // however they are split.
+    const ConvWeights* cw = s.conv >= 0 ? &convs_[static_cast<std::size_t>(s.conv)] : nullptr;
+    StepCtx ctx{&s, &tensors_, cw, conv_, pool_->threads(), cw ? conv_row_align(*cw) : 1};
     pool_->run(ctx.bands, [](void* p, int i) {
       auto* c = static_cast<StepCtx*>(p);
       const Network::Step& st = *c->step;
       std::vector<Tensor>& T = *c->tensors;
       Tensor& o = T[static_cast<std::size_t>(st.out)];
-      const int y0 = i * o.h / c->bands, y1 = (i + 1) * o.h / c->bands;
+      auto edge = [c, &o](int k) { return k >= c->bands ? o.h : k * o.h / c->bands / c->align * c->align; };
+      const int y0 = edge(i), y1 = edge(i + 1);
       const Tensor& a = T[static_cast<std::size_t>(st.in[0])];
       const std::string& op = st.node->op;
       if (op == "conv") c->conv_fn(a, *c->conv, o, y0, y1);

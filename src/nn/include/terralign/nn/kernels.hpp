@@ -2,9 +2,8 @@
 // hidden state; rows [y0, y1) of the output only, so callers split work by rows.
 //
 // The 3x3 convolution is written once (conv_rows.hpp) against a thin vector wrapper and
-// built three times: with the one-lane scalar wrapper, with AVX2 + FMA and with AVX-512F.
-// They differ only in rounding (FMA versus multiply-then-add, and the ELU's exp): tests
-// bound their difference.
+// built for the one-lane scalar wrapper, AVX2 + FMA, AVX-512F and NEON. They differ only in
+// rounding (FMA versus multiply-then-add, and the ELU's exp): tests bound their difference.
 #pragma once
 
 #include <terralign/nn/tensor.hpp>
@@ -18,11 +17,28 @@ enum class Act { None, Elu, Relu };
 struct ConvWeights {
   int cin = 0, cout = 0, dilation = 1, block = 8;
   Act act = Act::None;
-  std::vector<float> packed;  // (cout / block rounded up) x 9 x cin x block
-  std::vector<float> bias;    // cout rounded up to block
-  std::vector<float> taps;    // one output channel only: 9 x cin (tap-major), for the kernel
-                              // whose vectors run along the input channels
+  std::vector<float> packed;    // (cout / block rounded up) x 9 x cin x block
+  std::vector<float> bias;      // cout rounded up to block
+  std::vector<float> taps;      // one output channel only: 9 x cin (tap-major), for the kernel
+                                // whose vectors run along the input channels
+  std::vector<float> winograd;  // where winograd_suits(): G g G^T of every filter, for each
+                                // block [4 x 4][cin][block]; empty: the direct kernel
 };
+
+// Winograd's F(2x2, 3x3) (Lavin and Gray, 2016): a 2 x 2 output tile from a 4 x 4 input tile
+// in 16 multiply-adds a channel pair instead of 36, the input and the output transformed by
+// additions alone. Used for layers of at least kWinogradMinCin and at most kWinogradMaxCin
+// input channels and more than one output channel (the first layer's three colour channels
+// would spend more in the transforms than they save). With dilation d a tile's outputs are
+// (y, x), (y, x + d), (y + d, x), (y + d, x + d): rows are paired y with y + d where
+// y mod 2d < d (the same for columns), whatever the band, so the bytes do not depend on how
+// the rows are split, as long as no split falls between a pair (conv_row_align()); a row or
+// column without a partner inside the image runs the direct kernel.
+constexpr int kWinogradMinCin = 8;
+constexpr int kWinogradMaxCin = 128;
+bool winograd_suits(int cin, int cout);
+// Row splits of a convolution's output that keep its row pairs whole: multiples of this.
+int conv_row_align(const ConvWeights& w);
 
 // From PyTorch's OIHW layout (cout x cin x 3 x 3) and a bias of cout.
 ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act, int block = 8);

@@ -78,7 +78,13 @@ class Network {
   // forward() before bind() is a programming error.
   std::size_t external_floats() const { return external_floats_; }
   void bind(float* memory);
-  // Multiply-accumulates of one forward pass (3x3 convs), for benchmarks.
+  // Every convolution by the direct kernel, none by Winograd's (kernels.hpp): the peer that
+  // bench_nn measures Winograd against, and the reference tests compare it with. Set-up only.
+  void use_direct_convolutions() {
+    for (auto& c : convs_) c.winograd.clear();
+  }
+  // Multiply-accumulates of one forward pass (3x3 convs, counted as the direct kernel's), for
+  // benchmarks.
   double macs() const;
   // Per-node timing of forward() (no allocation; off by default), for benchmarks.
   void set_profiling(bool on) { profile_ = on; }
