@@ -2,9 +2,10 @@
 // achieved GFLOP/s as a fraction of this CPU's FMA peak (measured by an FMA loop in the same
 // run), at 752x480 and 160x120, 1 and 2 threads; beside PyTorch on the CPU with two threads
 // (training/bench_torch_encoder.py, where /usr/bin/python3 has torch), with the speed ratio.
-// Then the shipped learned tracker's M-estimator per layer, and its one-output-channel last
-// layer with the one-channel kernel against the block kernel in the same run.
-//   build/release/bench/bench_nn [--mestimator]   (--mestimator: only the second part)
+// Then the shipped learned tracker's encoder and M-estimator per layer, Winograd's
+// convolutions against the direct kernel in the same run, and the M-estimator's
+// one-output-channel last layer with the one-channel kernel against the block kernel.
+//   build/release/bench/bench_nn [--tracker]   (--tracker: only the learned tracker's part)
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -126,10 +127,61 @@ void one_channel_layer(nn::ConvRowsFn fn, int block, const char* simd) {
               b, b / a);
 }
 
+// Per-layer medians (ms) of `rounds` forward passes of `net`.
+std::vector<double> layer_medians(nn::Network& net, int rounds) {
+  std::vector<std::vector<double>> per;
+  for (int rep = 0; rep < rounds; ++rep) {
+    net.forward();
+    const auto st = net.step_times();
+    per.resize(st.size());
+    for (std::size_t i = 0; i < st.size(); ++i) per[i].push_back(st[i].ms);
+  }
+  std::vector<double> med;
+  for (auto& p : per) {
+    std::sort(p.begin(), p.end());
+    med.push_back(p[p.size() / 2]);
+  }
+  return med;
+}
+
+// One of the learned tracker's networks at 376 x 240 on 2 threads: Winograd's convolutions
+// against the direct kernel's, per layer (medians over three alternated rounds of 7 passes).
+bool tracker_network(const nn::WeightFile& weights, const char* name) {
+  auto wino = nn::Network::plan(weights, name, 376, 240, 2);
+  auto direct = nn::Network::plan(weights, name, 376, 240, 2);
+  if (!wino.ok() || !direct.ok()) return false;
+  direct.value()->use_direct_convolutions();
+  nn::Network* nets[2] = {direct.value().get(), wino.value().get()};
+  std::vector<double> ms[2];
+  for (nn::Network* n : nets) {
+    n->forward();
+    n->set_profiling(true);
+  }
+  for (int round = 0; round < 3; ++round)
+    for (int k = 0; k < 2; ++k) {
+      const std::vector<double> m = layer_medians(*nets[k], 7);
+      if (ms[k].empty()) ms[k] = m;
+      for (std::size_t i = 0; i < m.size(); ++i) ms[k][i] = std::min(ms[k][i], m[i]);
+    }
+  std::printf("learned tracker's %s (deep_iclk_s16.tlw) at 376x240, 2 threads, %s, best of 3 medians of 7:\n\n"
+              "| layer | op | direct ms | Winograd ms | direct / Winograd |\n|---|---|---|---|---|\n",
+              name, wino.value()->simd_name());
+  const auto st = wino.value()->step_times();
+  double total[2] = {0, 0};
+  for (std::size_t i = 0; i < st.size(); ++i) {
+    total[0] += ms[0][i];
+    total[1] += ms[1][i];
+    std::printf("| %s | %s | %.3f | %.3f | %.2f |\n", st[i].name.c_str(), st[i].op.c_str(), ms[0][i], ms[1][i],
+                ms[1][i] > 0 ? ms[0][i] / ms[1][i] : 0.0);
+  }
+  std::printf("| all | | %.3f | %.3f | **%.2f** |\n\n", total[0], total[1], total[1] > 0 ? total[0] / total[1] : 0.0);
+  return true;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  const bool mest_only = argc > 1 && std::strcmp(argv[1], "--mestimator") == 0;
+  const bool tracker_only = argc > 1 && std::strcmp(argv[1], "--tracker") == 0;
   auto weights = nn::read_weights(TERRALIGN_SOURCE_DIR "/weights/lv19_tum_abc.tlw");
   if (!weights.ok()) {
     std::fprintf(stderr, "%s\n", weights.error().message.c_str());
@@ -139,7 +191,7 @@ int main(int argc, char** argv) {
   const double peak1 = peak_gflops(1, wide), peak2 = peak_gflops(2, wide);
   std::printf("FMA peak (%s, measured): %.1f GFLOP/s on 1 thread, %.1f on 2\n\n", wide ? "AVX-512" : "AVX2", peak1, peak2);
   for (auto [w, h] : {std::pair<int, int>{752, 480}, {160, 120}}) {
-    if (mest_only) break;
+    if (tracker_only) break;
     for (int threads : {1, 2}) {
       auto net = nn::Network::plan(weights.value(), "encoder", w, h, threads);
       if (!net.ok()) return 1;
@@ -173,30 +225,15 @@ int main(int argc, char** argv) {
       }
     }
   }
-  // The shipped learned tracker's M-estimator at its working size (376 x 240), per layer.
+  // The shipped learned tracker's two networks at its working size (376 x 240), per layer:
+  // Winograd's kernel (the product's) against the direct one, alternated in the same run.
   auto s16 = nn::read_weights(TERRALIGN_SOURCE_DIR "/weights/deep_iclk_s16.tlw");
   if (!s16.ok()) {
     std::fprintf(stderr, "%s\n", s16.error().message.c_str());
     return 1;
   }
-  auto mest = nn::Network::plan(s16.value(), "mestimator", 376, 240, 2);
-  if (!mest.ok()) return 1;
-  mest.value()->forward();
-  mest.value()->set_profiling(true);
-  std::vector<std::vector<double>> per;
-  for (int rep = 0; rep < 15; ++rep) {
-    mest.value()->forward();
-    const auto st = mest.value()->step_times();
-    per.resize(st.size());
-    for (std::size_t i = 0; i < st.size(); ++i) per[i].push_back(st[i].ms);
-  }
-  std::printf("learned tracker's M-estimator (deep_iclk_s16.tlw) at 376x240, 2 threads, %s, median of 15:\n\n"
-              "| layer | op | ms |\n|---|---|---|\n", mest.value()->simd_name());
-  const auto st = mest.value()->step_times();
-  for (std::size_t i = 0; i < st.size(); ++i) {
-    std::sort(per[i].begin(), per[i].end());
-    std::printf("| %s | %s | %.3f |\n", st[i].name.c_str(), st[i].op.c_str(), per[i][per[i].size() / 2]);
-  }
+  for (const char* name : {"encoder", "mestimator"})
+    if (!tracker_network(s16.value(), name)) return 1;
   std::printf("\n");
   one_channel_layer(nn::conv3x3_rows_scalar, 8, "scalar");
 #if defined(TERRALIGN_NN_AVX2)
