@@ -31,6 +31,12 @@ bool same_pixels(const Tensor& a, const Tensor& b) {
   return true;
 }
 
+// A kernel's rows [y0, y1) with scratch of their own.
+void conv(ConvRowsFn fn, const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1) {
+  std::vector<float> scratch(conv_scratch_floats(w));
+  fn(in, w, out, y0, y1, scratch.data());
+}
+
 // Every convolution kernel this build and CPU have: name, function, weight block.
 std::vector<std::tuple<const char*, ConvRowsFn, int>> conv_kernels() {
   std::vector<std::tuple<const char*, ConvRowsFn, int>> k{{"scalar", conv3x3_rows_scalar, 8}};
@@ -211,18 +217,18 @@ void check_against_scalar(const std::vector<std::tuple<const char*, ConvRowsFn, 
       std::vector<float> wt(static_cast<std::size_t>(cout) * cin * 9), bias(static_cast<std::size_t>(cout));
       for (auto& v : wt) v = n01(rng) * 0.2f;
       for (auto& v : bias) v = n01(rng);
-      conv3x3_rows_scalar(in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu), a, 0, 13);
+      conv(conv3x3_rows_scalar, in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu), a, 0, 13);
       if (cout == 1) {  // the one-channel kernel (vectors along the input) against the block kernel
         ConvWeights blk = pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu);
         blk.taps.clear();
-        conv3x3_rows_scalar(in, blk, b, 0, 13);
+        conv(conv3x3_rows_scalar, in, blk, b, 0, 13);
         double scale = 0;
         const double worst = worst_difference(a, b, scale);
         CHECK(worst <= 1e-5 * std::max(scale, 1.0));  // the same sum in another order
       }
       for (const auto& [name, fn, block] : kernels) {
         CAPTURE(name);
-        fn(in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu, block), b, 0, 13);
+        conv(fn, in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu, block), b, 0, 13);
         double scale = 0;
         const double worst = worst_difference(a, b, scale);
         CHECK(worst <= 1e-5 * std::max(scale, 1.0));
@@ -287,8 +293,8 @@ TEST_CASE("Winograd's convolution agrees with the direct kernel in every build, 
         ConvWeights dw = cw;
         dw.winograd.clear();
         CHECK(conv_row_align(dw) == 1);
-        fn(in, dw, direct, 0, h);
-        fn(in, cw, wino, 0, h);
+        conv(fn, in, dw, direct, 0, h);
+        conv(fn, in, cw, wino, 0, h);
         double scale = 0;
         const double worst = worst_difference(direct, wino, scale);
         CHECK(worst <= 5e-6 * std::max(scale, 1.0));
@@ -296,24 +302,27 @@ TEST_CASE("Winograd's convolution agrees with the direct kernel in every build, 
         // Bands on multiples of conv_row_align() give the same bytes as one band; a split
         // inside a pair runs those rows directly: the right values, other rounding.
         const int a = conv_row_align(cw);
-        fn(in, cw, split, 0, a);
-        fn(in, cw, split, a, h);
+        conv(fn, in, cw, split, 0, a);
+        conv(fn, in, cw, split, a, h);
         CHECK(same_pixels(split, wino));
-        fn(in, cw, split, 0, 5);
-        fn(in, cw, split, 5, h);
+        conv(fn, in, cw, split, 0, 5);
+        conv(fn, in, cw, split, 5, h);
         CHECK(worst_difference(direct, split, scale) <= 5e-6 * std::max(scale, 1.0));
       }
 }
 
-TEST_CASE("the layers Winograd suits: 16 to 128 input channels, more than one output channel") {
+TEST_CASE("the layers Winograd suits (16 input channels or more, more than one output) and the scratch they need") {
   CHECK(!winograd_suits(3, 16));  // the colour input: its transforms would cost more than they save
   CHECK(!winograd_suits(8, 16));
   CHECK(winograd_suits(16, 16));
-  CHECK(winograd_suits(128, 2));
-  CHECK(!winograd_suits(129, 16));  // the stack tile holds 128 channels
-  CHECK(!winograd_suits(16, 1));    // the one-channel kernel's layer
-  std::vector<float> wt(9 * 3 * 16, 0.1f), bias(16, 0.0f);
-  CHECK(pack_conv(wt.data(), bias.data(), 3, 16, 1, Act::Elu).winograd.empty());
+  CHECK(winograd_suits(512, 2));
+  CHECK(!winograd_suits(16, 1));  // the one-channel kernel's layer
+  std::vector<float> wt(9 * 32 * 16, 0.1f), bias(16, 0.0f);
+  const ConvWeights direct = pack_conv(wt.data(), bias.data(), 3, 16, 1, Act::Elu);
+  CHECK(direct.winograd.empty());
+  CHECK(conv_scratch_floats(direct) == 0);
+  // The transformed inputs of 8 tiles (16 x 8 x 32) and the products of 64 channels (16 x 8 x 64).
+  CHECK(conv_scratch_floats(pack_conv(wt.data(), bias.data(), 32, 16, 2, Act::Elu, 16)) == 16 * 8 * (32 + 64));
 }
 
 TEST_CASE("a forward pass gives the same bytes on 1 and 2 threads and allocates nothing") {
@@ -437,7 +446,7 @@ TEST_CASE("every conv kernel's ELU matches expm1 to 5e-7 (the vector wrappers' e
   for (int i = 0; i < n; ++i) in.at(0, i)[0] = -20.0f + 21.0f * static_cast<float>(i) / n;  // -20 .. 1
   for (const auto& [name, fn, block] : conv_kernels()) {
     CAPTURE(name);
-    fn(in, pack_conv(w.data(), &bias, 1, 1, 1, Act::Elu, block), out, 0, 1);
+    conv(fn, in, pack_conv(w.data(), &bias, 1, 1, 1, Act::Elu, block), out, 0, 1);
     double worst = 0;
     for (int i = 0; i < n; ++i) {
       const double x = in.at(0, i)[0];

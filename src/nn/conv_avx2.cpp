@@ -4,8 +4,8 @@
 
 namespace terralign::nn {
 
-void conv3x3_rows_avx2(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1) {
-  conv3x3_rows<VecAvx2>(in, w, out, y0, y1);
+void conv3x3_rows_avx2(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1, float* scratch) {
+  conv3x3_rows<VecAvx2>(in, w, out, y0, y1, scratch);
 }
 
 }  // namespace terralign::nn

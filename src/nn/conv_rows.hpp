@@ -200,12 +200,13 @@ inline void winograd_block(const ConvWeights& w, const float* U, int block, floa
     }
 }
 
-// NT tiles of rows y and y + d.
+// NT tiles of rows y and y + d, in the caller's scratch (conv_scratch_floats()).
 template <class V, int NT>
-inline void winograd_tiles(const Tensor& in, const ConvWeights& w, Tensor& out, int y, const int* xs) {
+inline void winograd_tiles(const Tensor& in, const ConvWeights& w, Tensor& out, int y, const int* xs, float* scratch) {
   constexpr int BLK = V::kBlock, NB = V::kTileBlocks;
-  alignas(64) float U[16 * NT * kWinogradMaxCin];
-  alignas(64) float M[16 * NT * NB * BLK];
+  static_assert(NT <= kWinogradTiles && NB * BLK <= kWinogradChannels, "conv_scratch_floats() sizes a smaller tile");
+  float* U = scratch;
+  float* M = scratch + (16 * static_cast<std::ptrdiff_t>(kWinogradTiles) * w.cin + 15) / 16 * 16;
   winograd_input<V, NT>(in, w, y, xs, U);
   const int blocks = (w.cout + BLK - 1) / BLK;
   int block = 0;
@@ -218,7 +219,7 @@ inline void winograd_tiles(const Tensor& in, const ConvWeights& w, Tensor& out, 
 // tiles; a row whose partner is outside the image (or the band) and a column whose partner is
 // outside the image run the direct kernel.
 template <class V>
-inline void winograd_rows(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1) {
+inline void winograd_rows(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1, float* scratch) {
   constexpr int NT = V::kTilePixels;
   const int d = w.dilation;
   for (int y = y0; y < y1; ++y) {
@@ -240,16 +241,16 @@ inline void winograd_rows(const Tensor& in, const ConvWeights& w, Tensor& out, i
       }
       xs[n++] = x;
       if (n == NT) {
-        winograd_tiles<V, NT>(in, w, out, y, xs);
+        winograd_tiles<V, NT>(in, w, out, y, xs, scratch);
         n = 0;
       }
     }
-    for (int t = 0; t < n; ++t) winograd_tiles<V, 1>(in, w, out, y, xs + t);
+    for (int t = 0; t < n; ++t) winograd_tiles<V, 1>(in, w, out, y, xs + t, scratch);
   }
 }
 
 template <class V>
-inline void conv3x3_rows(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1) {
+inline void conv3x3_rows(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1, float* scratch) {
   TERRALIGN_DEBUG_ASSERT(w.block == V::kBlock, "conv3x3_rows: weights packed for another kernel");
   if (w.cout == 1 && w.taps.size() == 9 * static_cast<std::size_t>(w.cin)) {  // (bench_nn clears taps for the peer)
     for (int y = y0; y < y1; ++y) {
@@ -262,8 +263,8 @@ inline void conv3x3_rows(const Tensor& in, const ConvWeights& w, Tensor& out, in
   // Padded output channels must stay zero: the next layer reads only cin channels, but mean
   // and concat read cp; the bias and the weights of padded channels are zero, and ELU(0) = 0.
   if (!w.winograd.empty()) {
-    TERRALIGN_DEBUG_ASSERT(w.cin <= kWinogradMaxCin, "conv3x3_rows: too many input channels for Winograd");
-    winograd_rows<V>(in, w, out, y0, y1);
+    TERRALIGN_ASSERT(scratch, "conv3x3_rows: Winograd's layer without scratch memory");
+    winograd_rows<V>(in, w, out, y0, y1, scratch);
     return;
   }
   for (int y = y0; y < y1; ++y) conv_row<V>(in, w, out, y);

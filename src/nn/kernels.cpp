@@ -31,9 +31,16 @@ bool nn_cpu_has_avx512() {
 #endif
 }
 
-bool winograd_suits(int cin, int cout) { return cin >= kWinogradMinCin && cin <= kWinogradMaxCin && cout > 1; }
+bool winograd_suits(int cin, int cout) { return cin >= kWinogradMinCin && cout > 1; }
 
 int conv_row_align(const ConvWeights& w) { return w.winograd.empty() ? 1 : 2 * w.dilation; }
+
+std::size_t conv_scratch_floats(const ConvWeights& w) {
+  if (w.winograd.empty()) return 0;
+  // U: 16 taps x tiles x cin, rounded up to 16 floats; then M: 16 taps x tiles x channels.
+  const std::size_t u = (16 * static_cast<std::size_t>(kWinogradTiles) * static_cast<std::size_t>(w.cin) + 15) / 16 * 16;
+  return u + 16 * static_cast<std::size_t>(kWinogradTiles) * kWinogradChannels;
+}
 
 ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act, int block) {
   ConvWeights w;

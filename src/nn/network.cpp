@@ -199,8 +199,15 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
   for (auto& s : N->steps_) s.node = &N->desc_.nodes[static_cast<std::size_t>(&s - N->steps_.data())];
   for (const auto& o : N->desc_.outputs)
     if (N->index_of(o) < 0) return Error{weights.name + ": " + net + ": output '" + o + "' is not a node"};
-  if (memory != Memory::Separate) N->share_memory(memory);
   N->pool_ = std::make_unique<ThreadPool>(threads);
+  // Each band (one a thread) has scratch of its own for the convolutions (Winograd's tiles).
+  for (const auto& c : N->convs_) N->scratch_floats_ = std::max(N->scratch_floats_, (conv_scratch_floats(c) + 15) / 16 * 16);
+  if (memory != Memory::Separate) {
+    N->share_memory(memory);
+  } else if (N->scratch_floats_ > 0) {
+    N->own_scratch_.assign(N->scratch_floats_ * static_cast<std::size_t>(N->pool_->threads()), 0.0f);
+    N->scratch_ = N->own_scratch_.data();
+  }
   N->step_ms_.assign(N->steps_.size(), 0.0);
   return N;
 }
@@ -250,6 +257,8 @@ void Network::share_memory(Memory memory) {
     }
   }
   offsets_ = offset;
+  tensor_floats_ = end;
+  end += scratch_floats_ * static_cast<std::size_t>(pool_->threads());
   if (memory == Memory::External) {
     external_floats_ = end;
     bound_ = false;
@@ -269,11 +278,12 @@ void Network::bind(float* memory) {
     Tensor& t = tensors_[k];
     t.place(t.h, t.w, t.c, steps_[k].node->op == "conv", memory + offsets_[k]);
   }
+  scratch_ = scratch_floats_ > 0 ? memory + tensor_floats_ : nullptr;
   bound_ = true;
 }
 
 std::size_t Network::memory_bytes() const {
-  std::size_t b = shared_.size() * sizeof(float);
+  std::size_t b = (shared_.size() + own_scratch_.size()) * sizeof(float);
   for (const auto& t : tensors_) b += t.storage.size() * sizeof(float);
   return b;
 }
@@ -306,6 +316,8 @@ struct StepCtx {
   std::vector<Tensor>* tensors;
   const ConvWeights* conv;
   ConvRowsFn conv_fn;
+  float* scratch;        // band i's: scratch + i * scratch_floats
+  std::size_t scratch_floats;
   int bands;
   int align;  // band edges on multiples of this (a Winograd convolution's row pairs)
 };
@@ -339,7 +351,7 @@ void Network::forward() {
     // convolution's in pairs, which the band edges keep whole), so the bytes are the same
     // however they are split.
     const ConvWeights* cw = s.conv >= 0 ? &convs_[static_cast<std::size_t>(s.conv)] : nullptr;
-    StepCtx ctx{&s, &tensors_, cw, conv_, pool_->threads(), cw ? conv_row_align(*cw) : 1};
+    StepCtx ctx{&s, &tensors_, cw, conv_, scratch_, scratch_floats_, pool_->threads(), cw ? conv_row_align(*cw) : 1};
     pool_->run(ctx.bands, [](void* p, int i) {
       auto* c = static_cast<StepCtx*>(p);
       const Network::Step& st = *c->step;
@@ -349,7 +361,7 @@ void Network::forward() {
       const int y0 = edge(i), y1 = edge(i + 1);
       const Tensor& a = T[static_cast<std::size_t>(st.in[0])];
       const std::string& op = st.node->op;
-      if (op == "conv") c->conv_fn(a, *c->conv, o, y0, y1);
+      if (op == "conv") c->conv_fn(a, *c->conv, o, y0, y1, c->scratch ? c->scratch + static_cast<std::size_t>(i) * c->scratch_floats : nullptr);
       else if (op == "pool") avgpool2_rows(a, o, y0, y1);
       else if (op == "mean") mean_channels_rows(a, o, y0, y1);
       else if (op == "sigmoid") sigmoid_rows(a, o, y0, y1);

@@ -27,31 +27,37 @@ struct ConvWeights {
 
 // Winograd's F(2x2, 3x3) (Lavin and Gray, 2016): a 2 x 2 output tile from a 4 x 4 input tile
 // in 16 multiply-adds a channel pair instead of 36, the input and the output transformed by
-// additions alone. Used for layers of at least kWinogradMinCin and at most kWinogradMaxCin
-// input channels and more than one output channel: with fewer inputs the transforms cost
-// more than they save (8 -> 8 at 376 x 240 on AVX-512, one thread: 3.1 ms against the direct
-// kernel's 2.5; 16 -> 16: 3.0 against 4.2). With dilation d a tile's outputs are
-// (y, x), (y, x + d), (y + d, x), (y + d, x + d): rows are paired y with y + d where
-// y mod 2d < d (the same for columns), whatever the band, so the bytes do not depend on how
-// the rows are split, as long as no split falls between a pair (conv_row_align()); a row or
-// column without a partner inside the image runs the direct kernel.
+// additions alone. Used for layers of at least kWinogradMinCin input channels and more than
+// one output channel: with fewer inputs the transforms cost more than they save (8 -> 8 at
+// 376 x 240 on AVX-512, one thread: 3.1 ms against the direct kernel's 2.5; 16 -> 16: 3.0
+// against 4.2). With dilation d a tile's outputs are (y, x), (y, x + d), (y + d, x),
+// (y + d, x + d): rows are paired y with y + d where y mod 2d < d (the same for columns),
+// whatever the band, so the bytes do not depend on how the rows are split, as long as no
+// split falls between a pair (conv_row_align()); a row or column without a partner inside the
+// image runs the direct kernel. The transformed tiles live in scratch memory the caller
+// gives, conv_scratch_floats() a thread: up to kWinogradTiles tiles and kWinogradChannels
+// output channels at a time (every vector wrapper's register tile fits).
 constexpr int kWinogradMinCin = 16;
-constexpr int kWinogradMaxCin = 128;
+constexpr int kWinogradTiles = 8;
+constexpr int kWinogradChannels = 64;
 bool winograd_suits(int cin, int cout);
 // Row splits of a convolution's output that keep its row pairs whole: multiples of this.
 int conv_row_align(const ConvWeights& w);
+// Floats of scratch one thread's call of the convolution needs (0: none).
+std::size_t conv_scratch_floats(const ConvWeights& w);
 
 // From PyTorch's OIHW layout (cout x cin x 3 x 3) and a bias of cout.
 ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act, int block = 8);
 
-using ConvRowsFn = void (*)(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
-void conv3x3_rows_scalar(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
+// `scratch`: conv_scratch_floats(w) floats of this thread's own (may be null where that is 0).
+using ConvRowsFn = void (*)(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1, float* scratch);
+void conv3x3_rows_scalar(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1, float* scratch);
 #if defined(TERRALIGN_NN_AVX2)
-void conv3x3_rows_avx2(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
-void conv3x3_rows_avx512(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
+void conv3x3_rows_avx2(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1, float* scratch);
+void conv3x3_rows_avx512(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1, float* scratch);
 #endif
 #if defined(TERRALIGN_NN_NEON)
-void conv3x3_rows_neon(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1);
+void conv3x3_rows_neon(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1, float* scratch);
 #endif
 bool nn_cpu_has_avx2();
 bool nn_cpu_has_avx512();

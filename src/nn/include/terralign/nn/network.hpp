@@ -71,10 +71,11 @@ class Network {
   const Tensor* output(const std::string& name) const;
   void forward();
   const char* simd_name() const { return simd_name_; }
-  // Bytes of tensor memory the network owns (activations; the packed weights are not
-  // counted; 0 for Memory::External).
+  // Bytes of tensor memory the network owns (activations and the convolutions' scratch; the
+  // packed weights are not counted; 0 for Memory::External).
   std::size_t memory_bytes() const;
-  // Memory::External: the floats the shared buffer needs (64-byte aligned), and binding it.
+  // Memory::External: the floats the shared buffer needs (64-byte aligned; the tensors and
+  // each thread's scratch for the convolutions), and binding it.
   // forward() before bind() is a programming error.
   std::size_t external_floats() const { return external_floats_; }
   void bind(float* memory);
@@ -105,7 +106,11 @@ class Network {
   Network() = default;
   NetDesc desc_;
   std::vector<Tensor> tensors_;
-  std::vector<float> shared_;       // Memory::Shared: every tensor's pixels
+  std::vector<float> shared_;       // Memory::Shared: every tensor's pixels, then the scratch
+  std::vector<float> own_scratch_;  // Memory::Separate: the convolutions' scratch
+  std::size_t scratch_floats_ = 0;  // a band's (conv_scratch_floats(), the largest layer's)
+  std::size_t tensor_floats_ = 0;   // Shared, External: the tensors' part of the buffer
+  float* scratch_ = nullptr;        // one band's scratch after another
   std::vector<std::size_t> offsets_;  // Shared, External: each tensor's place, in floats
   std::size_t external_floats_ = 0;
   bool bound_ = true;
