@@ -189,7 +189,9 @@ int main(int argc, char** argv) {
   }
   const bool wide = nn::nn_cpu_has_avx512();
   const double peak1 = peak_gflops(1, wide), peak2 = peak_gflops(2, wide);
-  std::printf("FMA peak (%s, measured): %.1f GFLOP/s on 1 thread, %.1f on 2\n\n", wide ? "AVX-512" : "AVX2", peak1, peak2);
+  std::printf("FMA peak (%s, measured): %.1f GFLOP/s on 1 thread, %.1f on 2\n", wide ? "AVX-512" : "AVX2", peak1, peak2);
+  std::printf("(GMAC and GFLOP/s count a direct convolution's 9 multiply-adds a tap; the layers of 16 input\n"
+              "channels or more run Winograd's F(2x2, 3x3), 4 of those 9, so they can exceed the FMA peak)\n\n");
   for (auto [w, h] : {std::pair<int, int>{752, 480}, {160, 120}}) {
     if (tracker_only) break;
     for (int threads : {1, 2}) {

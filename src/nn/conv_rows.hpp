@@ -10,6 +10,7 @@
 #pragma once
 
 #include <algorithm>
+#include <type_traits>
 
 #include <terralign/geo/assert.hpp>
 #include <terralign/nn/kernels.hpp>
@@ -93,16 +94,22 @@ inline void conv1_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int 
   }
 }
 
-// The direct kernel over one output pixel x of row y, every block of output channels.
+// Every block of w's output channels, kTileBlocks at a time, the rest in pairs where the tile
+// is wider than two, then one by one: f(std::integral_constant<int, NB>, first block).
+template <class V, class F>
+inline void for_block_groups(const ConvWeights& w, F&& f) {
+  constexpr int NB = V::kTileBlocks;
+  const int blocks = (w.cout + V::kBlock - 1) / V::kBlock;
+  int block = 0;
+  for (; block + NB <= blocks; block += NB) f(std::integral_constant<int, NB>{}, block);
+  for (; NB > 2 && block + 2 <= blocks; block += 2) f(std::integral_constant<int, 2>{}, block);
+  for (; block < blocks; ++block) f(std::integral_constant<int, 1>{}, block);
+}
+
+// The direct kernel over NP output pixels from x of row y, every block of output channels.
 template <class V, int NP>
 inline void conv_pixels(const Tensor& in, const ConvWeights& w, Tensor& out, int y, int x) {
-  const int blocks = (w.cout + V::kBlock - 1) / V::kBlock;
-  constexpr int NB = V::kTileBlocks;
-  int block = 0;
-  for (; block + NB <= blocks; block += NB) conv_tile<V, NP, NB>(in, w, out, y, x, block);
-  // The remaining blocks: in pairs where the tile is wider than two, then one by one.
-  for (; NB > 2 && block + 2 <= blocks; block += 2) conv_tile<V, NP, 2>(in, w, out, y, x, block);
-  for (; block < blocks; ++block) conv_tile<V, NP, 1>(in, w, out, y, x, block);
+  for_block_groups<V>(w, [&](auto nb, int block) { conv_tile<V, NP, decltype(nb)::value>(in, w, out, y, x, block); });
 }
 
 // The direct kernel over one output row.
@@ -208,11 +215,7 @@ inline void winograd_tiles(const Tensor& in, const ConvWeights& w, Tensor& out, 
   float* U = scratch;
   float* M = scratch + (16 * static_cast<std::ptrdiff_t>(kWinogradTiles) * w.cin + 15) / 16 * 16;
   winograd_input<V, NT>(in, w, y, xs, U);
-  const int blocks = (w.cout + BLK - 1) / BLK;
-  int block = 0;
-  for (; block + NB <= blocks; block += NB) winograd_block<V, NT, NB>(w, U, block, M, out, y, xs);
-  for (; NB > 2 && block + 2 <= blocks; block += 2) winograd_block<V, NT, 2>(w, U, block, M, out, y, xs);
-  for (; block < blocks; ++block) winograd_block<V, NT, 1>(w, U, block, M, out, y, xs);
+  for_block_groups<V>(w, [&](auto nb, int block) { winograd_block<V, NT, decltype(nb)::value>(w, U, block, M, out, y, xs); });
 }
 
 // Winograd over rows [y0, y1): pairs (y, y + d) with y mod 2d < d both inside the band run as
