@@ -15,6 +15,8 @@
 #include <terralign/geo/assert.hpp>
 #include <terralign/nn/kernels.hpp>
 
+#include "simd_scalar.hpp"  // Winograd's transform of the channels a vector leaves over
+
 namespace terralign::nn {
 
 template <class V>
@@ -133,32 +135,30 @@ inline void winograd_combine(const V* d, V* u, int stride) {
   u[3 * stride] = d[stride] - d[3 * stride];
 }
 
+// One tile's transform for T::kWidth channels from p (input row stride `row`, column
+// stride `step`) into u (taps `tap` floats apart). T: the kernel's wrapper, or VecScalar for
+// the channels left over (the same operations).
+template <class T>
+inline void winograd_transform(const float* p, std::ptrdiff_t row, std::ptrdiff_t step, float* u, std::ptrdiff_t tap) {
+  T v[16], r[16];
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) v[4 * i + j] = T::load(p + i * row + j * step);
+  for (int j = 0; j < 4; ++j) winograd_combine(v + j, r + j, 4);          // rows
+  for (int i = 0; i < 4; ++i) winograd_combine(r + 4 * i, v + 4 * i, 1);  // columns
+  for (int e = 0; e < 16; ++e) v[e].store(u + e * tap);
+}
+
 template <class V, int NT>
 inline void winograd_input(const Tensor& in, const ConvWeights& w, int y, const int* xs, float* U) {
-  constexpr int W = V::kWidth;
   const int d = w.dilation, cin = w.cin;
-  const std::ptrdiff_t step = static_cast<std::ptrdiff_t>(d) * in.cp;
+  const std::ptrdiff_t row = in.row * d, step = static_cast<std::ptrdiff_t>(d) * in.cp;
   const std::ptrdiff_t tap = static_cast<std::ptrdiff_t>(NT) * cin;  // floats between U's taps
   for (int t = 0; t < NT; ++t) {
     const float* p = in.at(y - d, xs[t] - d);
     float* u = U + static_cast<std::ptrdiff_t>(t) * cin;
     int c = 0;
-    for (; c + W <= cin; c += W) {
-      V v[16], r[16];
-      for (int i = 0; i < 4; ++i)
-        for (int j = 0; j < 4; ++j) v[4 * i + j] = V::load(p + i * in.row * d + j * step + c);
-      for (int j = 0; j < 4; ++j) winograd_combine(v + j, r + j, 4);      // rows
-      for (int i = 0; i < 4; ++i) winograd_combine(r + 4 * i, v + 4 * i, 1);  // columns
-      for (int e = 0; e < 16; ++e) v[e].store(u + e * tap + c);
-    }
-    for (; c < cin; ++c) {  // the same operations, one channel
-      float v[16], r[16];
-      for (int i = 0; i < 4; ++i)
-        for (int j = 0; j < 4; ++j) v[4 * i + j] = p[i * in.row * d + j * step + c];
-      for (int j = 0; j < 4; ++j) winograd_combine(v + j, r + j, 4);
-      for (int i = 0; i < 4; ++i) winograd_combine(r + 4 * i, v + 4 * i, 1);
-      for (int e = 0; e < 16; ++e) u[e * tap + c] = v[e];
-    }
+    for (; c + V::kWidth <= cin; c += V::kWidth) winograd_transform<V>(p + c, row, step, u + c, tap);
+    for (; c < cin; ++c) winograd_transform<VecScalar>(p + c, row, step, u + c, tap);
   }
 }
 
