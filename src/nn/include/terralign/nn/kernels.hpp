@@ -1,5 +1,6 @@
 // Inference kernels. Each is a pure function over tensors of a fixed size: no allocation, no
-// hidden state; rows [y0, y1) of the output only, so callers split work by rows.
+// hidden state; rows [y0, y1) of the output only, so callers split work by rows (a
+// convolution's on multiples of conv_row_align(), below).
 //
 // The 3x3 convolution is written once (conv_rows.hpp) against a thin vector wrapper and
 // built for the one-lane scalar wrapper, AVX2 + FMA, AVX-512F and NEON. They differ only in

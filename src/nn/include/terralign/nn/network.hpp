@@ -15,7 +15,8 @@
 //
 // A Network is planned once for an input size: every tensor is allocated then, forward()
 // allocates nothing. Work is split by output rows in fixed blocks, each row computed by one
-// thread in one order, so 1 and 2 threads give the same bytes.
+// thread in one order (a Winograd convolution's rows in pairs, which no split divides), so 1
+// and 2 threads give the same bytes.
 #pragma once
 
 #include <memory>
