@@ -26,6 +26,25 @@ inline V activate(V v, Act act) {
   return v;
 }
 
+// The register tile's inner product: for input channels [0, cin), the values a[p * stride +
+// ci] of NP pixels (or tiles) times the weights of NB blocks of output channels (wp[b] + ci *
+// kBlock), added into acc. One broadcast a value and one load a weight vector feed
+// NP x NB x NV multiply-adds.
+template <class V, int NP, int NB>
+inline void tile_products(V (&acc)[NP][NB * (V::kBlock / V::kWidth)], const float* a, std::ptrdiff_t stride,
+                          const float* const* wp, int cin) {
+  constexpr int BLK = V::kBlock, NV = BLK / V::kWidth;
+  for (int ci = 0; ci < cin; ++ci) {
+    V wv[NB * NV];
+    for (int b = 0; b < NB; ++b)
+      for (int j = 0; j < NV; ++j) wv[b * NV + j] = V::load(wp[b] + ci * BLK + j * V::kWidth);
+    for (int p = 0; p < NP; ++p) {
+      const V x = V::set1(a[p * stride + ci]);
+      for (int k = 0; k < NB * NV; ++k) acc[p][k] = fmadd(x, wv[k], acc[p][k]);
+    }
+  }
+}
+
 template <class V, int NP, int NB>
 inline void conv_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int y, int x, int block) {
   constexpr int BLK = V::kBlock;
@@ -43,15 +62,7 @@ inline void conv_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int y
       const float* wp[NB];
       for (int b = 0; b < NB; ++b)
         wp[b] = w.packed.data() + (static_cast<std::size_t>(block + b) * 9 + static_cast<std::size_t>(ky * 3 + kx)) * static_cast<std::size_t>(cin) * BLK;
-      for (int ci = 0; ci < cin; ++ci) {
-        V wv[NB * NV];
-        for (int b = 0; b < NB; ++b)
-          for (int j = 0; j < NV; ++j) wv[b * NV + j] = V::load(wp[b] + ci * BLK + j * V::kWidth);
-        for (int p = 0; p < NP; ++p) {
-          const V a = V::set1(ip[p * cp + ci]);
-          for (int k = 0; k < NB * NV; ++k) acc[p][k] = fmadd(a, wv[k], acc[p][k]);
-        }
-      }
+      tile_products<V, NP, NB>(acc, ip, cp, wp, cin);
     }
   for (int p = 0; p < NP; ++p) {
     float* op = out.at(y, x + p) + block * BLK;
@@ -163,7 +174,7 @@ inline void winograd_input(const Tensor& in, const ConvWeights& w, int y, const 
 }
 
 // Winograd, step 2, for NB blocks of output channels from `block`: the 16 products of U and
-// the transformed filters (a register tile each, as conv_tile) into M[e][t][channel], then the
+// the transformed filters (a register tile each, tile_products()) into M[e][t][channel], then the
 // output transform A^T m A (A^T's rows: 0 + 1 + 2, 1 - 2 - 3), the bias and the activation.
 template <class V, int NT, int NB>
 inline void winograd_block(const ConvWeights& w, const float* U, int block, float* M, Tensor& out, int y, const int* xs) {
@@ -176,16 +187,7 @@ inline void winograd_block(const ConvWeights& w, const float* U, int block, floa
     const float* wp[NB];
     for (int b = 0; b < NB; ++b)
       wp[b] = w.winograd.data() + (static_cast<std::size_t>(block + b) * 16 + static_cast<std::size_t>(e)) * static_cast<std::size_t>(cin) * BLK;
-    const float* u = U + static_cast<std::ptrdiff_t>(e) * NT * cin;
-    for (int ci = 0; ci < cin; ++ci) {
-      V wv[K];
-      for (int b = 0; b < NB; ++b)
-        for (int j = 0; j < NV; ++j) wv[b * NV + j] = V::load(wp[b] + ci * BLK + j * W);
-      for (int t = 0; t < NT; ++t) {
-        const V a = V::set1(u[t * cin + ci]);
-        for (int k = 0; k < K; ++k) acc[t][k] = fmadd(a, wv[k], acc[t][k]);
-      }
-    }
+    tile_products<V, NT, NB>(acc, U + static_cast<std::ptrdiff_t>(e) * NT * cin, cin, wp, cin);
     for (int t = 0; t < NT; ++t)
       for (int k = 0; k < K; ++k) acc[t][k].store(M + ((e * NT + t) * K + k) * W);
   }
