@@ -124,6 +124,30 @@ def augment(x, gen, p=0.8):
     return on * y + (1 - on) * x
 
 
+def augment_survey(x, gen, p=0.5):
+    """What differs between two surveys' orthophotos beyond augment()'s exposure and white
+    balance (NAIP 2009 against 2020: 2009 pale and hazy, channel means 117/132/113 against
+    77/97/75 at about the same spread): each image on its own with probability p gets a
+    colour mix (the identity plus N(0, 0.08) per entry, rows keeping their sum), a gamma per
+    channel (0.8-1.25, log-uniform), a contrast about the image's mean (x0.6-1.3) and haze
+    (a blend of 0-35 % towards a pale grey-blue). Draws only from `gen`."""
+    B = x.shape[0]
+    u = lambda *shape: torch.rand(*shape, generator=gen, dtype=x.dtype)  # noqa: E731
+    on = (u(B) < p).to(x.dtype).view(B, 1, 1, 1)
+    mix = torch.eye(3, dtype=x.dtype).repeat(B, 1, 1) + 0.08 * torch.randn(B, 3, 3, generator=gen, dtype=x.dtype)
+    mix = mix / mix.sum(2, keepdim=True)
+    y = torch.einsum("bij,bjhw->bihw", mix, x / 255.0).clamp(min=0)
+    gamma = torch.exp((u(B, 3) * 2 - 1) * np.log(1.25)).view(B, 3, 1, 1)
+    y = y.pow(gamma)
+    mean = y.mean((1, 2, 3), keepdim=True)
+    y = mean + (0.6 + 0.7 * u(B)).view(B, 1, 1, 1) * (y - mean)
+    haze = (0.35 * u(B)).view(B, 1, 1, 1)
+    tint = (torch.tensor([0.72, 0.78, 0.76], dtype=x.dtype).view(1, 3, 1, 1) + 0.08 * (u(B, 3).view(B, 3, 1, 1) - 0.5))
+    y = (1 - haze) * y + haze * tint
+    y = (y * 255.0).clamp(0, 255)
+    return on * y + (1 - on) * x
+
+
 def year_gaps(layers):
     """|year_b - year_c| for every pair of layers named by year, or None when a name is not a year."""
     try:
@@ -224,6 +248,9 @@ def main():
                    help="probability that each training image (reference and query, independently) is "
                         "augmented photometrically (augment(): exposure, white balance, saturation, gamma, blur, "
                         "noise); 0: none")
+    p.add_argument("--augment-survey", type=float, default=0.0,
+                   help="probability that each training image, independently, first gets augment_survey() (colour "
+                        "mix, gamma per channel, contrast, haze: one survey's look against another's); 0: none")
     p.add_argument("--extra", help="a second dataset (terralign dataset's output) whose training pairs make a "
                         "whole batch with probability --extra-p; its loss is scaled by the ratio of the two sets' mean "
                         "altitudes, so a pixel of error weighs the same in both; its validation pairs are logged as "
@@ -293,6 +320,8 @@ def main():
             src, weight = extra, extra_weight
         ref, depth, qry, K, truth = src.batch(sample_items(rng, len(src.ids), len(src.layers), a.batch,
                                                            gaps=gaps if src is train else None, gap_power=a.gap_power))
+        if a.augment_survey > 0:
+            ref, qry = augment_survey(ref, gen, a.augment_survey), augment_survey(qry, gen, a.augment_survey)
         if a.augment > 0:
             ref, qry = augment(ref, gen, a.augment), augment(qry, gen, a.augment)
         _, _, losses, _ = model(ref, depth, qry, K, truth=truth)
