@@ -56,7 +56,7 @@ const std::vector<Command>& commands() {
        "N iterations per level; --weights as for align). --area keeps every footprint inside a part\n"
        "of the map (e.g. ground the learned tracker was not trained on). Converged tests report an\n"
        "answer as failed (the prior): --max-disagreement PX, the agreement test of both trackers\n"
-       "(default: 0.95 classic; the weight file's '# max-disagreement-px', 0.85 for the shipped\n"
+       "(default: 0.95 classic; the weight file's '# max-disagreement-px', 0.95 for the shipped\n"
        "weights; negative: none), when a second start 2 working px away in u and v settles more\n"
        "than PX away from it; --min-sharpness S, the learned tracker's sharpness test (default:\n"
        "the weight file's '# min-sharpness', none for the shipped weights; negative: none), when\n"
