@@ -210,19 +210,19 @@ inline void copy_out(const Tri4& t, int i, Tri& out, PixelBox& box) {
 
 }  // namespace
 
-int emit_quad_row_avx2(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes) {
+int emit_quad_row_avx2(const ProjGrid& g, int top, int bottom, int n, bool anti, int vw, int vh, Tri* out, PixelBox* boxes) {
   int count = 0, a0 = 0;
   Tri4 first, second;
   for (; a0 + 4 <= n; a0 += 4) {
     const Vert4 v00 = load4(g, top + a0), v10 = load4(g, top + a0 + 1), v01 = load4(g, bottom + a0), v11 = load4(g, bottom + a0 + 1);
-    setup4(v00, v10, v11, vw, vh, first);
-    setup4(v00, v11, v01, vw, vh, second);
+    setup4(v00, v10, anti ? v01 : v11, vw, vh, first);
+    setup4(anti ? v10 : v00, v11, v01, vw, vh, second);
     for (int i = 0; i < 4; ++i) {
       if (first.keep >> i & 1) copy_out(first, i, out[count], boxes[count]), ++count;
       if (second.keep >> i & 1) copy_out(second, i, out[count], boxes[count]), ++count;
     }
   }
-  if (a0 < n) count += emit_quad_row_scalar(g, top + a0, bottom + a0, n - a0, vw, vh, out + count, boxes + count);
+  if (a0 < n) count += emit_quad_row_scalar(g, top + a0, bottom + a0, n - a0, anti, vw, vh, out + count, boxes + count);
   return count;
 }
 

@@ -188,7 +188,7 @@ bool project_posts_avx512(const PostFrame& f, const float* x, const float* y, co
   return all;
 }
 
-int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes) {
+int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, bool anti, int vw, int vh, Tri* out, PixelBox* boxes) {
   int count = 0;
   Tri8 first, second;
   for (int a0 = 0; a0 < n; a0 += 8) {
@@ -196,8 +196,8 @@ int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, int vw, 
     const __mmask8 lanes = static_cast<__mmask8>((1u << m) - 1);
     const Vert8 v00 = load8(g, top + a0, lanes), v10 = load8(g, top + a0 + 1, lanes);
     const Vert8 v01 = load8(g, bottom + a0, lanes), v11 = load8(g, bottom + a0 + 1, lanes);
-    setup8(v00, v10, v11, lanes, vw, vh, first);
-    setup8(v00, v11, v01, lanes, vw, vh, second);
+    setup8(v00, v10, anti ? v01 : v11, lanes, vw, vh, first);
+    setup8(anti ? v10 : v00, v11, v01, lanes, vw, vh, second);
     if ((first.keep | second.keep) == 0) continue;
     // The two sets' fields side by side (first triangles in lanes 0-7, second in 8-15), then
     // one triangle a vector: row i the first triangle of quad a0 + i, row 8 + i its second.

@@ -26,12 +26,12 @@ bool project_posts_scalar(const PostFrame& f, const float* x, const float* y, co
   return all;
 }
 
-int emit_quad_row_scalar(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes) {
+int emit_quad_row_scalar(const ProjGrid& g, int top, int bottom, int n, bool anti, int vw, int vh, Tri* out, PixelBox* boxes) {
   int count = 0;
   for (int a = 0; a < n; ++a) {
     const ProjVert p00 = g.at(top + a), p10 = g.at(top + a + 1), p01 = g.at(bottom + a), p11 = g.at(bottom + a + 1);
-    if (setup_triangle(p00, p10, p11, vw, vh, out[count], boxes[count])) ++count;
-    if (setup_triangle(p00, p11, p01, vw, vh, out[count], boxes[count])) ++count;
+    if (setup_triangle(p00, p10, anti ? p01 : p11, vw, vh, out[count], boxes[count])) ++count;
+    if (setup_triangle(anti ? p10 : p00, p11, p01, vw, vh, out[count], boxes[count])) ++count;
   }
   return count;
 }

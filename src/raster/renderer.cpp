@@ -578,7 +578,7 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
   for (int b = 0; b < kChunkQuads; ++b) {
     if (jj[b + 1] == jj[b]) continue;
     if (columns_distinct && row_inside[b] && row_inside[b + 1] && g.n_tris + 2 * kChunkQuads <= options.max_triangles) {
-      const int kept = emit_quad_row(g.proj, b * n, (b + 1) * n, kChunkQuads, vw, vh, g.tris + g.n_tris, g.row_boxes);
+      const int kept = emit_quad_row(g.proj, b * n, (b + 1) * n, kChunkQuads, c.anti, vw, vh, g.tris + g.n_tris, g.row_boxes);
       for (int i = 0; i < kept; ++i) add_triangle(g, g.row_boxes[i]);
       continue;
     }
@@ -586,16 +586,17 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
       if (ii[a + 1] == ii[a]) continue;
       const int k00 = b * n + a, k10 = k00 + 1, k01 = k00 + n, k11 = k01 + 1;
       if (nan_post[k00] || nan_post[k10] || nan_post[k01] || nan_post[k11]) continue;
-      // Wholly inside the clip volume (most triangles): each vertex was projected once.
+      // Wholly inside the clip volume (most triangles): each vertex was projected once. The
+      // triangles as emit_quad_row() makes them.
       if ((chunk_out[static_cast<std::size_t>(k00)] | chunk_out[static_cast<std::size_t>(k10)] |
            chunk_out[static_cast<std::size_t>(k01)] | chunk_out[static_cast<std::size_t>(k11)]) == 0) {
-        const ProjVert p00 = g.proj.at(k00), p11 = g.proj.at(k11);
-        emit_triangle(g, p00, g.proj.at(k10), p11);
-        emit_triangle(g, p00, p11, g.proj.at(k01));
+        const ProjVert p00 = g.proj.at(k00), p10 = g.proj.at(k10), p01 = g.proj.at(k01), p11 = g.proj.at(k11);
+        emit_triangle(g, p00, p10, c.anti ? p01 : p11);
+        emit_triangle(g, c.anti ? p10 : p00, p11, p01);
         continue;
       }
       const ClipVert v00 = g.verts.at(k00), v10 = g.verts.at(k10), v01 = g.verts.at(k01), v11 = g.verts.at(k11);
-      const ClipVert t1[3] = {v00, v10, v11}, t2[3] = {v00, v11, v01};
+      const ClipVert t1[3] = {v00, v10, c.anti ? v01 : v11}, t2[3] = {c.anti ? v10 : v00, v11, v01};
       clip_and_emit(g, t1, 3);
       clip_and_emit(g, t2, 3);
     }

@@ -120,13 +120,17 @@ int Terrain::build_chunk(int level, int i0, int j0) {
   // Bounding box and the error of the coarse surface against every post inside.
   float bx0 = INFINITY, by0 = INFINITY, bz0 = INFINITY, bx1 = -INFINITY, by1 = -INFINITY, bz1 = -INFINITY;
   float err = 0;
+  bool holes = false;
   for (int j = j0; j <= j1; ++j)
     for (int i = i0; i <= i1; ++i) {
       float x, y, z;
       post(i, j, x, y, z);
       bx0 = std::min(bx0, x); bx1 = std::max(bx1, x);
       by0 = std::min(by0, y); by1 = std::max(by1, y);
-      if (!std::isfinite(z)) continue;
+      if (!std::isfinite(z)) {
+        holes = true;
+        continue;
+      }
       bz0 = std::min(bz0, z); bz1 = std::max(bz1, z);
       if (level == 0) continue;
       // The coarse surface the chunk draws: the two triangles (split along the diagonal
@@ -147,6 +151,48 @@ int Terrain::build_chunk(int level, int i0, int j0) {
       if (std::isfinite(h)) err = std::max(err, std::abs(h - z));
       else err = std::max(err, bz1 - bz0 + 1.0f);  // a hole in the coarse surface
     }
+  // The other diagonal, where the chunk's quads are whole (not cut by the map's last post
+  // row or column) and every post has a height. Its triangles are not made of the full-
+  // resolution ones: the two surfaces, each linear on its triangles, differ most at a post or
+  // where a coarse edge crosses a full-resolution one, and those crossings are the centres of
+  // the full-resolution quads on the coarse diagonals (the full-resolution diagonal of such a
+  // quad is the coarse one's mirror).
+  if (level > 0 && !holes && i0 + span <= nx_ - 1 && j0 + span <= ny_ - 1) {
+    float anti = 0;
+    float a, b;
+    for (int cj = j0; cj < j1 && anti < err; cj += step)
+      for (int ci = i0; ci < i1; ci += step) {
+        float c00, c10, c01, c11;
+        post(ci, cj, a, b, c00);
+        post(ci + step, cj, a, b, c10);
+        post(ci, cj + step, a, b, c01);
+        post(ci + step, cj + step, a, b, c11);
+        for (int j = cj; j <= cj + step; ++j)
+          for (int i = ci; i <= ci + step; ++i) {
+            float z;
+            post(i, j, a, b, z);
+            const float fx = static_cast<float>(i - ci) / static_cast<float>(step);
+            const float fy = static_cast<float>(j - cj) / static_cast<float>(step);
+            const float h = fx + fy <= 1.0f ? c00 + fx * (c10 - c00) + fy * (c01 - c00)
+                                            : c11 + (1.0f - fx) * (c01 - c11) + (1.0f - fy) * (c10 - c11);
+            anti = std::max(anti, std::abs(h - z));
+          }
+        for (int k = 0; k < step; ++k) {
+          // Full-resolution quad (i, j), its centre on the coarse diagonal from (ci + step, cj)
+          // to (ci, cj + step), (k + 1/2) / step of the way along.
+          const int i = ci + step - 1 - k, j = cj + k;
+          float z00, z11;
+          post(i, j, a, b, z00);
+          post(i + 1, j + 1, a, b, z11);
+          const float h = c10 + (static_cast<float>(k) + 0.5f) / static_cast<float>(step) * (c01 - c10);
+          anti = std::max(anti, std::abs(h - 0.5f * (z00 + z11)));
+        }
+      }
+    if (anti < err) {
+      c.anti = true;
+      err = anti;
+    }
+  }
   c.min_x = bx0; c.max_x = bx1; c.min_y = by0; c.max_y = by1;
   c.min_z = std::isfinite(bz0) ? bz0 : 0.0f;
   c.max_z = std::isfinite(bz1) ? bz1 : 0.0f;

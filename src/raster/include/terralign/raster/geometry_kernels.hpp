@@ -175,15 +175,17 @@ inline bool setup_triangle(const ProjVert& a, const ProjVert& b, const ProjVert&
 }
 
 // The triangles of quads a = 0 .. n - 1 (n <= 16) between the grid rows whose vertices start
-// at `top` and at `bottom`: (top + a, top + a + 1, bottom + a + 1), then (top + a, bottom + a +
-// 1, bottom + a), each as setup_triangle() makes it; those it keeps are written in that order
-// to out and boxes (room for 2 n each). Returns how many.
-int emit_quad_row_scalar(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes);
+// at `top` and at `bottom`, each quad split along its diagonal from top + a to bottom + a + 1:
+// (top + a, top + a + 1, bottom + a + 1), then (top + a, bottom + a + 1, bottom + a); or, with
+// `anti`, along the other one: (top + a, top + a + 1, bottom + a), then (top + a + 1, bottom +
+// a + 1, bottom + a) (TerrainChunk::anti). Each as setup_triangle() makes it; those it keeps
+// are written in that order to out and boxes (room for 2 n each). Returns how many.
+int emit_quad_row_scalar(const ProjGrid& g, int top, int bottom, int n, bool anti, int vw, int vh, Tri* out, PixelBox* boxes);
 #if defined(TERRALIGN_HAVE_AVX2)
-int emit_quad_row_avx2(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes);
-int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, int vw, int vh, Tri* out, PixelBox* boxes);
+int emit_quad_row_avx2(const ProjGrid& g, int top, int bottom, int n, bool anti, int vw, int vh, Tri* out, PixelBox* boxes);
+int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, bool anti, int vw, int vh, Tri* out, PixelBox* boxes);
 #endif
-using EmitQuadRowFn = int (*)(const ProjGrid&, int, int, int, int, int, Tri*, PixelBox*);
+using EmitQuadRowFn = int (*)(const ProjGrid&, int, int, int, bool, int, int, Tri*, PixelBox*);
 
 // The set-up of up to 16 of a tile's bin entries for the rasterizer. A small entry is a
 // triangle whose corners span under 8 pixels each way and whose pixel box lies wholly in the

@@ -3,9 +3,10 @@
 // Posts: a regular grid of heights (the DEM's pixel centres, or a synthetic flat grid for a
 // constant-height map) placed by an affine transform, in local coordinates (metres relative
 // to the renderer's origin). A chunk at level k covers (kChunkQuads * 2^k) quads a side and
-// is drawn as a kChunkQuads x kChunkQuads grid taking every 2^k-th post. Its error is the
-// largest vertical distance between the full-resolution posts it covers and its coarse
-// surface (and its children's errors), computed once at construction.
+// is drawn as a kChunkQuads x kChunkQuads grid taking every 2^k-th post, each quad split into
+// two triangles along one of its diagonals. Its error is the largest vertical distance between
+// its coarse surface and the full-resolution one (and its children's errors), computed once at
+// construction.
 #pragma once
 
 #include <cstdint>
@@ -24,6 +25,11 @@ struct TerrainChunk {
   int i0, j0;            // first post (column, row)
   int span;              // quads a side at full resolution: kChunkQuads << level
   float error;           // metres
+  // The diagonal its quads are split along: false, post (i, j) to (i + step, j + step) (every
+  // level-0 chunk: the full-resolution surface); true, (i + step, j) to (i, j + step). A
+  // coarser chunk takes the one that fits the posts better: a ridge or a ripple running along
+  // one diagonal is cut by the other at every quad, and bends the surface there.
+  bool anti;
   float min_x, min_y, min_z, max_x, max_y, max_z;  // local bounding box
   int child[4];          // -1 where none
 };
