@@ -161,7 +161,7 @@ TEST_CASE("a chunk's screen error bound holds at every point of its box moved up
           << tightest << " .. " << loosest << "; moved / (f e / distance) up to " << worst_isotropic);
 }
 
-TEST_CASE("terrain level of detail: skirts only between chunks drawn at different levels, and no crack") {
+TEST_CASE("terrain level of detail: skirts only between chunks whose borders differ, and no crack") {
   // 256 x 256 quads of 10 m: one root chunk (level 4) over 2.56 km, rolling with 6 m bumps.
   const geo::Map map = test::dem_map(257, 257, 0, 2560, 10.0, [](double x, double y) {
     return 50 * std::sin(x / 150) * std::cos(y / 170) + 6 * std::sin(x * 0.09 + y * 0.07);
@@ -183,113 +183,148 @@ TEST_CASE("terrain level of detail: skirts only between chunks drawn at differen
   // Oblique views over chunks of several levels, the map's edge out of view: a pixel with no
   // terrain between two with terrain at about one depth would be a crack. A bound of 4 px
   // (not the default 0.5) makes the gaps the skirts must close several pixels wide: without
-  // skirts this counts 48.
+  // skirts this counts 48. The same over bumps whose crests run north-south, where many
+  // chunks are drawn with a grid twice as fine along the post rows (Wide) beside Square ones
+  // of their level and of others.
+  const geo::Map ridged = test::dem_map(257, 257, 0, 2560, 10.0, [](double x, double y) {
+    return 50 * std::sin(x / 150) * std::cos(y / 170) + 6 * std::sin(x * 0.042);
+  }, smooth_layer());
   RenderOptions opt;
   opt.lod_error_px = 4;
-  auto r = make(map, cam, opt);
-  auto out = r->make_output({"smooth"});
-  REQUIRE(out.ok());
-  int cracks = 0, several_chunks = 0;
-  for (int k = 0; k < 24; ++k) {
-    RenderStats stats;
-    const double yaw = 15.0 * k, tilt = 15 + 5 * (k % 6);
-    REQUIRE(r->render(look_down(1280 + 200 * std::cos(k), 1280 + 200 * std::sin(k), 300, tilt, yaw), out.value(), &stats).ok());
-    several_chunks += stats.chunks > 1;
-    const auto& d = out.value().depth;
-    for (int y = 1; y + 1 < cam.height; ++y)
-      for (int x = 1; x + 1 < cam.width; ++x) {
-        if (std::isfinite(d.at(x, y))) continue;
-        // Terrain on both sides, left and right or above and below, at about one depth.
-        const auto across = [](float a, float b) {
-          return std::isfinite(a) && std::isfinite(b) && std::max(a, b) < 1.1f * std::min(a, b);
-        };
-        cracks += across(d.at(x - 1, y), d.at(x + 1, y)) || across(d.at(x, y - 1), d.at(x, y + 1));
-      }
+  int cracks = 0, several_chunks = 0, one_way = 0;
+  for (const geo::Map* m : {&map, &ridged}) {
+    auto r = make(*m, cam, opt);
+    auto out = r->make_output({"smooth"});
+    REQUIRE(out.ok());
+    for (int k = 0; k < 24; ++k) {
+      RenderStats stats;
+      const double yaw = 15.0 * k, tilt = 15 + 5 * (k % 6);
+      REQUIRE(r->render(look_down(1280 + 200 * std::cos(k), 1280 + 200 * std::sin(k), 300, tilt, yaw), out.value(), &stats).ok());
+      several_chunks += stats.chunks > 1;
+      one_way += stats.chunks_one_way;
+      const auto& d = out.value().depth;
+      for (int y = 1; y + 1 < cam.height; ++y)
+        for (int x = 1; x + 1 < cam.width; ++x) {
+          if (std::isfinite(d.at(x, y))) continue;
+          // Terrain on both sides, left and right or above and below, at about one depth.
+          const auto across = [](float a, float b) {
+            return std::isfinite(a) && std::isfinite(b) && std::max(a, b) < 1.1f * std::min(a, b);
+          };
+          cracks += across(d.at(x - 1, y), d.at(x + 1, y)) || across(d.at(x, y - 1), d.at(x, y + 1));
+        }
+    }
   }
-  CHECK(several_chunks == 24);
+  MESSAGE(one_way << " chunks drawn Wide or Tall in the 48 views");
+  CHECK(several_chunks == 48);
+  CHECK(one_way > 48);
   CHECK(cracks == 0);
 }
 
-TEST_CASE("a coarse chunk splits its quads along the diagonal that fits its posts better, and its error bounds that surface") {
+TEST_CASE("a coarse chunk's grids (square, twice as fine along one axis, either diagonal) each bound their surface by their error") {
   // 256 x 256 quads of 10 m, rolling, with 6 m bumps 15 posts apart whose crests run along one
   // diagonal of the posts (x - y constant: post (i, j) to (i + 1, j + 1), the full-resolution
-  // surface's own diagonal, crosses them) or, mirrored, along the other.
-  auto bumps = [](double sign) {
-    return test::dem_map(257, 257, 0, 2560, 10.0, [sign](double x, double y) {
-      return 50 * std::sin(x / 150) * std::cos(y / 170) + 6 * std::sin((x - sign * y) * 0.03);
+  // surface's own diagonal, crosses them), along the other, or north-south (down the posts'
+  // columns, x constant: no diagonal follows them; a grid finer along the post rows does).
+  auto bumps = [](int way) {
+    return test::dem_map(257, 257, 0, 2560, 10.0, [way](double x, double y) {
+      const double across = way == 0 ? (x - y) * 0.03 : way == 1 ? (x + y) * 0.03 : x * 0.042;
+      return 50 * std::sin(x / 150) * std::cos(y / 170) + 6 * std::sin(across);
     }, smooth_layer());
   };
-  const geo::Map across = bumps(1), along = bumps(-1);
-  int anti[2] = {0, 0}, coarse[2] = {0, 0};
+  const geo::Map maps[3] = {bumps(0), bumps(1), bumps(2)};
+  int anti[3] = {0, 0, 0}, coarse[3] = {0, 0, 0}, wide[3] = {0, 0, 0}, tall[3] = {0, 0, 0};
   double worst = 0;  // the most a drawn surface leaves its chunk's error, metres
-  for (int m = 0; m < 2; ++m) {
-    const Terrain t = Terrain::build(m ? along : across, 0, 0, 0);
-    // The full-resolution surface at (u, v) posts: each quad split from (i, j) to (i + 1, j + 1).
+  for (int m = 0; m < 3; ++m) {
+    const Terrain t = Terrain::build(maps[m], 0, 0, 0);
     auto height = [&t](int i, int j) {
       float x, y, z;
       t.post(i, j, x, y, z);
       return static_cast<double>(z);
     };
-    auto surface = [&](double u, double v, int step, int i0, int j0, bool other) {
-      const int i = i0 + std::min(static_cast<int>((u - i0) / step), kChunkQuads - 1) * step;
-      const int j = j0 + std::min(static_cast<int>((v - j0) / step), kChunkQuads - 1) * step;
-      const double fx = (u - i) / step, fy = (v - j) / step;
-      const double h00 = height(i, j), h10 = height(i + step, j), h01 = height(i, j + step), h11 = height(i + step, j + step);
+    // A surface through posts every si along i and sj along j from (i0, j0), its quads split
+    // from (i, j) to (i + si, j + sj), or the other way: at (u, v) posts.
+    auto surface = [&](double u, double v, int i0, int j0, int si, int sj, int qi, int qj, bool other) {
+      const int i = i0 + std::min(static_cast<int>((u - i0) / si), qi - 1) * si;
+      const int j = j0 + std::min(static_cast<int>((v - j0) / sj), qj - 1) * sj;
+      const double fx = (u - i) / si, fy = (v - j) / sj;
+      const double h00 = height(i, j), h10 = height(i + si, j), h01 = height(i, j + sj), h11 = height(i + si, j + sj);
       if (other)
         return fx + fy <= 1 ? h00 + fx * (h10 - h00) + fy * (h01 - h00) : h11 + (1 - fx) * (h01 - h11) + (1 - fy) * (h10 - h11);
       return fx >= fy ? h00 + fx * (h10 - h00) + fy * (h11 - h10) : h00 + fy * (h01 - h00) + fx * (h11 - h01);
     };
     for (const TerrainChunk& c : t.chunks()) {
       if (c.level == 0) {
-        CHECK_FALSE(c.anti);
+        CHECK_FALSE(c.anti[kSquare]);
+        CHECK(c.error[kSquare] == 0.0f);
+        CHECK(c.error[kWide] == INFINITY);
         continue;
       }
       ++coarse[m];
-      anti[m] += c.anti;
-      // Both coarse surfaces against the full-resolution one every quarter post: the two are
-      // linear between posts and the coarse diagonals' crossings of the full-resolution ones
-      // (quad centres), so this finds each one's largest distance exactly.
-      const int step = 1 << c.level;
-      double drawn = 0, kept = 0;
-      for (int b = 0; b <= 4 * c.span; ++b)
-        for (int a = 0; a <= 4 * c.span; ++a) {
-          const double u = c.i0 + a / 4.0, v = c.j0 + b / 4.0;
-          const double full = surface(u, v, 1, static_cast<int>(std::min(u, c.i0 + c.span - 1.0)),
-                                      static_cast<int>(std::min(v, c.j0 + c.span - 1.0)), false);
-          drawn = std::max(drawn, std::abs(surface(u, v, step, c.i0, c.j0, c.anti) - full));
-          kept = std::max(kept, std::abs(surface(u, v, step, c.i0, c.j0, false) - full));
-        }
-      worst = std::max(worst, drawn - c.error);
-      if (c.anti) CHECK(drawn < kept);  // taken only where it fits better
+      anti[m] += c.anti[kSquare];
+      wide[m] += c.error[kWide] < 0.5f * c.error[kSquare];
+      tall[m] += c.error[kTall] < 0.5f * c.error[kSquare];
+      // Every offered grid's surface against the full-resolution one every quarter post: the
+      // two are linear between posts and the crossings of the coarse diagonals with
+      // full-resolution edges, which for the Square grids lie on quarter posts (this finds
+      // their largest distance exactly) and for Wide and Tall also at thirds (a lower bound).
+      CHECK(std::isfinite(c.error[kSquare]));
+      for (int g = 0; g < kChunkGrids; ++g) {
+        CAPTURE(g);
+        if (!std::isfinite(c.error[g])) continue;  // Wide or Tall not offered: no better than the Square
+        if (g != kSquare) CHECK(c.error[g] < c.error[kSquare]);
+        double drawn = 0, kept = 0;
+        for (int b = 0; b <= 4 * c.span; ++b)
+          for (int a = 0; a <= 4 * c.span; ++a) {
+            const double u = c.i0 + a / 4.0, v = c.j0 + b / 4.0;
+            const double full = surface(u, v, c.i0, c.j0, 1, 1, c.span, c.span, false);
+            auto with = [&](bool other) {
+              return surface(u, v, c.i0, c.j0, c.step_i(g), c.step_j(g), c.quads_i(g), c.quads_j(g), other);
+            };
+            drawn = std::max(drawn, std::abs(with(c.anti[g]) - full));
+            if (c.anti[g]) kept = std::max(kept, std::abs(with(false) - full));
+          }
+        worst = std::max(worst, drawn - c.error[g]);
+        if (c.anti[g]) CHECK(drawn < kept);  // the other diagonal only where it fits better
+      }
     }
   }
-  MESSAGE("coarse chunks split the other way: " << anti[0] << " of " << coarse[0] << " (bumps across the diagonal), "
-          << anti[1] << " of " << coarse[1] << " (along it); drawn surface over its error by at most " << worst << " m");
+  MESSAGE("coarse chunks split the other way: " << anti[0] << ", " << anti[1] << ", " << anti[2] << " of " << coarse[0]
+          << " (bumps across the diagonal, along it, north-south); Wide under half the Square's error " << wide[0] << ", "
+          << wide[1] << ", " << wide[2] << ", Tall " << tall[0] << ", " << tall[1] << ", " << tall[2]
+          << "; a drawn surface over its error by at most " << worst << " m");
   // Heights to 56 m in float: their rounding is 4e-6 m; 1e-4 m allows for the error's sums.
   CHECK(worst <= 1e-4);
   // The bumps cut by the full-resolution diagonal: the other one nearly everywhere (not
-  // where the 50 m roll matters more); along it, rarely.
+  // where the 50 m roll matters more); along it, rarely. North-south: a grid finer along the
+  // post rows (Wide) fits far better than the Square at most levels, one finer down the
+  // columns (Tall) almost nowhere.
   CHECK(anti[0] >= coarse[0] * 9 / 10);
   CHECK(anti[1] <= coarse[1] / 10);
-  // Views over either map then need about as many triangles: four headings, 40 degrees off
-  // nadir, from the same place (the maps are not quite mirror images: the roll is not).
+  CHECK(wide[2] >= coarse[2] / 2);
+  CHECK(tall[2] <= coarse[2] / 10);
+  // Views over the two diagonal maps then need about as many triangles: four headings, 40
+  // degrees off nadir, from the same place (the maps are not quite mirror images: the roll
+  // is not); over the north-south bumps, some chunks are drawn Wide.
   const geo::CameraModel cam = camera(320, 240, 300);
-  auto r_across = make(across, cam), r_along = make(along, cam);
-  auto out_across = r_across->make_output({"smooth"}), out_along = r_along->make_output({"smooth"});
-  REQUIRE(out_across.ok());
-  REQUIRE(out_along.ok());
-  long tris[2] = {0, 0};
-  for (int k = 0; k < 4; ++k) {
-    const geo::Pose T = look_down(1280, 1280, 400, 40, 45 + 90 * k);
-    RenderStats sa, sb;
-    REQUIRE(r_across->render(T, out_across.value(), &sa).ok());
-    REQUIRE(r_along->render(T, out_along.value(), &sb).ok());
-    tris[0] += sa.triangles;
-    tris[1] += sb.triangles;
+  long tris[3] = {0, 0, 0};
+  int one_way[3] = {0, 0, 0};
+  for (int m = 0; m < 3; ++m) {
+    auto r = make(maps[m], cam);
+    auto out = r->make_output({"smooth"});
+    REQUIRE(out.ok());
+    for (int k = 0; k < 4; ++k) {
+      RenderStats st;
+      REQUIRE(r->render(look_down(1280, 1280, 400, 40, 45 + 90 * k), out.value(), &st).ok());
+      tris[m] += st.triangles;
+      one_way[m] += st.chunks_one_way;
+    }
   }
-  MESSAGE("four views: " << tris[0] << " triangles over the bumps across the diagonal, " << tris[1] << " along it");
-  // Without the choice the first took 3.4x the second's (31736 against 9302); with it, within 10 %.
+  MESSAGE("four views: " << tris[0] << ", " << tris[1] << " and " << tris[2] << " triangles; " << one_way[0] << ", "
+          << one_way[1] << " and " << one_way[2] << " chunks drawn Wide or Tall");
+  // Without the choice of diagonal the first took 3.4x the second's (31736 against 9302);
+  // with it, within 10 %.
   CHECK(std::abs(tris[0] - tris[1]) <= tris[1] / 10);
+  CHECK(one_way[2] > 0);
 }
 
 TEST_CASE("one ortho texel east moves a nadir image by exactly f * texel / height pixels") {
@@ -918,7 +953,7 @@ TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (A
   f.guard[1] = static_cast<float>((752 + 2048 - f.cx) / f.fx);
   f.guard[2] = static_cast<float>((-2048 - f.cy) / f.fy);
   f.guard[3] = static_cast<float>((480 + 2048 - f.cy) / f.fy);
-  constexpr int kPosts = kChunkQuads + 1, kSlots = 2 * kPosts;
+  constexpr int kPosts = kMaxGridQuads + 1, kSlots = 2 * kPosts;  // a Wide chunk's row
   std::vector<float> cs(5 * kSlots), cv(5 * kSlots);
   std::vector<double> ps(5 * kSlots), pv(5 * kSlots);
   std::vector<std::int32_t> is(2 * kSlots), iv(2 * kSlots);
@@ -978,11 +1013,11 @@ TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows o
 #if defined(TERRALIGN_HAVE_AVX2)
   const auto builds = vector_builds<EmitQuadRowFn>(emit_quad_row_avx2, emit_quad_row_avx512);
   if (builds.empty()) return;
-  // Two rows of 17 vertices a grid: screen positions over and around a 200 x 120 view, some
-  // rows coarse (triangles of tens of pixels), some fine (most triangles cover no pixel
-  // centre), corners repeated (no area), rows crossed (triangles turned either way) and quads
-  // split along either diagonal.
-  constexpr int kVerts = 2 * (kChunkQuads + 1);
+  // Two rows of 33 vertices a grid (a Wide chunk's; rows of 16 quads, 32 and fewer): screen
+  // positions over and around a 200 x 120 view, some rows coarse (triangles of tens of
+  // pixels), some fine (most triangles cover no pixel centre), corners repeated (no area),
+  // rows crossed (triangles turned either way) and quads split along either diagonal.
+  constexpr int kRow = kMaxGridQuads + 1, kVerts = 2 * kRow;
   std::vector<double> f(5 * kVerts);
   std::vector<std::int32_t> i32(2 * kVerts);
   const ProjGrid g{f.data(), f.data() + kVerts, f.data() + 2 * kVerts, f.data() + 3 * kVerts, f.data() + 4 * kVerts,
@@ -994,7 +1029,7 @@ TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows o
     const double spacing = round % 3 == 0 ? 12.0 : round % 3 == 1 ? 1.3 : 0.4;
     const double x0 = -30 + 250 * u(rng), y0 = -20 + 150 * u(rng), jitter = round % 5 == 0 ? 3.0 * spacing : 0.3 * spacing;
     for (int k = 0; k < kVerts; ++k) {
-      const int col = k % (kChunkQuads + 1), row = k / (kChunkQuads + 1);
+      const int col = k % kRow, row = k / kRow;
       ProjVert v;
       v.sx = x0 + spacing * col + jitter * (u(rng) - 0.5);
       v.sy = y0 + spacing * row + jitter * (u(rng) - 0.5);
@@ -1012,15 +1047,15 @@ TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows o
       }
       g.set(k, v);
     }
-    const int n = round % 7 == 6 ? 1 + static_cast<int>(rng() % kChunkQuads) : kChunkQuads;  // and shorter rows
-    Tri ts[2 * kChunkQuads], tv[2 * kChunkQuads];
-    PixelBox bs[2 * kChunkQuads], bv[2 * kChunkQuads];
+    const int n = round % 7 == 6 ? 1 + static_cast<int>(rng() % kMaxGridQuads) : round % 7 < 3 ? kChunkQuads : kMaxGridQuads;
+    Tri ts[2 * kMaxGridQuads], tv[2 * kMaxGridQuads];
+    PixelBox bs[2 * kMaxGridQuads], bv[2 * kMaxGridQuads];
     const bool anti = round % 2 == 1;  // and quads split along either diagonal
-    const int cs = emit_quad_row_scalar(g, 0, kChunkQuads + 1, n, anti, 200, 120, ts, bs);
+    const int cs = emit_quad_row_scalar(g, 0, kRow, n, anti, 200, 120, ts, bs);
     for (const auto& [name, emit] : builds) {
       CAPTURE(std::string(name));
       CAPTURE(round);
-      const int cv = emit(g, 0, kChunkQuads + 1, n, anti, 200, 120, tv, bv);
+      const int cv = emit(g, 0, kRow, n, anti, 200, 120, tv, bv);
       REQUIRE(cs == cv);
       for (int k = 0; k < cs; ++k) {
         CAPTURE(k);

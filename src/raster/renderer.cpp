@@ -41,7 +41,7 @@ inline double plane_at(const Tri& t, int k, double dx, double dy) {
   return static_cast<double>(t.C[k]) + static_cast<double>(t.A[k]) * dx + static_cast<double>(t.B[k]) * dy;
 }
 
-constexpr int kChunkVerts = (kChunkQuads + 1) * (kChunkQuads + 1);
+constexpr int kChunkVerts = (kMaxGridQuads + 1) * (kChunkQuads + 1);  // a Wide or Tall chunk's posts
 
 // One thread's share of a frame's geometry: the triangles of its run of chunks, in draw
 // order, in its own region of the triangle array, and the scratch of the chunk being drawn.
@@ -61,7 +61,7 @@ struct alignas(kUnsharedAlign) GeomPart {
   ProjGrid proj{};
   std::vector<std::uint8_t> out;     // per post: bit p set when outside clip plane p
   bool no_height[kChunkVerts];       // per post: its height is NaN (no data)
-  PixelBox row_boxes[2 * kChunkQuads];  // the boxes of a row of quads' triangles
+  PixelBox row_boxes[2 * kMaxGridQuads];  // the boxes of a row of quads' triangles
   std::vector<int> tile_count;       // per screen tile: this part's triangles binned there (counted as drawn)
   std::vector<int> tile_fill;        // per screen tile: where this part's next entry goes
 };
@@ -123,7 +123,7 @@ struct Renderer::Impl {
   std::unique_ptr<TileSpan[]> spans;      // likewise
   std::vector<GeomPart> parts;            // per thread
   std::vector<int> draw_list;             // the chunks a frame draws, in traversal order
-  std::vector<std::uint8_t> drawn;        // per chunk: 1 while it is in the draw list
+  std::vector<std::uint8_t> drawn;        // per chunk: 1 + its grid (ChunkGrid) while in the draw list
   std::vector<int> tile_count, tile_start;  // per tile: bin entries, first entry
   std::vector<std::vector<float>> tile_coef;  // per thread: kPlaneFloats per bin entry of a tile
   int max_tile_entries = 0;                    // bin entries one tile may hold
@@ -154,8 +154,8 @@ struct Renderer::Impl {
   void emit_triangle(GeomPart& g, const ProjVert& a, const ProjVert& b, const ProjVert& c) const;
   void add_triangle(GeomPart& g, const PixelBox& p) const;
   void clip_and_emit(GeomPart& g, const ClipVert* v, int n) const;
-  void draw_chunk(GeomPart& g, const TerrainChunk& c) const;
-  float skirt_drop(const TerrainChunk& c, int side) const;
+  void draw_chunk(GeomPart& g, const TerrainChunk& c, int grid) const;
+  float skirt_drop(const TerrainChunk& c, int grid, int side) const;
   void draw_chunks(int part);
   void bin_part(int part);
   PixelBox box(const Tri& t) const { return pixel_box(t.X, t.Y, vw, vh); }
@@ -165,7 +165,7 @@ struct Renderer::Impl {
     for (int b = s.y0; b <= s.y1; ++b)
       for (int a = s.x0; a <= s.x1; ++a) f(static_cast<std::size_t>(b * tiles_x + a));
   }
-  bool chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const;
+  bool chunk_visible_and_coarse_enough(const TerrainChunk& c, int& grid) const;
   void raster_tile(int tile, int thread);
   int draw_small_entries_edge32(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
                                 int e0, int* covered) const;
@@ -525,7 +525,8 @@ void Renderer::Impl::clip_and_emit(GeomPart& g, const ClipVert* in, int n) const
   for (int i = 1; i + 1 < count; ++i) emit_triangle(g, p[0], p[i], p[i + 1]);
 }
 
-bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool& refine) const {
+// Whether chunk c is in view, and then the grid to draw it with (ChunkGrid), or -1: refine it.
+bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, int& grid) const {
   // Cull: all eight corners outside one side of the view frustum (the image, not the guard).
   const float xs[2] = {c.min_x, c.max_x}, ys[2] = {c.min_y, c.max_y}, zs[2] = {c.min_z - 0.01f, c.max_z + 0.01f};
   const float l = static_cast<float>((-0.5 - pinhole.cx) / pinhole.fx), r = static_cast<float>((vw - 0.5 - pinhole.cx) / pinhole.fx);
@@ -541,48 +542,60 @@ bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, bool
   }
   for (int o : out)
     if (o == 8) return false;
+  grid = kSquare;
   if (c.level == 0) return true;
   // The box's own bound first (8 points), the columns' tighter one (50 points) only where the
-  // box's would refine.
+  // box's would refine. Then the grids twice as fine along one axis (twice the triangles; the
+  // children take four times), the one with the smaller error where both would do.
   const float f = static_cast<float>(std::max(pinhole.fx, pinhole.fy)), near = static_cast<float>(options.near_m);
   const float lod = static_cast<float>(options.lod_error_px);
-  refine = !(chunk_screen_error_px(c, c.error, R_C_W, t_local, f, near) <= lod) &&
-           !(chunk_screen_error_px(c, c.error, R_C_W, t_local, f, near, kMaxErrorCells) <= lod);
+  if (chunk_screen_error_px(c, c.error[kSquare], R_C_W, t_local, f, near) <= lod ||
+      chunk_screen_error_px(c, c.error[kSquare], R_C_W, t_local, f, near, kMaxErrorCells) <= lod)
+    return true;
+  grid = -1;
+  float best = lod;
+  for (int g : {kWide, kTall}) {
+    if (!(c.error[g] < c.error[kSquare])) continue;  // not offered (+inf), or no better
+    const float e = chunk_screen_error_px(c, c.error[g], R_C_W, t_local, f, near, kMaxErrorCells);
+    if (e <= best) {
+      best = e;
+      grid = g;
+    }
+  }
   return true;
 }
 
-void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
+void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c, int grid) const {
   std::vector<std::uint8_t>& chunk_out = g.out;
-  const int step = 1 << c.level;
+  const int qi = c.quads_i(grid), qj = c.quads_j(grid), si = c.step_i(grid), sj = c.step_j(grid);
+  const bool anti = c.anti[grid];
   const int nx = terrain.posts_x(), ny = terrain.posts_y();
-  const int n = kChunkQuads + 1;
-  int ii[kChunkQuads + 1], jj[kChunkQuads + 1];
-  for (int k = 0; k < n; ++k) {
-    ii[k] = std::min(c.i0 + k * step, nx - 1);
-    jj[k] = std::min(c.j0 + k * step, ny - 1);
-  }
+  const int n = qi + 1;  // posts a row
+  int ii[kMaxGridQuads + 1], jj[kMaxGridQuads + 1];
+  for (int k = 0; k <= qi; ++k) ii[k] = std::min(c.i0 + k * si, nx - 1);
+  for (int k = 0; k <= qj; ++k) jj[k] = std::min(c.j0 + k * sj, ny - 1);
   const bool* nan_post = g.no_height;
   // Rows of posts all inside the clip volume and with heights, and whether every quad of a
   // row has four distinct posts (not so at the map's last column): there both triangles of
   // every quad of a row between two such rows go to emit_quad_row().
-  bool row_inside[kChunkQuads + 1];
+  bool row_inside[kMaxGridQuads + 1];
   bool columns_distinct = true;
-  for (int a = 0; a < kChunkQuads; ++a) columns_distinct = columns_distinct && ii[a + 1] != ii[a];
-  for (int b = 0; b < n; ++b) {
-    float x[kChunkQuads + 1], y[kChunkQuads + 1], z[kChunkQuads + 1];
+  for (int a = 0; a < qi; ++a) columns_distinct = columns_distinct && ii[a + 1] != ii[a];
+  for (int b = 0; b <= qj; ++b) {
+    float x[kMaxGridQuads + 1], y[kMaxGridQuads + 1], z[kMaxGridQuads + 1];
     for (int a = 0; a < n; ++a) terrain.post(ii[a], jj[b], x[a], y[a], z[a]);
     row_inside[b] = project_posts(frame, x, y, z, n, b * n, g.verts, g.proj, chunk_out.data(), g.no_height);
   }
   // No back-face culling: render() refuses a camera below the terrain, and above it the
   // visible side of a heightfield faces the camera, so culling would only save time.
-  for (int b = 0; b < kChunkQuads; ++b) {
+  for (int b = 0; b < qj; ++b) {
     if (jj[b + 1] == jj[b]) continue;
-    if (columns_distinct && row_inside[b] && row_inside[b + 1] && g.n_tris + 2 * kChunkQuads <= options.max_triangles) {
-      const int kept = emit_quad_row(g.proj, b * n, (b + 1) * n, kChunkQuads, c.anti, vw, vh, g.tris + g.n_tris, g.row_boxes);
+    if (columns_distinct && row_inside[b] && row_inside[b + 1] && g.n_tris + 2 * qi <= options.max_triangles) {
+      const int kept = emit_quad_row(g.proj, b * n, (b + 1) * n, qi, anti, vw, vh, g.tris + g.n_tris, g.row_boxes);
       for (int i = 0; i < kept; ++i) add_triangle(g, g.row_boxes[i]);
       continue;
     }
-    for (int a = 0; a < kChunkQuads; ++a) {
+    for (int a = 0; a < qi; ++a) {
       if (ii[a + 1] == ii[a]) continue;
       const int k00 = b * n + a, k10 = k00 + 1, k01 = k00 + n, k11 = k01 + 1;
       if (nan_post[k00] || nan_post[k10] || nan_post[k01] || nan_post[k11]) continue;
@@ -591,19 +604,19 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
       if ((chunk_out[static_cast<std::size_t>(k00)] | chunk_out[static_cast<std::size_t>(k10)] |
            chunk_out[static_cast<std::size_t>(k01)] | chunk_out[static_cast<std::size_t>(k11)]) == 0) {
         const ProjVert p00 = g.proj.at(k00), p10 = g.proj.at(k10), p01 = g.proj.at(k01), p11 = g.proj.at(k11);
-        emit_triangle(g, p00, p10, c.anti ? p01 : p11);
-        emit_triangle(g, c.anti ? p10 : p00, p11, p01);
+        emit_triangle(g, p00, p10, anti ? p01 : p11);
+        emit_triangle(g, anti ? p10 : p00, p11, p01);
         continue;
       }
       const ClipVert v00 = g.verts.at(k00), v10 = g.verts.at(k10), v01 = g.verts.at(k01), v11 = g.verts.at(k11);
-      const ClipVert t1[3] = {v00, v10, c.anti ? v01 : v11}, t2[3] = {c.anti ? v10 : v00, v11, v01};
+      const ClipVert t1[3] = {v00, v10, anti ? v01 : v11}, t2[3] = {anti ? v10 : v00, v11, v01};
       clip_and_emit(g, t1, 3);
       clip_and_emit(g, t2, 3);
     }
   }
-  // Skirts hang from the borders where the neighbour is drawn at another level (see
-  // skirt_drop()), so the two surfaces leave no crack between them.
-  const float drops[4] = {skirt_drop(c, 0), skirt_drop(c, 1), skirt_drop(c, 2), skirt_drop(c, 3)};
+  // Skirts hang from the borders where the neighbour's posts along the side are not this
+  // chunk's (see skirt_drop()), so the two surfaces leave no crack between them.
+  const float drops[4] = {skirt_drop(c, grid, 0), skirt_drop(c, grid, 1), skirt_drop(c, grid, 2), skirt_drop(c, grid, 3)};
   if (drops[0] > 0 || drops[1] > 0 || drops[2] > 0 || drops[3] > 0) {
     auto skirt = [&](int ka, int kb, float drop) {
       if (nan_post[ka] || nan_post[kb]) return;
@@ -617,31 +630,38 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c) const {
       clip_and_emit(g, s1, 3);
       clip_and_emit(g, s2, 3);
     };
-    for (int k = 0; k < kChunkQuads; ++k) {
-      if (drops[0] > 0) skirt(k, k + 1, drops[0]);                                              // top row
-      if (drops[1] > 0) skirt(kChunkQuads * n + k, kChunkQuads * n + k + 1, drops[1]);          // bottom row
-      if (drops[2] > 0) skirt(k * n, (k + 1) * n, drops[2]);                                    // left column
-      if (drops[3] > 0) skirt(k * n + kChunkQuads, (k + 1) * n + kChunkQuads, drops[3]);        // right column
+    for (int k = 0; k < qi; ++k) {
+      if (drops[0] > 0) skirt(k, k + 1, drops[0]);                    // top row
+      if (drops[1] > 0) skirt(qj * n + k, qj * n + k + 1, drops[1]);  // bottom row
+    }
+    for (int k = 0; k < qj; ++k) {
+      if (drops[2] > 0) skirt(k * n, (k + 1) * n, drops[2]);            // left column
+      if (drops[3] > 0) skirt(k * n + qi, (k + 1) * n + qi, drops[3]);  // right column
     }
   }
   ++g.chunks_drawn;
 }
 
-// How far the skirt on one side of a drawn chunk hangs (metres; 0: none). Sides: 0 top (first
-// post row), 1 bottom, 2 left (first post column), 3 right. Two chunks of one level share
-// their border posts: no crack, no skirt. Between a coarse chunk C and a finer neighbour F
-// the coarse border's posts are some of the fine border's, and the two borders are linear
-// between the fine posts, so they are at most C's error apart (C's error bounds its surface
-// against every post it covers, those of the border too). Where F's border runs below C's,
-// C's skirt covers the gap; where above, F's: so each side hangs by the error of the
-// coarser of the two (and a centimetre). Where no chunk of this level or coarser is drawn
-// across the side, the neighbour is finer or not drawn: the chunk's own error. Off the map
-// (no posts across the side): none.
-float Renderer::Impl::skirt_drop(const TerrainChunk& c, int side) const {
+// How far the skirt on one side of a chunk drawn with `grid` hangs (metres; 0: none). Sides:
+// 0 top (first post row), 1 bottom, 2 left (first post column), 3 right. Every grid's
+// vertices are posts, every 2^m-th along a side from the side's first, and any two chunks
+// meeting along a side take posts at spacings one of which divides the other. Where the two
+// spacings are equal (chunks of one level, most), the two borders are the same: no crack,
+// no skirt. Otherwise the coarser border's posts are some of the finer's, the two borders
+// are linear between the finer's posts, so they are at most the coarser's error apart (its
+// error bounds its surface against every post it covers, those of the border too). Where the
+// finer border runs below the coarser, the coarser chunk's skirt covers the gap; where
+// above, the finer's: so each side hangs by the larger of the two errors (and a centimetre).
+// Where no chunk of this level or coarser is drawn across the side, the neighbour is of a
+// finer level (its spacing along the side at most this one's) or not drawn: the chunk's own
+// error. Off the map (no posts across the side): none.
+float Renderer::Impl::skirt_drop(const TerrainChunk& c, int grid, int side) const {
   // The level-0 chunk cell just across the side, at the side's first post.
   const int cx = c.i0 / kChunkQuads, cy = c.j0 / kChunkQuads, cells = c.span / kChunkQuads;
   const int x = side == 2 ? cx - 1 : side == 3 ? cx + cells : cx;
   const int y = side == 0 ? cy - 1 : side == 1 ? cy + cells : cy;
+  const bool along_i = side < 2;  // the top and bottom sides run along a post row
+  const float own = c.error[grid];
   // Up the levels (chunk_at() is -1 above the root): the first chunk drawn across the side.
   for (int k = c.level;; ++k) {
     const int id = terrain.chunk_at(k, x >= 0 ? x >> k : -1, y >= 0 ? y >> k : -1);
@@ -649,12 +669,14 @@ float Renderer::Impl::skirt_drop(const TerrainChunk& c, int side) const {
       if (k == c.level) return 0.0f;  // no posts across the side
       break;
     }
-    if (drawn[static_cast<std::size_t>(id)]) {
-      if (k == c.level) return 0.0f;
-      return std::max(c.error, terrain.chunks()[static_cast<std::size_t>(id)].error) + 0.01f;
+    const int across = drawn[static_cast<std::size_t>(id)] - 1;
+    if (across >= 0) {
+      const TerrainChunk& o = terrain.chunks()[static_cast<std::size_t>(id)];
+      if (k == c.level && (along_i ? o.step_i(across) == c.step_i(grid) : o.step_j(across) == c.step_j(grid))) return 0.0f;
+      return std::max(own, o.error[across]) + 0.01f;
     }
   }
-  return c.error > 0 ? c.error + 0.01f : 0.0f;
+  return own > 0 ? own + 0.01f : 0.0f;
 }
 
 // Part j of the frame's geometry: the j-th of `threads` equal runs of the draw list. The
@@ -667,8 +689,10 @@ void Renderer::Impl::draw_chunks(int part) {
   std::fill(g.tile_count.begin(), g.tile_count.end(), 0);
   const std::size_t n = draw_list.size(), k = parts.size(), j = static_cast<std::size_t>(part);
   const auto& chunks = terrain.chunks();
-  for (std::size_t i = j * n / k; i < (j + 1) * n / k; ++i)
-    draw_chunk(g, chunks[static_cast<std::size_t>(draw_list[i])]);
+  for (std::size_t i = j * n / k; i < (j + 1) * n / k; ++i) {
+    const std::size_t index = static_cast<std::size_t>(draw_list[i]);
+    draw_chunk(g, chunks[index], drawn[index] - 1);
+  }
 }
 
 // Writes part j's triangles into the bins of the tiles they touch, from the offsets render()
@@ -1020,19 +1044,22 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
     const int index = m.chunk_stack.back();
     m.chunk_stack.pop_back();
     const TerrainChunk& c = chunks[static_cast<std::size_t>(index)];
-    bool refine = false;
-    if (!m.chunk_visible_and_coarse_enough(c, refine)) continue;
-    if (refine) {
+    int grid = kSquare;
+    if (!m.chunk_visible_and_coarse_enough(c, grid)) continue;
+    if (grid < 0) {
       for (int k = 3; k >= 0; --k)
         if (c.child[k] >= 0) m.chunk_stack.push_back(c.child[k]);
     } else {
       m.draw_list.push_back(index);
+      m.drawn[static_cast<std::size_t>(index)] = static_cast<std::uint8_t>(1 + grid);
     }
   }
-  for (int index : m.draw_list) m.drawn[static_cast<std::size_t>(index)] = 1;
   m.pool->run(m.pool->threads(), [](void* c, int j) { static_cast<Impl*>(c)->draw_chunks(j); }, &m);
-  for (int index : m.draw_list) m.drawn[static_cast<std::size_t>(index)] = 0;
-  int n_tris = 0, chunks_drawn = 0;
+  int n_tris = 0, chunks_drawn = 0, chunks_one_way = 0;
+  for (int index : m.draw_list) {
+    chunks_one_way += m.drawn[static_cast<std::size_t>(index)] != 1 + kSquare;
+    m.drawn[static_cast<std::size_t>(index)] = 0;
+  }
   bool overflow = false;
   for (const GeomPart& g : m.parts) {
     n_tris += g.n_tris;
@@ -1115,6 +1142,7 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   if (stats) {
     stats->triangles = n_tris;
     stats->chunks = chunks_drawn;
+    stats->chunks_one_way = chunks_one_way;
     stats->fragments = fragments;
     stats->ms_geometry = std::chrono::duration<double, std::milli>(t1 - t0).count();
     stats->ms_raster = std::chrono::duration<double, std::milli>(t2 - t1).count();

@@ -151,47 +151,24 @@ int Terrain::build_chunk(int level, int i0, int j0) {
       if (std::isfinite(h)) err = std::max(err, std::abs(h - z));
       else err = std::max(err, bz1 - bz0 + 1.0f);  // a hole in the coarse surface
     }
-  // The other diagonal, where the chunk's quads are whole (not cut by the map's last post
-  // row or column) and every post has a height. Its triangles are not made of the full-
-  // resolution ones: the two surfaces, each linear on its triangles, differ most at a post or
-  // where a coarse edge crosses a full-resolution one, and those crossings are the centres of
-  // the full-resolution quads on the coarse diagonals (the full-resolution diagonal of such a
-  // quad is the coarse one's mirror).
+  // The other diagonal, and the Wide and Tall grids with either, where the chunk's quads are
+  // whole (not cut by the map's last post row or column) and every post has a height.
+  c.error[kSquare] = err;
+  c.error[kWide] = c.error[kTall] = INFINITY;
   if (level > 0 && !holes && i0 + span <= nx_ - 1 && j0 + span <= ny_ - 1) {
-    float anti = 0;
-    float a, b;
-    for (int cj = j0; cj < j1 && anti < err; cj += step)
-      for (int ci = i0; ci < i1; ci += step) {
-        float c00, c10, c01, c11;
-        post(ci, cj, a, b, c00);
-        post(ci + step, cj, a, b, c10);
-        post(ci, cj + step, a, b, c01);
-        post(ci + step, cj + step, a, b, c11);
-        for (int j = cj; j <= cj + step; ++j)
-          for (int i = ci; i <= ci + step; ++i) {
-            float z;
-            post(i, j, a, b, z);
-            const float fx = static_cast<float>(i - ci) / static_cast<float>(step);
-            const float fy = static_cast<float>(j - cj) / static_cast<float>(step);
-            const float h = fx + fy <= 1.0f ? c00 + fx * (c10 - c00) + fy * (c01 - c00)
-                                            : c11 + (1.0f - fx) * (c01 - c11) + (1.0f - fy) * (c10 - c11);
-            anti = std::max(anti, std::abs(h - z));
-          }
-        for (int k = 0; k < step; ++k) {
-          // Full-resolution quad (i, j), its centre on the coarse diagonal from (ci + step, cj)
-          // to (ci, cj + step), (k + 1/2) / step of the way along.
-          const int i = ci + step - 1 - k, j = cj + k;
-          float z00, z11;
-          post(i, j, a, b, z00);
-          post(i + 1, j + 1, a, b, z11);
-          const float h = c10 + (static_cast<float>(k) + 0.5f) / static_cast<float>(step) * (c01 - c10);
-          anti = std::max(anti, std::abs(h - 0.5f * (z00 + z11)));
+    // (Wide and Tall serve only where they beat the Square; each second diagonal only where it
+    // beats the first: measured only that far.)
+    for (int g = 0; g < kChunkGrids; ++g)
+      for (bool other : {false, true}) {
+        if (g == kSquare && !other) continue;  // measured above
+        const float limit = std::min(c.error[g], c.error[kSquare]);
+        const float e = grid_error(c, g, other, limit);
+        if (e < limit) {
+          c.error[g] = e;
+          c.anti[g] = other;
         }
       }
-    if (anti < err) {
-      c.anti = true;
-      err = anti;
-    }
+    err = c.error[kSquare];
   }
   c.min_x = bx0; c.max_x = bx1; c.min_y = by0; c.max_y = by1;
   c.min_z = std::isfinite(bz0) ? bz0 : 0.0f;
@@ -209,11 +186,61 @@ int Terrain::build_chunk(int level, int i0, int j0) {
         if (ci >= nx_ - 1 || cj >= ny_ - 1) continue;
         const int child = build_chunk(level - 1, ci, cj);
         chunks_[static_cast<std::size_t>(index)].child[k++] = child;
-        err = std::max(err, chunks_[static_cast<std::size_t>(child)].error);
+        err = std::max(err, chunks_[static_cast<std::size_t>(child)].error[kSquare]);
       }
   }
-  chunks_[static_cast<std::size_t>(index)].error = err;
+  chunks_[static_cast<std::size_t>(index)].error[kSquare] = err;
   return index;
+}
+
+double Terrain::surface(double u, double v) const {
+  const int i = std::min(static_cast<int>(u), nx_ - 2), j = std::min(static_cast<int>(v), ny_ - 2);
+  const double fx = u - i, fy = v - j;
+  auto h = [this](int a, int b) {
+    return static_cast<double>(heights_[static_cast<std::size_t>(b) * static_cast<std::size_t>(nx_) + static_cast<std::size_t>(a)]);
+  };
+  const double h00 = h(i, j), h10 = h(i + 1, j), h01 = h(i, j + 1), h11 = h(i + 1, j + 1);
+  return fx >= fy ? h00 + fx * (h10 - h00) + fy * (h11 - h10) : h00 + fy * (h01 - h00) + fx * (h11 - h01);
+}
+
+// The largest vertical distance between the full-resolution surface and chunk c drawn with
+// `grid`, its quads split along the other diagonal where `anti` (c whole, without holes).
+// Both surfaces are linear on the pieces their edges cut each other into, so the distance is
+// largest at a post or where a coarse quad's diagonal crosses a full-resolution edge (a post
+// column, a post row or a full-resolution diagonal: an integer u, v or u - v along it); the
+// coarse quads' sides run along post rows and columns. So this is exact, in double; but it
+// stops at a row of quads where it reaches `limit` (returning at least that).
+float Terrain::grid_error(const TerrainChunk& c, int grid, bool anti, float limit) const {
+  const int si = c.step_i(grid), sj = c.step_j(grid);
+  const int qi = c.quads_i(grid), qj = c.quads_j(grid);
+  auto post = [this](int i, int j) {
+    return static_cast<double>(heights_[static_cast<std::size_t>(j) * static_cast<std::size_t>(nx_) + static_cast<std::size_t>(i)]);
+  };
+  double err = 0;
+  for (int b = 0; b < qj && err < limit; ++b)
+    for (int a = 0; a < qi; ++a) {
+      const int ci = c.i0 + a * si, cj = c.j0 + b * sj;
+      const double c00 = post(ci, cj), c10 = post(ci + si, cj), c01 = post(ci, cj + sj), c11 = post(ci + si, cj + sj);
+      // The posts of the quad (its sides included: either quad gives a side the same heights).
+      for (int j = cj; j <= cj + sj; ++j)
+        for (int i = ci; i <= ci + si; ++i) {
+          const double fx = static_cast<double>(i - ci) / si, fy = static_cast<double>(j - cj) / sj;
+          const double h = anti ? (fx + fy <= 1 ? c00 + fx * (c10 - c00) + fy * (c01 - c00)
+                                                : c11 + (1 - fx) * (c01 - c11) + (1 - fy) * (c10 - c11))
+                                : (fx >= fy ? c00 + fx * (c10 - c00) + fy * (c11 - c10) : c00 + fy * (c01 - c00) + fx * (c11 - c01));
+          err = std::max(err, std::abs(h - post(i, j)));
+        }
+      // The diagonal, from (u0, v0) by (du, dv) over t in (0, 1): crossings at t = k / m for
+      // m = |du|, |dv| and |du - dv| (where u, v and u - v pass integers).
+      const double u0 = anti ? ci + si : ci, v0 = cj, du = anti ? -si : si, dv = sj;
+      const double h0 = anti ? c10 : c00, h1 = anti ? c01 : c11;
+      for (const int m : {si, sj, std::abs(static_cast<int>(du) - sj)})
+        for (int k = 1; k < m; ++k) {
+          const double t = static_cast<double>(k) / m;
+          err = std::max(err, std::abs(h0 + t * (h1 - h0) - surface(u0 + t * du, v0 + t * dv)));
+        }
+    }
+  return static_cast<float>(err);
 }
 
 }  // namespace terralign::raster

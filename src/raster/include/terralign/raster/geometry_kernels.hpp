@@ -174,7 +174,7 @@ inline bool setup_triangle(const ProjVert& a, const ProjVert& b, const ProjVert&
   return true;
 }
 
-// The triangles of quads a = 0 .. n - 1 (n <= 16) between the grid rows whose vertices start
+// The triangles of quads a = 0 .. n - 1 (n <= 32, a Wide terrain chunk's row) between the grid rows whose vertices start
 // at `top` and at `bottom`, each quad split along its diagonal from top + a to bottom + a + 1:
 // (top + a, top + a + 1, bottom + a + 1), then (top + a, bottom + a + 1, bottom + a); or, with
 // `anti`, along the other one: (top + a, top + a + 1, bottom + a), then (top + a + 1, bottom +

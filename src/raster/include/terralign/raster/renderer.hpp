@@ -62,6 +62,7 @@ struct RenderOutput {
 struct RenderStats {
   int triangles = 0;        // after LOD and clipping
   int chunks = 0;           // terrain chunks drawn
+  int chunks_one_way = 0;   // of those, drawn with twice their grid along one axis (kWide, kTall)
   long fragments = 0;       // pixels that passed a triangle's coverage test (overdraw included)
   // Stage times: LOD, geometry and binning; visibility per tile (for a pinhole camera also
   // the resolve and the shading of every layer, done tile by tile); for a distorted camera,

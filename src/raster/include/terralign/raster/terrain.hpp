@@ -3,10 +3,10 @@
 // Posts: a regular grid of heights (the DEM's pixel centres, or a synthetic flat grid for a
 // constant-height map) placed by an affine transform, in local coordinates (metres relative
 // to the renderer's origin). A chunk at level k covers (kChunkQuads * 2^k) quads a side and
-// is drawn as a kChunkQuads x kChunkQuads grid taking every 2^k-th post, each quad split into
-// two triangles along one of its diagonals. Its error is the largest vertical distance between
-// its coarse surface and the full-resolution one (and its children's errors), computed once at
-// construction.
+// is drawn as a kChunkQuads x kChunkQuads grid taking every 2^k-th post, or (ChunkGrid) twice
+// as fine along one axis, each quad split into two triangles along one of its diagonals. Each
+// grid's error, the largest vertical distance between its surface and the full-resolution
+// one, is computed once at construction.
 #pragma once
 
 #include <cstdint>
@@ -20,18 +20,36 @@ namespace terralign::raster {
 
 constexpr int kChunkQuads = 16;
 
+// The grids a chunk of level k >= 1 can be drawn with: Square, kChunkQuads quads a side
+// (every 2^k-th post); Wide, twice as many along i (every 2^(k-1)-th post column) and Tall,
+// along j. Terrain whose relief runs one way (ridges, terraces, ripples) needs the finer
+// spacing across it only: one of those, at twice the Square's triangles, instead of the four
+// children's four times.
+enum ChunkGrid : int { kSquare = 0, kWide = 1, kTall = 2 };
+constexpr int kChunkGrids = 3;
+constexpr int kMaxGridQuads = 2 * kChunkQuads;  // quads along a Wide chunk's rows
+
 struct TerrainChunk {
   int level;             // 0: full resolution
   int i0, j0;            // first post (column, row)
   int span;              // quads a side at full resolution: kChunkQuads << level
-  float error;           // metres
-  // The diagonal its quads are split along: false, post (i, j) to (i + step, j + step) (every
-  // level-0 chunk: the full-resolution surface); true, (i + step, j) to (i, j + step). A
-  // coarser chunk takes the one that fits the posts better: a ridge or a ripple running along
-  // one diagonal is cut by the other at every quad, and bends the surface there.
-  bool anti;
+  // Per grid (ChunkGrid): the largest vertical distance in metres between the chunk's surface
+  // drawn with it and the full-resolution one (the Square's also its children's; +inf where
+  // the grid is not offered: Wide and Tall at level 0, or on a chunk cut by the map's last
+  // post row or column or with a post without height), and the diagonal its quads are split
+  // along: false, post (i, j) to (i + di, j + dj) for quads di x dj posts (every level-0
+  // chunk: the full-resolution surface); true, (i + di, j) to (i, j + dj). A coarser chunk
+  // takes the one that fits the posts better: a ridge or a ripple running along one diagonal
+  // is cut by the other at every quad, and bends the surface there.
+  float error[kChunkGrids];
+  bool anti[kChunkGrids];
   float min_x, min_y, min_z, max_x, max_y, max_z;  // local bounding box
   int child[4];          // -1 where none
+  // Quads along i and j, and posts between vertices along i and j, drawn with grid g.
+  int quads_i(int g) const { return g == kWide ? 2 * kChunkQuads : kChunkQuads; }
+  int quads_j(int g) const { return g == kTall ? 2 * kChunkQuads : kChunkQuads; }
+  int step_i(int g) const { return span / quads_i(g); }
+  int step_j(int g) const { return span / quads_j(g); }
 };
 
 // The most a point of chunk c's box moves on screen, in pixels of a pinhole camera with focal
@@ -77,6 +95,8 @@ class Terrain {
 
  private:
   int build_chunk(int level, int i0, int j0);
+  float grid_error(const TerrainChunk& c, int grid, bool anti, float limit) const;
+  double surface(double u, double v) const;
   int nx_ = 0, ny_ = 0;
   double px0_ = 0, pxi_ = 1, pxj_ = 0, py0_ = 0, pyi_ = 0, pyj_ = -1;
   std::vector<float> heights_;
