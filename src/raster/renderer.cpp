@@ -260,7 +260,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.oy = 0.5 * (common.min_y + common.max_y);
   m.oz = map.dem.min_height;
   m.pool = std::make_unique<ThreadPool>(options.threads);  // also builds the mip-maps below
-  m.terrain = Terrain::build(map, m.ox, m.oy, m.oz);
+  m.terrain = Terrain::build(map, m.ox, m.oy, m.oz, m.pool.get());
 
   for (const auto& L : map.layers) {
     LayerTexture T;

@@ -42,7 +42,7 @@ float chunk_screen_error_px(const TerrainChunk& c, float error, const Eigen::Mat
   return error * f * worst;
 }
 
-Terrain Terrain::build(const geo::Map& map, double ox, double oy, double oz) {
+Terrain Terrain::build(const geo::Map& map, double ox, double oy, double oz, ThreadPool* pool) {
   Terrain t;
   if (map.dem.constant) {
     // A flat grid over everything any layer covers (a little more, so texture edges are
@@ -103,19 +103,60 @@ Terrain Terrain::build(const geo::Map& map, double ox, double oy, double oz) {
     g.h = std::max((t.ny_ - 1 + span - 1) / span, 1);
     g.index.assign(static_cast<std::size_t>(g.w) * static_cast<std::size_t>(g.h), -1);
   }
-  t.root_ = t.build_chunk(level, 0, 0);
+  t.root_ = t.build_tree(level, 0, 0);
+  // Each chunk measured on its own (the threads take every threads-th chunk: a chunk's
+  // numbers do not depend on which thread measured it), then the Square errors made to
+  // bound the children's, children before parents (a chunk's children follow it).
+  struct Job {
+    Terrain* t;
+    int parts;
+  } job{&t, pool ? pool->threads() : 1};
+  auto measure = [](void* ctx, int part) {
+    const Job& j = *static_cast<const Job*>(ctx);
+    for (std::size_t i = static_cast<std::size_t>(part); i < j.t->chunks_.size(); i += static_cast<std::size_t>(j.parts))
+      j.t->measure_chunk(j.t->chunks_[i]);
+  };
+  if (pool) pool->run(job.parts, measure, &job);
+  else measure(&job, 0);
+  for (std::size_t i = t.chunks_.size(); i-- > 0;) {
+    TerrainChunk& c = t.chunks_[i];
+    for (int k : c.child)
+      if (k >= 0) c.error[kSquare] = std::max(c.error[kSquare], t.chunks_[static_cast<std::size_t>(k)].error[kSquare]);
+  }
   return t;
 }
 
-int Terrain::build_chunk(int level, int i0, int j0) {
-  const int span = kChunkQuads << level;
-  const int step = 1 << level;
+// The quadtree from chunk (level, i0, j0) down, in pre-order (a chunk's children after it).
+int Terrain::build_tree(int level, int i0, int j0) {
   TerrainChunk c{};
   c.level = level;
   c.i0 = i0;
   c.j0 = j0;
-  c.span = span;
+  c.span = kChunkQuads << level;
   for (int& ch : c.child) ch = -1;
+  const int index = static_cast<int>(chunks_.size());
+  chunks_.push_back(c);
+  Grid& g = grid_[static_cast<std::size_t>(level)];
+  g.index[static_cast<std::size_t>(j0 / c.span) * static_cast<std::size_t>(g.w) + static_cast<std::size_t>(i0 / c.span)] = index;
+  if (level > 0) {
+    const int half = c.span / 2;
+    int k = 0;
+    for (int dj = 0; dj < 2; ++dj)
+      for (int di = 0; di < 2; ++di) {
+        const int ci = i0 + di * half, cj = j0 + dj * half;
+        if (ci >= nx_ - 1 || cj >= ny_ - 1) continue;
+        const int child = build_tree(level - 1, ci, cj);
+        chunks_[static_cast<std::size_t>(index)].child[k++] = child;
+      }
+  }
+  return index;
+}
+
+// Chunk c's bounding box and its grids' errors (its own: build() adds the children's to the
+// Square's).
+void Terrain::measure_chunk(TerrainChunk& c) const {
+  const int level = c.level, i0 = c.i0, j0 = c.j0, span = c.span;
+  const int step = 1 << level;
   const int i1 = std::min(i0 + span, nx_ - 1), j1 = std::min(j0 + span, ny_ - 1);
   // Bounding box and the error of the coarse surface against every post inside.
   float bx0 = INFINITY, by0 = INFINITY, bz0 = INFINITY, bx1 = -INFINITY, by1 = -INFINITY, bz1 = -INFINITY;
@@ -168,29 +209,10 @@ int Terrain::build_chunk(int level, int i0, int j0) {
           c.anti[g] = other;
         }
       }
-    err = c.error[kSquare];
   }
   c.min_x = bx0; c.max_x = bx1; c.min_y = by0; c.max_y = by1;
   c.min_z = std::isfinite(bz0) ? bz0 : 0.0f;
   c.max_z = std::isfinite(bz1) ? bz1 : 0.0f;
-  const int index = static_cast<int>(chunks_.size());
-  chunks_.push_back(c);
-  Grid& g = grid_[static_cast<std::size_t>(level)];
-  g.index[static_cast<std::size_t>(j0 / span) * static_cast<std::size_t>(g.w) + static_cast<std::size_t>(i0 / span)] = index;
-  if (level > 0) {
-    const int half = span / 2;
-    int k = 0;
-    for (int dj = 0; dj < 2; ++dj)
-      for (int di = 0; di < 2; ++di) {
-        const int ci = i0 + di * half, cj = j0 + dj * half;
-        if (ci >= nx_ - 1 || cj >= ny_ - 1) continue;
-        const int child = build_chunk(level - 1, ci, cj);
-        chunks_[static_cast<std::size_t>(index)].child[k++] = child;
-        err = std::max(err, chunks_[static_cast<std::size_t>(child)].error[kSquare]);
-      }
-  }
-  chunks_[static_cast<std::size_t>(index)].error[kSquare] = err;
-  return index;
 }
 
 double Terrain::surface(double u, double v) const {

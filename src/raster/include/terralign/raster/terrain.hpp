@@ -15,6 +15,7 @@
 #include <Eigen/Core>
 
 #include <terralign/geo/map.hpp>
+#include <terralign/geo/thread_pool.hpp>
 
 namespace terralign::raster {
 
@@ -70,7 +71,8 @@ float chunk_screen_error_px(const TerrainChunk& c, float error, const Eigen::Mat
 class Terrain {
  public:
   // origin: the local frame's origin in map coordinates.
-  static Terrain build(const geo::Map& map, double ox, double oy, double oz);
+  // pool: the threads that measure the chunks' errors (the same result with any, or none).
+  static Terrain build(const geo::Map& map, double ox, double oy, double oz, ThreadPool* pool = nullptr);
 
   int posts_x() const { return nx_; }
   int posts_y() const { return ny_; }
@@ -94,7 +96,8 @@ class Terrain {
   float max_z() const { return max_z_; }
 
  private:
-  int build_chunk(int level, int i0, int j0);
+  int build_tree(int level, int i0, int j0);
+  void measure_chunk(TerrainChunk& c) const;
   float grid_error(const TerrainChunk& c, int grid, bool anti, float limit) const;
   double surface(double u, double v) const;
   int nx_ = 0, ny_ = 0;
