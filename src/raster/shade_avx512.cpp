@@ -2,13 +2,15 @@
 // shade_kernels.hpp in 16-bit lanes (R and B words, G and A words of each pixel's 32 bits), so
 // the output matches shade_scalar.cpp bit for bit. Where a vector's lanes share a level (most
 // vectors), its texels come from row loads and permutes where its taps lie in a window of a
-// few texel rows and at most 32 columns, from gathers elsewhere. A row's tail (n % 16) runs
-// the scalar kernel.
+// few texel rows and at most 32 columns, from gathers elsewhere. A row's tail (n % 16) of the
+// plain shading runs the scalar kernel; of the fused resolve and shading, one vector whose
+// lanes past the row see no terrain.
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <immintrin.h>
 
 #include <cmath>
+#include <cstring>
 
 namespace terralign::raster {
 namespace {
@@ -532,9 +534,22 @@ void resolve_shade_row_avx512(int n, const int* ids, const float* coef, float dx
     i += 16 * groups;
   }
   if (i < n) {
-    ShadeTarget rest[kMaxShadeTargets];
-    for (int k = 0; k < n_targets; ++k) rest[k] = {targets[k].params, targets[k].rgb + 3 * i, targets[k].valid + i};
-    resolve_shade_row_scalar(n - i, ids + i, coef, dx0 + static_cast<float>(i), dy, z + i, n_targets, rest);
+    // The last n - i (< 16) pixels as one vector (the scalar twin took as long for these as
+    // for a 128-pixel row): lanes past the row see no terrain, the vector's results go to
+    // scratch and the row's part is copied out.
+    const int rest = n - i;
+    alignas(64) int tail_ids[16];
+    float tail_z[16];
+    std::uint8_t tail_rgb[kMaxShadeTargets][48], tail_valid[kMaxShadeTargets][16];
+    ShadeTarget tail[kMaxShadeTargets];
+    for (int l = 0; l < 16; ++l) tail_ids[l] = l < rest ? ids[i + l] : -1;
+    for (int k = 0; k < n_targets; ++k) tail[k] = {targets[k].params, tail_rgb[k], tail_valid[k]};
+    resolve_shade_row_avx512(16, tail_ids, coef, dx0 + static_cast<float>(i), dy, tail_z, n_targets, tail);
+    std::memcpy(z + i, tail_z, sizeof(float) * static_cast<std::size_t>(rest));
+    for (int k = 0; k < n_targets; ++k) {
+      std::memcpy(targets[k].rgb + 3 * i, tail_rgb[k], 3 * static_cast<std::size_t>(rest));
+      std::memcpy(targets[k].valid + i, tail_valid[k], static_cast<std::size_t>(rest));
+    }
   }
 }
 
