@@ -4,6 +4,18 @@
 #include <cmath>
 
 namespace terralign::raster {
+namespace {
+
+// The height at (fx, fy) in [0, 1]^2 of a quad with corner heights h00 .. h11 split along its
+// diagonal from corner 00 to 11, or with `anti` from 10 to 01 (as the renderer draws it).
+template <class T>
+T quad_height(T fx, T fy, T h00, T h10, T h01, T h11, bool anti) {
+  if (anti)
+    return fx + fy <= 1 ? h00 + fx * (h10 - h00) + fy * (h01 - h00) : h11 + (1 - fx) * (h01 - h11) + (1 - fy) * (h10 - h11);
+  return fx >= fy ? h00 + fx * (h10 - h00) + fy * (h11 - h10) : h00 + fy * (h01 - h00) + fx * (h11 - h01);
+}
+
+}  // namespace
 
 float chunk_screen_error_px(const TerrainChunk& c, float error, const Eigen::Matrix3f& R_C_W, const Eigen::Vector3f& t_local,
                             float f, float near_m, int cells) {
@@ -187,8 +199,7 @@ void Terrain::measure_chunk(TerrainChunk& c) const {
       post(ci1, cj, a, b, c10);
       post(ci, cj1, a, b, c01);
       post(ci1, cj1, a, b, c11);
-      const float h = fx >= fy ? c00 + fx * (c10 - c00) + fy * (c11 - c10)
-                               : c00 + fy * (c01 - c00) + fx * (c11 - c01);
+      const float h = quad_height(fx, fy, c00, c10, c01, c11, false);
       if (std::isfinite(h)) err = std::max(err, std::abs(h - z));
       else err = std::max(err, bz1 - bz0 + 1.0f);  // a hole in the coarse surface
     }
@@ -217,12 +228,7 @@ void Terrain::measure_chunk(TerrainChunk& c) const {
 
 double Terrain::surface(double u, double v) const {
   const int i = std::min(static_cast<int>(u), nx_ - 2), j = std::min(static_cast<int>(v), ny_ - 2);
-  const double fx = u - i, fy = v - j;
-  auto h = [this](int a, int b) {
-    return static_cast<double>(heights_[static_cast<std::size_t>(b) * static_cast<std::size_t>(nx_) + static_cast<std::size_t>(a)]);
-  };
-  const double h00 = h(i, j), h10 = h(i + 1, j), h01 = h(i, j + 1), h11 = h(i + 1, j + 1);
-  return fx >= fy ? h00 + fx * (h10 - h00) + fy * (h11 - h10) : h00 + fy * (h01 - h00) + fx * (h11 - h01);
+  return quad_height<double>(u - i, v - j, height(i, j), height(i + 1, j), height(i, j + 1), height(i + 1, j + 1), false);
 }
 
 // The largest vertical distance between the full-resolution surface and chunk c drawn with
@@ -235,9 +241,7 @@ double Terrain::surface(double u, double v) const {
 float Terrain::grid_error(const TerrainChunk& c, int grid, bool anti, float limit) const {
   const int si = c.step_i(grid), sj = c.step_j(grid);
   const int qi = c.quads_i(grid), qj = c.quads_j(grid);
-  auto post = [this](int i, int j) {
-    return static_cast<double>(heights_[static_cast<std::size_t>(j) * static_cast<std::size_t>(nx_) + static_cast<std::size_t>(i)]);
-  };
+  auto post = [this](int i, int j) { return static_cast<double>(height(i, j)); };
   double err = 0;
   for (int b = 0; b < qj && err < limit; ++b)
     for (int a = 0; a < qi; ++a) {
@@ -246,10 +250,7 @@ float Terrain::grid_error(const TerrainChunk& c, int grid, bool anti, float limi
       // The posts of the quad (its sides included: either quad gives a side the same heights).
       for (int j = cj; j <= cj + sj; ++j)
         for (int i = ci; i <= ci + si; ++i) {
-          const double fx = static_cast<double>(i - ci) / si, fy = static_cast<double>(j - cj) / sj;
-          const double h = anti ? (fx + fy <= 1 ? c00 + fx * (c10 - c00) + fy * (c01 - c00)
-                                                : c11 + (1 - fx) * (c01 - c11) + (1 - fy) * (c10 - c11))
-                                : (fx >= fy ? c00 + fx * (c10 - c00) + fy * (c11 - c10) : c00 + fy * (c01 - c00) + fx * (c11 - c01));
+          const double h = quad_height(static_cast<double>(i - ci) / si, static_cast<double>(j - cj) / sj, c00, c10, c01, c11, anti);
           err = std::max(err, std::abs(h - post(i, j)));
         }
       // The diagonal, from (u0, v0) by (du, dv) over t in (0, 1): crossings at t = k / m for

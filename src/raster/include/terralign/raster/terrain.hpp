@@ -80,7 +80,11 @@ class Terrain {
   void post(int i, int j, float& x, float& y, float& z) const {
     x = static_cast<float>(px0_ + i * pxi_ + j * pxj_);
     y = static_cast<float>(py0_ + i * pyi_ + j * pyj_);
-    z = heights_[static_cast<std::size_t>(j) * static_cast<std::size_t>(nx_) + static_cast<std::size_t>(i)];
+    z = height(i, j);
+  }
+  // Post (i, j)'s height (NaN: no data).
+  float height(int i, int j) const {
+    return heights_[static_cast<std::size_t>(j) * static_cast<std::size_t>(nx_) + static_cast<std::size_t>(i)];
   }
   const std::vector<TerrainChunk>& chunks() const { return chunks_; }
   // The chunk of `level` whose first post is (ci, cj) x its span; -1 where there is none
