@@ -58,7 +58,8 @@ Terrain Terrain::build(const geo::Map& map, double ox, double oy, double oz, Thr
   Terrain t;
   if (map.dem.constant) {
     // A flat grid over everything any layer covers (a little more, so texture edges are
-    // reached by geometry). 65 x 65 posts: big enough for near-plane clipping to stay local.
+    // reached by geometry). Its chunks are drawn as one quad each (kOneQuad); 65 x 65 posts,
+    // so that those reaching behind the camera are refined and near-plane clipping stays local.
     geo::Extent e{INFINITY, INFINITY, -INFINITY, -INFINITY};
     for (const auto& L : map.layers) {
       e.min_x = std::min(e.min_x, L.extent.min_x);
@@ -203,14 +204,15 @@ void Terrain::measure_chunk(TerrainChunk& c) const {
       if (std::isfinite(h)) err = std::max(err, std::abs(h - z));
       else err = std::max(err, bz1 - bz0 + 1.0f);  // a hole in the coarse surface
     }
-  // The other diagonal, and the Wide and Tall grids with either, where the chunk's quads are
-  // whole (not cut by the map's last post row or column) and every post has a height.
+  // The other diagonal, and the other grids with either, where the chunk's quads are whole
+  // (not cut by the map's last post row or column) and every post has a height.
   c.error[kSquare] = err;
-  c.error[kWide] = c.error[kTall] = INFINITY;
-  if (level > 0 && !holes && i0 + span <= nx_ - 1 && j0 + span <= ny_ - 1) {
+  c.error[kWide] = c.error[kTall] = c.error[kOneQuad] = INFINITY;
+  const bool whole = !holes && i0 + span <= nx_ - 1 && j0 + span <= ny_ - 1;
+  if (level > 0 && whole) {
     // (Wide and Tall serve only where they beat the Square; each second diagonal only where it
     // beats the first: measured only that far.)
-    for (int g = 0; g < kChunkGrids; ++g)
+    for (int g : {kSquare, kWide, kTall})
       for (bool other : {false, true}) {
         if (g == kSquare && !other) continue;  // measured above
         const float limit = std::min(c.error[g], c.error[kSquare]);
@@ -221,6 +223,15 @@ void Terrain::measure_chunk(TerrainChunk& c) const {
         }
       }
   }
+  // OneQuad, where the posts lie on it; on other ground the first post row or two exceed that.
+  if (whole)
+    for (bool other : {false, true}) {
+      const float e = grid_error(c, kOneQuad, other, kOneQuadSlack);
+      if (e <= kOneQuadSlack && !(e >= c.error[kOneQuad])) {
+        c.error[kOneQuad] = e;
+        c.anti[kOneQuad] = other;
+      }
+    }
   c.min_x = bx0; c.max_x = bx1; c.min_y = by0; c.max_y = by1;
   c.min_z = std::isfinite(bz0) ? bz0 : 0.0f;
   c.max_z = std::isfinite(bz1) ? bz1 : 0.0f;
@@ -237,18 +248,18 @@ double Terrain::surface(double u, double v) const {
 // largest at a post or where a coarse quad's diagonal crosses a full-resolution edge (a post
 // column, a post row or a full-resolution diagonal: an integer u, v or u - v along it); the
 // coarse quads' sides run along post rows and columns. So this is exact, in double; but it
-// stops at a row of quads where it reaches `limit` (returning at least that).
+// stops at a row of posts where it exceeds `limit` (returning more than that).
 float Terrain::grid_error(const TerrainChunk& c, int grid, bool anti, float limit) const {
   const int si = c.step_i(grid), sj = c.step_j(grid);
   const int qi = c.quads_i(grid), qj = c.quads_j(grid);
   auto post = [this](int i, int j) { return static_cast<double>(height(i, j)); };
   double err = 0;
-  for (int b = 0; b < qj && err < limit; ++b)
-    for (int a = 0; a < qi; ++a) {
+  for (int b = 0; b < qj && !(err > limit); ++b)
+    for (int a = 0; a < qi && !(err > limit); ++a) {
       const int ci = c.i0 + a * si, cj = c.j0 + b * sj;
       const double c00 = post(ci, cj), c10 = post(ci + si, cj), c01 = post(ci, cj + sj), c11 = post(ci + si, cj + sj);
       // The posts of the quad (its sides included: either quad gives a side the same heights).
-      for (int j = cj; j <= cj + sj; ++j)
+      for (int j = cj; j <= cj + sj && !(err > limit); ++j)
         for (int i = ci; i <= ci + si; ++i) {
           const double h = quad_height(static_cast<double>(i - ci) / si, static_cast<double>(j - cj) / sj, c00, c10, c01, c11, anti);
           err = std::max(err, std::abs(h - post(i, j)));

@@ -4,9 +4,9 @@
 // constant-height map) placed by an affine transform, in local coordinates (metres relative
 // to the renderer's origin). A chunk at level k covers (kChunkQuads * 2^k) quads a side and
 // is drawn as a kChunkQuads x kChunkQuads grid taking every 2^k-th post, or (ChunkGrid) twice
-// as fine along one axis, each quad split into two triangles along one of its diagonals. Each
-// grid's error, the largest vertical distance between its surface and the full-resolution
-// one, is computed once at construction.
+// as fine along one axis, or as one quad where its posts lie on it, each quad split into two
+// triangles along one of its diagonals. Each grid's error, the largest vertical distance
+// between its surface and the full-resolution one, is computed once at construction.
 #pragma once
 
 #include <cstdint>
@@ -25,9 +25,14 @@ constexpr int kChunkQuads = 16;
 // (every 2^k-th post); Wide, twice as many along i (every 2^(k-1)-th post column) and Tall,
 // along j. Terrain whose relief runs one way (ridges, terraces, ripples) needs the finer
 // spacing across it only: one of those, at twice the Square's triangles, instead of the four
-// children's four times.
-enum ChunkGrid : int { kSquare = 0, kWide = 1, kTall = 2 };
-constexpr int kChunkGrids = 3;
+// children's four times. And at any level, OneQuad: the chunk's four corner posts, where
+// every post lies on those two triangles (within kOneQuadSlack): flat or evenly sloped
+// ground, a lake, a constant-height map. Two triangles instead of 512, and large ones, so
+// that most screen tiles see one triangle. The renderer draws it only where each side meets
+// the same side of a neighbour (Renderer::Impl::seal_one_quads()).
+enum ChunkGrid : int { kSquare = 0, kWide = 1, kTall = 2, kOneQuad = 3 };
+constexpr int kChunkGrids = 4;
+constexpr float kOneQuadSlack = 1e-3f;  // metres: a plane's posts, rounded to float heights
 constexpr int kMaxGridQuads = 2 * kChunkQuads;  // quads along a Wide chunk's rows
 
 struct TerrainChunk {
@@ -36,19 +41,20 @@ struct TerrainChunk {
   int span;              // quads a side at full resolution: kChunkQuads << level
   // Per grid (ChunkGrid): the largest vertical distance in metres between the chunk's surface
   // drawn with it and the full-resolution one (the Square's also its children's; +inf where
-  // the grid is not offered: Wide and Tall at level 0, or on a chunk cut by the map's last
-  // post row or column or with a post without height), and the diagonal its quads are split
-  // along: false, post (i, j) to (i + di, j + dj) for quads di x dj posts (every level-0
-  // chunk: the full-resolution surface); true, (i + di, j) to (i, j + dj). A coarser chunk
-  // takes the one that fits the posts better: a ridge or a ripple running along one diagonal
-  // is cut by the other at every quad, and bends the surface there.
+  // the grid is not offered: Wide and Tall at level 0, OneQuad over kOneQuadSlack, any of
+  // the three on a chunk cut by the map's last post row or column or with a post without
+  // height), and the diagonal its quads are split along: false, post (i, j) to (i + di,
+  // j + dj) for quads di x dj posts (every level-0 chunk's Square: the full-resolution
+  // surface); true, (i + di, j) to (i, j + dj). A coarser chunk takes the one that fits the
+  // posts better: a ridge or a ripple running along one diagonal is cut by the other at
+  // every quad, and bends the surface there.
   float error[kChunkGrids];
   bool anti[kChunkGrids];
   float min_x, min_y, min_z, max_x, max_y, max_z;  // local bounding box
   int child[4];          // -1 where none
   // Quads along i and j, and posts between vertices along i and j, drawn with grid g.
-  int quads_i(int g) const { return g == kWide ? 2 * kChunkQuads : kChunkQuads; }
-  int quads_j(int g) const { return g == kTall ? 2 * kChunkQuads : kChunkQuads; }
+  int quads_i(int g) const { return g == kOneQuad ? 1 : g == kWide ? 2 * kChunkQuads : kChunkQuads; }
+  int quads_j(int g) const { return g == kOneQuad ? 1 : g == kTall ? 2 * kChunkQuads : kChunkQuads; }
   int step_i(int g) const { return span / quads_i(g); }
   int step_j(int g) const { return span / quads_j(g); }
 };
