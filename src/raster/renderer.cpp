@@ -1,6 +1,7 @@
 #include <terralign/raster/renderer.hpp>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -81,7 +82,45 @@ static_assert(((1 << 20) + std::min(kTileH, kRowsPerBlock) - 1) / std::min(kTile
 struct alignas(kUnsharedAlign) RasterScratch {
   ShadeTarget targets[kMaxShadeTargets];  // the row being resolved, one per requested layer
   long fragments = 0;                     // pixels its tiles covered this frame
+  int whole_tiles = 0;                    // its tiles wholly inside their only triangle
 };
+
+// Triangle t's three edge functions at pixel (x, y), in the fixed point of its corners, and
+// their steps a pixel right and down. Edge k runs from corner k to corner k + 1; inside: E > 0,
+// or E == 0 on a top or left edge (clockwise on screen with y down: top = horizontal going
+// right, left = going up). The bias folds the rule into one test, E >= 0 for all three.
+struct EdgeFunctions {
+  std::int64_t E[3], dEx[3], dEy[3];
+};
+inline EdgeFunctions edge_functions(const Tri& t, int x, int y) {
+  EdgeFunctions f;
+  const std::int64_t px = static_cast<std::int64_t>(x) << kSubBits, py = static_cast<std::int64_t>(y) << kSubBits;
+  for (int k = 0; k < 3; ++k) {
+    const int k1 = (k + 1) % 3;
+    const std::int64_t ex = std::int64_t{t.X[k1]} - t.X[k], ey = std::int64_t{t.Y[k1]} - t.Y[k];
+    const bool top_left = (ey == 0 && ex > 0) || ey < 0;
+    f.E[k] = ex * (py - t.Y[k]) - ey * (px - t.X[k]) - (top_left ? 0 : 1);
+    f.dEx[k] = -ey * (std::int64_t{1} << kSubBits);
+    f.dEy[k] = ex * (std::int64_t{1} << kSubBits);
+  }
+  return f;
+}
+
+// Whether triangle t covers every pixel of the box x0 .. x1, y0 .. y1 (`all`), or may cover
+// one (not `all`: false only where the box lies wholly outside one of its edges). The edge
+// functions are linear, so the box's four corners tell.
+inline bool covers_box(const Tri& t, int x0, int y0, int x1, int y1, bool all) {
+  const EdgeFunctions f = edge_functions(t, x0, y0);
+  for (int k = 0; k < 3; ++k) {
+    const std::int64_t right = f.dEx[k] * (x1 - x0), down = f.dEy[k] * (y1 - y0);
+    const std::int64_t c[4] = {f.E[k], f.E[k] + right, f.E[k] + down, f.E[k] + right + down};
+    if (all ? std::min({c[0], c[1], c[2], c[3]}) < 0 : std::max({c[0], c[1], c[2], c[3]}) < 0) return false;
+  }
+  return true;
+}
+
+// A row of a tile's entries where every pixel sees the tile's entry 0 (Impl::raster_tile()).
+const std::array<int, kTileW> kEntryZeros{};
 
 struct LayerTexture {
   std::string name;
@@ -159,14 +198,26 @@ struct Renderer::Impl {
   void draw_chunks(int part);
   void bin_part(int part);
   PixelBox box(const Tri& t) const { return pixel_box(t.X, t.Y, vw, vh); }
-  // Calls f(tile index) for every screen tile of the span.
+  // Calls f(tile index) for every screen tile of triangle t's span s that t may cover: where
+  // the span holds more than two tiles, not those wholly outside one of t's edges (a large
+  // triangle's box holds many it misses; a tile inside one alone is drawn without a
+  // visibility buffer, see raster_tile()).
   template <class F>
-  void for_each_tile(const TileSpan& s, F&& f) const {
+  void for_each_tile(const Tri& t, const TileSpan& s, F&& f) const {
+    const bool test = (s.x1 - s.x0 + 1) * (s.y1 - s.y0 + 1) > 2;
     for (int b = s.y0; b <= s.y1; ++b)
-      for (int a = s.x0; a <= s.x1; ++a) f(static_cast<std::size_t>(b * tiles_x + a));
+      for (int a = s.x0; a <= s.x1; ++a)
+        if (!test || covers_box(t, a * kTileW, b * kTileH, std::min(a * kTileW + kTileW, vw) - 1,
+                                std::min(b * kTileH + kTileH, vh) - 1, false))
+          f(static_cast<std::size_t>(b * tiles_x + a));
   }
-  bool chunk_visible_and_coarse_enough(const TerrainChunk& c, int& grid) const;
+  bool in_view(const TerrainChunk& c) const;
+  bool chunk_visible_and_coarse_enough(const TerrainChunk& c, int& grid, bool one_quad = true) const;
+  void choose_chunks();
+  void seal_one_quads();
+  bool drawn_along(int index, int side) const;
   void raster_tile(int tile, int thread);
+  void resolve_tile(int tile, int thread, const int* ids, std::ptrdiff_t id_stride, const float* coef);
   int draw_small_entries_edge32(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
                                 int e0, int* covered) const;
   void deal_bands(int units);
@@ -479,7 +530,7 @@ void Renderer::Impl::add_triangle(GeomPart& g, const PixelBox& p) const {
   TileSpan& span = g.spans[g.n_tris];
   span = {static_cast<std::uint16_t>(p.x0 / kTileW), static_cast<std::uint16_t>(p.y0 / kTileH),
           static_cast<std::uint16_t>(p.x1 / kTileW), static_cast<std::uint16_t>(p.y1 / kTileH)};
-  for_each_tile(span, [&](std::size_t tile) { ++g.tile_count[tile]; });
+  for_each_tile(g.tris[g.n_tris], span, [&](std::size_t tile) { ++g.tile_count[tile]; });
   ++g.n_tris;
 }
 
@@ -525,9 +576,9 @@ void Renderer::Impl::clip_and_emit(GeomPart& g, const ClipVert* in, int n) const
   for (int i = 1; i + 1 < count; ++i) emit_triangle(g, p[0], p[i], p[i + 1]);
 }
 
-// Whether chunk c is in view, and then the grid to draw it with (ChunkGrid), or -1: refine it.
-bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, int& grid) const {
-  // Cull: all eight corners outside one side of the view frustum (the image, not the guard).
+// Whether chunk c's box may be in view: not all eight corners outside one side of the view
+// frustum (the image, not the guard).
+bool Renderer::Impl::in_view(const TerrainChunk& c) const {
   const float xs[2] = {c.min_x, c.max_x}, ys[2] = {c.min_y, c.max_y}, zs[2] = {c.min_z - 0.01f, c.max_z + 0.01f};
   const float l = static_cast<float>((-0.5 - pinhole.cx) / pinhole.fx), r = static_cast<float>((vw - 0.5 - pinhole.cx) / pinhole.fx);
   const float tp = static_cast<float>((-0.5 - pinhole.cy) / pinhole.fy), bt = static_cast<float>((vh - 0.5 - pinhole.cy) / pinhole.fy);
@@ -542,13 +593,24 @@ bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, int&
   }
   for (int o : out)
     if (o == 8) return false;
-  grid = kSquare;
-  if (c.level == 0) return true;
-  // The box's own bound first (8 points), the columns' tighter one (50 points) only where the
+  return true;
+}
+
+// Whether chunk c is in view, and then the grid to draw it with (ChunkGrid), or -1: refine it.
+// `one_quad`: whether OneQuad may be taken.
+bool Renderer::Impl::chunk_visible_and_coarse_enough(const TerrainChunk& c, int& grid, bool one_quad) const {
+  if (!in_view(c)) return false;
+  // One quad where it is offered (the posts lie on it) and its error allows. Else the Square:
+  // the box's own bound first (8 points), the columns' tighter one (50 points) only where the
   // box's would refine. Then the grids twice as fine along one axis (twice the triangles; the
   // children take four times), the one with the smaller error where both would do.
   const float f = static_cast<float>(std::max(pinhole.fx, pinhole.fy)), near = static_cast<float>(options.near_m);
   const float lod = static_cast<float>(options.lod_error_px);
+  grid = kOneQuad;
+  if (one_quad && std::isfinite(c.error[kOneQuad]) && chunk_screen_error_px(c, c.error[kOneQuad], R_C_W, t_local, f, near) <= lod)
+    return true;
+  grid = kSquare;
+  if (c.level == 0) return true;
   if (chunk_screen_error_px(c, c.error[kSquare], R_C_W, t_local, f, near) <= lod ||
       chunk_screen_error_px(c, c.error[kSquare], R_C_W, t_local, f, near, kMaxErrorCells) <= lod)
     return true;
@@ -653,8 +715,9 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c, int grid) co
 // finer border runs below the coarser, the coarser chunk's skirt covers the gap; where
 // above, the finer's: so each side hangs by the larger of the two errors (and a centimetre).
 // Where no chunk of this level or coarser is drawn across the side, the neighbour is of a
-// finer level (its spacing along the side at most this one's) or not drawn: the chunk's own
-// error. Off the map (no posts across the side): none.
+// finer level (its spacing along the side at most this one's: a chunk drawn as one quad has
+// neighbours of its level alone, see seal_one_quads()) or not drawn: the chunk's own error.
+// Off the map (no posts across the side): none.
 float Renderer::Impl::skirt_drop(const TerrainChunk& c, int grid, int side) const {
   // The level-0 chunk cell just across the side, at the side's first post.
   const int cx = c.i0 / kChunkQuads, cy = c.j0 / kChunkQuads, cells = c.span / kChunkQuads;
@@ -679,6 +742,98 @@ float Renderer::Impl::skirt_drop(const TerrainChunk& c, int grid, int side) cons
   return own > 0 ? own + 0.01f : 0.0f;
 }
 
+// The level of detail from the chunks on chunk_stack down: each chunk in view is drawn
+// (appended to draw_list, its grid + 1 in drawn[]) or refined into its children.
+void Renderer::Impl::choose_chunks() {
+  const auto& chunks = terrain.chunks();
+  while (!chunk_stack.empty()) {
+    const int index = chunk_stack.back();
+    chunk_stack.pop_back();
+    const TerrainChunk& c = chunks[static_cast<std::size_t>(index)];
+    int grid = kSquare;
+    if (!chunk_visible_and_coarse_enough(c, grid)) continue;
+    if (grid < 0) {
+      for (int k = 3; k >= 0; --k)
+        if (c.child[k] >= 0) chunk_stack.push_back(c.child[k]);
+    } else {
+      draw_list.push_back(index);
+      drawn[static_cast<std::size_t>(index)] = static_cast<std::uint8_t>(1 + grid);
+    }
+  }
+}
+
+// A chunk drawn as one quad has one straight edge a side. Against a neighbour whose vertices
+// along that side are more (a chunk of another level, or drawn with another grid) the
+// neighbour's vertices lie on that edge only before snapping: T-junctions, whose snapped
+// corners can leave a sliver between the two no skirt closes where it is seen from above (a
+// vertical skirt then covers no pixel). So a chunk keeps its one quad only where every side
+// lies on the map's edge, against a chunk of its level drawn as one quad too (the same two
+// corner posts: the same edge), or against one out of view; the others take the grid the
+// level of detail gives them without it, or are refined (their children chosen anew), until
+// no chunk changes.
+void Renderer::Impl::seal_one_quads() {
+  const auto& chunks = terrain.chunks();
+  auto sealed = [&](const TerrainChunk& c) {
+    for (int side = 0; side < 4; ++side) {
+      // Up the levels from the chunk across (as in skirt_drop()): the first one drawn must be
+      // of c's level, as one quad.
+      const int cx = c.i0 / kChunkQuads, cy = c.j0 / kChunkQuads, cells = c.span / kChunkQuads;
+      const int x = side == 2 ? cx - 1 : side == 3 ? cx + cells : cx;
+      const int y = side == 0 ? cy - 1 : side == 1 ? cy + cells : cy;
+      const int same = terrain.chunk_at(c.level, x >= 0 ? x >> c.level : -1, y >= 0 ? y >> c.level : -1);
+      if (same < 0) continue;  // the map's edge
+      bool coarser_or_same = false;
+      for (int k = c.level;; ++k) {
+        const int id = terrain.chunk_at(k, x >> k, y >> k);
+        if (id < 0) break;
+        const int g = drawn[static_cast<std::size_t>(id)] - 1;
+        if (g < 0) continue;
+        if (k != c.level || g != kOneQuad) return false;
+        coarser_or_same = true;
+        break;
+      }
+      // Else finer chunks across, if any is drawn along the side (side ^ 1 faces c).
+      if (!coarser_or_same && drawn_along(same, side ^ 1)) return false;
+    }
+    return true;
+  };
+  for (bool changed = true; changed;) {
+    changed = false;
+    for (std::size_t n = 0; n < draw_list.size(); ++n) {
+      const int index = draw_list[n];
+      const TerrainChunk& c = chunks[static_cast<std::size_t>(index)];
+      if (drawn[static_cast<std::size_t>(index)] != 1 + kOneQuad || sealed(c)) continue;
+      changed = true;
+      int grid = kSquare;
+      (void)chunk_visible_and_coarse_enough(c, grid, false);  // in view: it was drawn
+      if (grid >= 0) {
+        drawn[static_cast<std::size_t>(index)] = static_cast<std::uint8_t>(1 + grid);
+        continue;
+      }
+      drawn[static_cast<std::size_t>(index)] = 0;
+      draw_list.erase(draw_list.begin() + static_cast<std::ptrdiff_t>(n--));
+      for (int k = 3; k >= 0; --k)
+        if (c.child[k] >= 0) chunk_stack.push_back(c.child[k]);
+      choose_chunks();
+    }
+  }
+}
+
+// Whether chunk `index` or a chunk under it touching its side `side` (as in skirt_drop()) is
+// drawn this frame.
+bool Renderer::Impl::drawn_along(int index, int side) const {
+  if (drawn[static_cast<std::size_t>(index)] != 0) return true;
+  const TerrainChunk& c = terrain.chunks()[static_cast<std::size_t>(index)];
+  for (int k : c.child) {
+    if (k < 0) continue;
+    const TerrainChunk& h = terrain.chunks()[static_cast<std::size_t>(k)];
+    const bool touches = side == 0 ? h.j0 == c.j0 : side == 1 ? h.j0 + h.span == c.j0 + c.span
+                       : side == 2 ? h.i0 == c.i0 : h.i0 + h.span == c.i0 + c.span;
+    if (touches && drawn_along(k, side)) return true;
+  }
+  return false;
+}
+
 // Part j of the frame's geometry: the j-th of `threads` equal runs of the draw list. The
 // parts, taken in order, hold the triangles in draw-list order whatever the thread count.
 void Renderer::Impl::draw_chunks(int part) {
@@ -701,7 +856,7 @@ void Renderer::Impl::bin_part(int part) {
   GeomPart& g = parts[static_cast<std::size_t>(part)];
   const int first = part * options.max_triangles;
   for (int i = 0; i < g.n_tris; ++i)
-    for_each_tile(g.spans[i], [&](std::size_t tile) { bin_entries[static_cast<std::size_t>(g.tile_fill[tile]++)] = first + i; });
+    for_each_tile(g.tris[i], g.spans[i], [&](std::size_t tile) { bin_entries[static_cast<std::size_t>(g.tile_fill[tile]++)] = first + i; });
 }
 
 // ---- rasterization ----
@@ -743,20 +898,35 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   const std::ptrdiff_t origin = static_cast<std::ptrdiff_t>(resolve_here ? thread : tile) * kVisSlice;
   float* const tz = zbuf.data() + origin;
   int* const tid = idbuf.data() + origin;
-  for (int r = 0; r <= y1 - y0; ++r) {
-    std::fill(tz + r * stride, tz + r * stride + (x1 - x0 + 1), 0.0f);
-    std::fill(tid + r * stride, tid + r * stride + (x1 - x0 + 1), -1);
-  }
   long frags = 0;
   const int first = tile_start[static_cast<std::size_t>(tile)];
   const int count = tile_count[static_cast<std::size_t>(tile)];
   // Each entry gets its planes in float relative to the tile's corner, for the resolve below
   // (a pinhole camera's; depth to about 3e-7 relative: the planes were fitted in double).
   float* coef = tile_coef[static_cast<std::size_t>(thread)].data();
+  alignas(64) EntrySetup setup;
+  // A tile wholly inside its only triangle (most tiles of a view over flat ground, drawn as
+  // one quad): every pixel sees that triangle, so it needs no visibility buffer, and the
+  // resolve reads a row of entry 0s (the bytes are those the buffer would hold).
+  if (resolve_here && count == 1 &&
+      covers_box(tris[static_cast<std::size_t>(bin_entries[static_cast<std::size_t>(first)])], x0, y0, x1, y1, true)) {
+    setup_entries(tris.get(), bin_entries.get() + first, 1, x0, y0, x1, y1, vw, vh, setup, coef);
+    frags = static_cast<long>(x1 - x0 + 1) * (y1 - y0 + 1);
+    if (frags >= kBoundMinPixels)
+      coef[9] = plane_footprint_bound_log2(coef, 0.0f, static_cast<float>(x1 - x0), 0.0f, static_cast<float>(y1 - y0));
+    RasterScratch& scratch = raster_scratch[static_cast<std::size_t>(thread)];
+    scratch.fragments += frags;
+    ++scratch.whole_tiles;
+    resolve_tile(tile, thread, kEntryZeros.data(), 0, coef);
+    return;
+  }
+  for (int r = 0; r <= y1 - y0; ++r) {
+    std::fill(tz + r * stride, tz + r * stride + (x1 - x0 + 1), 0.0f);
+    std::fill(tid + r * stride, tid + r * stride + (x1 - x0 + 1), -1);
+  }
   // Entries are set up 16 at a time (setup_entries(): the small ones for the 32-bit edge kernel,
   // and every entry's planes), then drawn in bin order: runs of small entries by
   // draw_small_entries(), the others one by one.
-  alignas(64) EntrySetup setup;
   int covered[EntrySetup::kMax];
   // The footprint's bound over entry e's pixels in the tile (setup_entries() left +inf): where
   // it shows a layer magnified, its pixels skip their own footprints. It costs about what a few
@@ -793,21 +963,12 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
       const int bx0 = std::max(tb.x0, x0), bx1 = std::min(tb.x1, x1);
       const int by0 = std::max(tb.y0, y0), by1 = std::min(tb.y1, y1);
       if (bx0 > bx1 || by0 > by1) continue;
-      // Edge k runs from vertex k to vertex k+1; inside: E > 0, or E == 0 on a top or left
-      // edge (clockwise on screen with y down: top = horizontal going right, left = going up).
-      // The bias folds the rule into one test, E >= 0.
-      std::int64_t E[3], dEx[3], dEy[3];
+      const EdgeFunctions ef = edge_functions(t, bx0, by0);
+      const std::int64_t *E = ef.E, *dEx = ef.dEx, *dEy = ef.dEy;
+      // For the 32-bit kernel: narrowing is modular, so the slopes may wrap while every pixel's
+      // value in a block whose corners fit is exact.
       std::int32_t dx32[3], dy32[3];
-      const std::int64_t px = static_cast<std::int64_t>(bx0) << kSubBits, py = static_cast<std::int64_t>(by0) << kSubBits;
       for (int k = 0; k < 3; ++k) {
-        const int k1 = (k + 1) % 3;
-        const std::int64_t ex = std::int64_t{t.X[k1]} - t.X[k], ey = std::int64_t{t.Y[k1]} - t.Y[k];
-        const bool top_left = (ey == 0 && ex > 0) || ey < 0;
-        E[k] = ex * (py - t.Y[k]) - ey * (px - t.X[k]) - (top_left ? 0 : 1);
-        dEx[k] = -ey * (std::int64_t{1} << kSubBits);
-        dEy[k] = ex * (std::int64_t{1} << kSubBits);
-        // For the 32-bit kernel: narrowing is modular, so the slopes may wrap while every
-        // pixel's value in a block whose corners fit is exact.
         dx32[k] = static_cast<std::int32_t>(dEx[k]);
         dy32[k] = static_cast<std::int32_t>(dEy[k]);
       }
@@ -902,17 +1063,25 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     }
     return;
   }
-  // Pinhole camera: resolve and shade this tile now, row by row (the fused kernel keeps each
-  // pixel's world position in registers).
+  resolve_tile(tile, thread, tid, stride, coef);
+}
+
+// Pinhole camera: resolves and shades tile `tile` now, row by row (the fused kernel keeps each
+// pixel's world position in registers), its entries' planes in `coef`, pixel (x, y)'s entry
+// at ids[(y - y0) id_stride + x - x0].
+void Renderer::Impl::resolve_tile(int tile, int thread, const int* ids, std::ptrdiff_t id_stride, const float* coef) {
+  const int tx = tile % tiles_x, ty = tile / tiles_x;
+  const int x0 = tx * kTileW, y0 = ty * kTileH;
+  const int x1 = std::min(x0 + kTileW, vw) - 1, y1 = std::min(y0 + kTileH, vh) - 1;
   const std::size_t w = static_cast<std::size_t>(camera.width);
   const std::size_t n_layers = frame_out->layer_names.size();
-  ShadeTarget* targets = scratch.targets;
+  ShadeTarget* targets = raster_scratch[static_cast<std::size_t>(thread)].targets;
   for (int y = y0; y <= y1; ++y) {
     const std::size_t k = static_cast<std::size_t>(y) * w + static_cast<std::size_t>(x0);
     for (std::size_t l = 0; l < n_layers; ++l)
       targets[l] = {&layer_params[static_cast<std::size_t>(frame_out->layer_index[l])], frame_out->rgb[l].data() + 3 * k,
                     frame_out->valid[l].data() + k};
-    resolve_shade(x1 - x0 + 1, tid + static_cast<std::ptrdiff_t>(y - y0) * stride, coef, 0.0f, static_cast<float>(y - y0),
+    resolve_shade(x1 - x0 + 1, ids + static_cast<std::ptrdiff_t>(y - y0) * id_stride, coef, 0.0f, static_cast<float>(y - y0),
                   frame_out->depth.data() + k, static_cast<int>(n_layers), targets);
   }
 }
@@ -1039,25 +1208,14 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   m.chunk_stack.clear();
   m.chunk_stack.push_back(m.terrain.root());
   m.draw_list.clear();
-  const auto& chunks = m.terrain.chunks();
-  while (!m.chunk_stack.empty()) {
-    const int index = m.chunk_stack.back();
-    m.chunk_stack.pop_back();
-    const TerrainChunk& c = chunks[static_cast<std::size_t>(index)];
-    int grid = kSquare;
-    if (!m.chunk_visible_and_coarse_enough(c, grid)) continue;
-    if (grid < 0) {
-      for (int k = 3; k >= 0; --k)
-        if (c.child[k] >= 0) m.chunk_stack.push_back(c.child[k]);
-    } else {
-      m.draw_list.push_back(index);
-      m.drawn[static_cast<std::size_t>(index)] = static_cast<std::uint8_t>(1 + grid);
-    }
-  }
+  m.choose_chunks();
+  m.seal_one_quads();
   m.pool->run(m.pool->threads(), [](void* c, int j) { static_cast<Impl*>(c)->draw_chunks(j); }, &m);
-  int n_tris = 0, chunks_drawn = 0, chunks_one_way = 0;
+  int n_tris = 0, chunks_drawn = 0, chunks_one_way = 0, chunks_one_quad = 0;
   for (int index : m.draw_list) {
-    chunks_one_way += m.drawn[static_cast<std::size_t>(index)] != 1 + kSquare;
+    const int grid = m.drawn[static_cast<std::size_t>(index)] - 1;
+    chunks_one_way += grid == kWide || grid == kTall;
+    chunks_one_quad += grid == kOneQuad;
     m.drawn[static_cast<std::size_t>(index)] = 0;
   }
   bool overflow = false;
@@ -1099,7 +1257,10 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
       invalidate();
       return Error{"render: a screen tile holds " + std::to_string(c) + " triangles, over " + std::to_string(m.max_tile_entries)};
     }
-  for (RasterScratch& s : m.raster_scratch) s.fragments = 0;
+  for (RasterScratch& s : m.raster_scratch) {
+    s.fragments = 0;
+    s.whole_tiles = 0;
+  }
   // Tile rows are claimed, not dealt: thread j starts at the top of band j of the rows and
   // works down it, then takes the band with the most rows left from its bottom up
   // (raster_rows()). Each thread's rows stay together, so two threads share cache lines of the
@@ -1138,12 +1299,18 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   // Terrain seen: for a pinhole camera every covered pixel has a depth (clipping keeps 1/z
   // positive), so the tiles' fragment counts tell without a pass over the depth image.
   long fragments = 0;
-  for (const RasterScratch& s : m.raster_scratch) fragments += s.fragments;
+  int whole_tiles = 0;
+  for (const RasterScratch& s : m.raster_scratch) {
+    fragments += s.fragments;
+    whole_tiles += s.whole_tiles;
+  }
   if (stats) {
     stats->triangles = n_tris;
     stats->chunks = chunks_drawn;
     stats->chunks_one_way = chunks_one_way;
+    stats->chunks_one_quad = chunks_one_quad;
     stats->fragments = fragments;
+    stats->tiles_one_triangle = whole_tiles;
     stats->ms_geometry = std::chrono::duration<double, std::milli>(t1 - t0).count();
     stats->ms_raster = std::chrono::duration<double, std::milli>(t2 - t1).count();
     stats->ms_shade = std::chrono::duration<double, std::milli>(t3 - t2).count();

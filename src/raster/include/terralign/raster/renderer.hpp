@@ -63,7 +63,9 @@ struct RenderStats {
   int triangles = 0;        // after LOD and clipping
   int chunks = 0;           // terrain chunks drawn
   int chunks_one_way = 0;   // of those, drawn with twice their grid along one axis (kWide, kTall)
+  int chunks_one_quad = 0;  // of those, drawn as one quad (kOneQuad)
   long fragments = 0;       // pixels that passed a triangle's coverage test (overdraw included)
+  int tiles_one_triangle = 0;  // pinhole screen tiles wholly inside their only triangle (no depth test)
   // Stage times: LOD, geometry and binning; visibility per tile (for a pinhole camera also
   // the resolve and the shading of every layer, done tile by tile); for a distorted camera,
   // the remap, resolve and shading afterwards (0 for a pinhole camera).
