@@ -393,7 +393,7 @@ TEST_CASE("a pair with no texture reports failure instead of a pose") {
   CHECK(res.params.R == Mat3<double>::Identity());  // the initial pose, never NaN
 }
 
-TEST_CASE("1, 2 and 3 threads, and the scalar and AVX2 residual kernels, give the same pose, bit for bit") {
+TEST_CASE("1, 2 and 3 threads, and the scalar and vector (AVX2, NEON) residual kernels, give the same pose, bit for bit") {
   auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
   REQUIRE(map.ok());
   const geo::CameraModel cam = test::paper_camera();
@@ -418,7 +418,31 @@ TEST_CASE("1, 2 and 3 threads, and the scalar and AVX2 residual kernels, give th
   }
 }
 
+#if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
+// The vector builds of the solver's kernels this machine runs (AVX2 where the CPU has it,
+// NEON on aarch64), or null.
+detail::Se3EvalFn vector_se3_kernel() {
 #if defined(TERRALIGN_ICLK_AVX2)
+  return cpu_features().avx2_fma ? detail::evaluate_se3_avx2 : nullptr;
+#else
+  return detail::evaluate_se3_neon;
+#endif
+}
+detail::OuterSumsFn vector_outer_kernel() {
+#if defined(TERRALIGN_ICLK_AVX2)
+  return cpu_features().avx2_fma ? detail::outer_sums_avx2 : nullptr;
+#else
+  return detail::outer_sums_neon;
+#endif
+}
+detail::OuterSumsAtFn vector_outer_at_kernel() {
+#if defined(TERRALIGN_ICLK_AVX2)
+  return cpu_features().avx2_fma ? detail::outer_sums_at_avx2 : nullptr;
+#else
+  return detail::outer_sums_at_neon;
+#endif
+}
+
 // The residual kernel's inputs: a W x H live image and n reference points, values, weights
 // and Jacobians (the caller places the points and sets the weights), seen through K =
 // (40, 40, 30, 18) and a pose set with pose().
@@ -468,7 +492,7 @@ struct KernelCase {
     in.out = a.out.data();
     detail::evaluate_se3_scalar(in, i0, i1, a.r.data(), a.ok.data(), a.s);
     in.out = b.out.data();
-    detail::evaluate_se3_avx2(in, i0, i1, b.r.data(), b.ok.data(), b.s);
+    vector_se3_kernel()(in, i0, i1, b.r.data(), b.ok.data(), b.s);
     CHECK(std::memcmp(a.r.data(), b.r.data(), static_cast<std::size_t>(n) * sizeof(float)) == 0);
     CHECK(a.ok == b.ok);
     CHECK(a.out == b.out);
@@ -478,9 +502,9 @@ struct KernelCase {
 };
 #endif
 
-TEST_CASE("the residual kernel: AVX2 and scalar agree bit for bit, at the edges, behind the camera and on NaN") {
-#if defined(TERRALIGN_ICLK_AVX2)
-  if (!cpu_features().avx2_fma) {
+TEST_CASE("the residual kernel: its vector build (AVX2, NEON) and the scalar one agree bit for bit, at the edges, behind the camera and on NaN") {
+#if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
+  if (!vector_se3_kernel()) {
     MESSAGE("this CPU has no AVX2: only the scalar kernel runs here");
     return;
   }
@@ -523,13 +547,13 @@ TEST_CASE("the residual kernel: AVX2 and scalar agree bit for bit, at the edges,
     if (i1 < n) CHECK((run.r[static_cast<std::size_t>(i1)] == 7.0f && run.ok[static_cast<std::size_t>(i1)] == 9));
   }
 #else
-  MESSAGE("built without the AVX2 kernel");
+  MESSAGE("built without a vector kernel");
 #endif
 }
 
-TEST_CASE("the residual kernel: AVX2 and scalar agree bit for bit where neighbouring pixels land side by side") {
-#if defined(TERRALIGN_ICLK_AVX2)
-  if (!cpu_features().avx2_fma) {
+TEST_CASE("the residual kernel: its vector build (AVX2, NEON) and the scalar one agree bit for bit where neighbouring pixels land side by side") {
+#if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
+  if (!vector_se3_kernel()) {
     MESSAGE("this CPU has no AVX2: only the scalar kernel runs here");
     return;
   }
@@ -553,11 +577,11 @@ TEST_CASE("the residual kernel: AVX2 and scalar agree bit for bit where neighbou
     CHECK(k.both(0, k.n).s.valid > k.n / 2);  // most land: the case is not degenerate
   }
 #else
-  MESSAGE("built without the AVX2 kernel");
+  MESSAGE("built without a vector kernel");
 #endif
 }
 
-TEST_CASE("the J^T W J kernels: AVX2 and scalar agree bit for bit, and with a plain sum in double") {
+TEST_CASE("the J^T W J kernels: their vector builds (AVX2, NEON) and the scalar ones agree bit for bit, and with a plain sum in double") {
   using namespace detail;
   const int n = 1003;
   std::vector<float> w(n), jac[6];
@@ -612,10 +636,10 @@ TEST_CASE("the J^T W J kernels: AVX2 and scalar agree bit for bit, and with a pl
     OuterSums s1{};
     outer_sums_scalar(J, w.data(), i0, i1, s1);
     CHECK(close(lanes(s1), plain(range)));
-#if defined(TERRALIGN_ICLK_AVX2)
-    if (cpu_features().avx2_fma) {
+#if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
+    if (vector_outer_kernel()) {
       OuterSums s2{};
-      outer_sums_avx2(J, w.data(), i0, i1, s2);
+      vector_outer_kernel()(J, w.data(), i0, i1, s2);
       CHECK(std::memcmp(&s1, &s2, sizeof s1) == 0);
     }
 #endif
@@ -624,10 +648,10 @@ TEST_CASE("the J^T W J kernels: AVX2 and scalar agree bit for bit, and with a pl
       OuterSums s3{};
       outer_sums_at_scalar(J, w.data(), index->data(), count, s3);
       CHECK(close(lanes(s3), plain(std::vector<int>(index->begin(), index->begin() + count))));
-#if defined(TERRALIGN_ICLK_AVX2)
-      if (cpu_features().avx2_fma) {
+#if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
+      if (vector_outer_at_kernel()) {
         OuterSums s4{};
-        outer_sums_at_avx2(J, w.data(), index->data(), count, s4);
+        vector_outer_at_kernel()(J, w.data(), index->data(), count, s4);
         CHECK(std::memcmp(&s3, &s4, sizeof s3) == 0);
       }
 #endif

@@ -4,8 +4,8 @@
 //
 // Sums run in eight float lanes, pixel i of [i0, i1) in lane (i - i0) mod 8, and every
 // operation is a separate IEEE operation (no FMA contraction, correctly rounded division):
-// the scalar twin and the AVX2 build give the same bits, so a result does not depend on the
-// CPU's ISA. A pixel that leaves the image (or lies behind the camera) adds +0 to its lane.
+// the scalar twin and the AVX2 (x86-64) and NEON (aarch64) builds give the same bits, so a
+// result does not depend on the CPU's ISA. A pixel that leaves the image (or lies behind the camera) adds +0 to its lane.
 #pragma once
 
 #include <cstddef>
@@ -45,6 +45,9 @@ void evaluate_se3_scalar(const Se3EvalInput& in, int i0, int i1, float* r, unsig
 #if defined(TERRALIGN_ICLK_AVX2)
 void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
 #endif
+#if defined(TERRALIGN_ICLK_NEON)
+void evaluate_se3_neon(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
+#endif
 
 // J^T W J of one channel over pixels [i0, i1), added to `h` (the signature is
 // detail::OuterSumsFn): entry k of the lower half (row by row: (0,0), (1,0), (1,1), ...) of
@@ -57,6 +60,10 @@ void outer_sums_at_scalar(const float* const* jac, const float* w, const int* in
 #if defined(TERRALIGN_ICLK_AVX2)
 void outer_sums_avx2(const float* const* jac, const float* w, int i0, int i1, OuterSums& h);
 void outer_sums_at_avx2(const float* const* jac, const float* w, const int* index, int count, OuterSums& h);
+#endif
+#if defined(TERRALIGN_ICLK_NEON)
+void outer_sums_neon(const float* const* jac, const float* w, int i0, int i1, OuterSums& h);
+void outer_sums_at_neon(const float* const* jac, const float* w, const int* index, int count, OuterSums& h);
 #endif
 
 }  // namespace terralign::iclk::detail

@@ -106,6 +106,8 @@ void Tracker<S, Warp, C>::pick_kernel() {
     se3_kernel_ = detail::evaluate_se3_scalar;
 #if defined(TERRALIGN_ICLK_AVX2)
     if (opt_.simd && cpu_features().avx2_fma) se3_kernel_ = detail::evaluate_se3_avx2;
+#elif defined(TERRALIGN_ICLK_NEON)
+    if (opt_.simd) se3_kernel_ = detail::evaluate_se3_neon;
 #endif
   }
   outer_kernel_ = nullptr;
@@ -117,6 +119,11 @@ void Tracker<S, Warp, C>::pick_kernel() {
     if (opt_.simd && cpu_features().avx2_fma) {
       outer_kernel_ = detail::outer_sums_avx2;
       outer_at_kernel_ = detail::outer_sums_at_avx2;
+    }
+#elif defined(TERRALIGN_ICLK_NEON)
+    if (opt_.simd) {
+      outer_kernel_ = detail::outer_sums_neon;
+      outer_at_kernel_ = detail::outer_sums_at_neon;
     }
 #endif
   }
