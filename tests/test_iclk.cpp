@@ -420,26 +420,18 @@ TEST_CASE("1, 2 and 3 threads, and the scalar and vector (AVX2, NEON) residual k
 
 #if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
 // The vector builds of the solver's kernels this machine runs (AVX2 where the CPU has it,
-// NEON on aarch64), or null.
-detail::Se3EvalFn vector_se3_kernel() {
+// NEON on aarch64), or nulls.
+struct VectorKernels {
+  detail::Se3EvalFn se3 = nullptr;
+  detail::OuterSumsFn outer = nullptr;
+  detail::OuterSumsAtFn outer_at = nullptr;
+};
+VectorKernels vector_kernels() {
 #if defined(TERRALIGN_ICLK_AVX2)
-  return cpu_features().avx2_fma ? detail::evaluate_se3_avx2 : nullptr;
+  if (!cpu_features().avx2_fma) return {};
+  return {detail::evaluate_se3_avx2, detail::outer_sums_avx2, detail::outer_sums_at_avx2};
 #else
-  return detail::evaluate_se3_neon;
-#endif
-}
-detail::OuterSumsFn vector_outer_kernel() {
-#if defined(TERRALIGN_ICLK_AVX2)
-  return cpu_features().avx2_fma ? detail::outer_sums_avx2 : nullptr;
-#else
-  return detail::outer_sums_neon;
-#endif
-}
-detail::OuterSumsAtFn vector_outer_at_kernel() {
-#if defined(TERRALIGN_ICLK_AVX2)
-  return cpu_features().avx2_fma ? detail::outer_sums_at_avx2 : nullptr;
-#else
-  return detail::outer_sums_at_neon;
+  return {detail::evaluate_se3_neon, detail::outer_sums_neon, detail::outer_sums_at_neon};
 #endif
 }
 
@@ -492,7 +484,7 @@ struct KernelCase {
     in.out = a.out.data();
     detail::evaluate_se3_scalar(in, i0, i1, a.r.data(), a.ok.data(), a.s);
     in.out = b.out.data();
-    vector_se3_kernel()(in, i0, i1, b.r.data(), b.ok.data(), b.s);
+    vector_kernels().se3(in, i0, i1, b.r.data(), b.ok.data(), b.s);
     CHECK(std::memcmp(a.r.data(), b.r.data(), static_cast<std::size_t>(n) * sizeof(float)) == 0);
     CHECK(a.ok == b.ok);
     CHECK(a.out == b.out);
@@ -504,7 +496,7 @@ struct KernelCase {
 
 TEST_CASE("the residual kernel: its vector build (AVX2, NEON) and the scalar one agree bit for bit, at the edges, behind the camera and on NaN") {
 #if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
-  if (!vector_se3_kernel()) {
+  if (!vector_kernels().se3) {
     MESSAGE("this CPU has no AVX2: only the scalar kernel runs here");
     return;
   }
@@ -553,7 +545,7 @@ TEST_CASE("the residual kernel: its vector build (AVX2, NEON) and the scalar one
 
 TEST_CASE("the residual kernel: its vector build (AVX2, NEON) and the scalar one agree bit for bit where neighbouring pixels land side by side") {
 #if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
-  if (!vector_se3_kernel()) {
+  if (!vector_kernels().se3) {
     MESSAGE("this CPU has no AVX2: only the scalar kernel runs here");
     return;
   }
@@ -637,9 +629,9 @@ TEST_CASE("the J^T W J kernels: their vector builds (AVX2, NEON) and the scalar 
     outer_sums_scalar(J, w.data(), i0, i1, s1);
     CHECK(close(lanes(s1), plain(range)));
 #if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
-    if (vector_outer_kernel()) {
+    if (vector_kernels().outer) {
       OuterSums s2{};
-      vector_outer_kernel()(J, w.data(), i0, i1, s2);
+      vector_kernels().outer(J, w.data(), i0, i1, s2);
       CHECK(std::memcmp(&s1, &s2, sizeof s1) == 0);
     }
 #endif
@@ -649,9 +641,9 @@ TEST_CASE("the J^T W J kernels: their vector builds (AVX2, NEON) and the scalar 
       outer_sums_at_scalar(J, w.data(), index->data(), count, s3);
       CHECK(close(lanes(s3), plain(std::vector<int>(index->begin(), index->begin() + count))));
 #if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
-      if (vector_outer_at_kernel()) {
+      if (vector_kernels().outer_at) {
         OuterSums s4{};
-        vector_outer_at_kernel()(J, w.data(), index->data(), count, s4);
+        vector_kernels().outer_at(J, w.data(), index->data(), count, s4);
         CHECK(std::memcmp(&s3, &s4, sizeof s3) == 0);
       }
 #endif
