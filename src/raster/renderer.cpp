@@ -216,6 +216,10 @@ struct Renderer::Impl {
   void choose_chunks();
   void seal_one_quads();
   bool drawn_along(int index, int side) const;
+  struct Across {
+    int same, drawn;
+  };
+  Across across(const TerrainChunk& c, int side) const;
   void raster_tile(int tile, int thread);
   void resolve_tile(int tile, int thread, const int* ids, std::ptrdiff_t id_stride, const float* coef);
   int draw_small_entries_edge32(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
@@ -719,27 +723,37 @@ void Renderer::Impl::draw_chunk(GeomPart& g, const TerrainChunk& c, int grid) co
 // neighbours of its level alone, see seal_one_quads()) or not drawn: the chunk's own error.
 // Off the map (no posts across the side): none.
 float Renderer::Impl::skirt_drop(const TerrainChunk& c, int grid, int side) const {
+  const bool along_i = side < 2;  // the top and bottom sides run along a post row
+  const float own = c.error[grid];
+  const Across a = across(c, side);
+  if (a.same < 0) return 0.0f;  // no posts across the side
+  if (a.drawn >= 0) {
+    const TerrainChunk& o = terrain.chunks()[static_cast<std::size_t>(a.drawn)];
+    const int g = drawn[static_cast<std::size_t>(a.drawn)] - 1;
+    if (a.drawn == a.same && (along_i ? o.step_i(g) == c.step_i(grid) : o.step_j(g) == c.step_j(grid))) return 0.0f;
+    return std::max(own, o.error[g]) + 0.01f;
+  }
+  return own > 0 ? own + 0.01f : 0.0f;
+}
+
+// Across side `side` of chunk c (sides as in skirt_drop()): the chunk of c's level (-1: the
+// map's edge) and, up the levels from it (chunk_at() is -1 above the root), the first drawn
+// this frame (-1: none of c's level or coarser is).
+Renderer::Impl::Across Renderer::Impl::across(const TerrainChunk& c, int side) const {
   // The level-0 chunk cell just across the side, at the side's first post.
   const int cx = c.i0 / kChunkQuads, cy = c.j0 / kChunkQuads, cells = c.span / kChunkQuads;
   const int x = side == 2 ? cx - 1 : side == 3 ? cx + cells : cx;
   const int y = side == 0 ? cy - 1 : side == 1 ? cy + cells : cy;
-  const bool along_i = side < 2;  // the top and bottom sides run along a post row
-  const float own = c.error[grid];
-  // Up the levels (chunk_at() is -1 above the root): the first chunk drawn across the side.
+  Across a{-1, -1};
   for (int k = c.level;; ++k) {
     const int id = terrain.chunk_at(k, x >= 0 ? x >> k : -1, y >= 0 ? y >> k : -1);
-    if (id < 0) {
-      if (k == c.level) return 0.0f;  // no posts across the side
-      break;
-    }
-    const int across = drawn[static_cast<std::size_t>(id)] - 1;
-    if (across >= 0) {
-      const TerrainChunk& o = terrain.chunks()[static_cast<std::size_t>(id)];
-      if (k == c.level && (along_i ? o.step_i(across) == c.step_i(grid) : o.step_j(across) == c.step_j(grid))) return 0.0f;
-      return std::max(own, o.error[across]) + 0.01f;
+    if (id < 0) return a;
+    if (k == c.level) a.same = id;
+    if (drawn[static_cast<std::size_t>(id)] != 0) {
+      a.drawn = id;
+      return a;
     }
   }
-  return own > 0 ? own + 0.01f : 0.0f;
 }
 
 // The level of detail from the chunks on chunk_stack down: each chunk in view is drawn
@@ -775,25 +789,15 @@ void Renderer::Impl::seal_one_quads() {
   const auto& chunks = terrain.chunks();
   auto sealed = [&](const TerrainChunk& c) {
     for (int side = 0; side < 4; ++side) {
-      // Up the levels from the chunk across (as in skirt_drop()): the first one drawn must be
-      // of c's level, as one quad.
-      const int cx = c.i0 / kChunkQuads, cy = c.j0 / kChunkQuads, cells = c.span / kChunkQuads;
-      const int x = side == 2 ? cx - 1 : side == 3 ? cx + cells : cx;
-      const int y = side == 0 ? cy - 1 : side == 1 ? cy + cells : cy;
-      const int same = terrain.chunk_at(c.level, x >= 0 ? x >> c.level : -1, y >= 0 ? y >> c.level : -1);
-      if (same < 0) continue;  // the map's edge
-      bool coarser_or_same = false;
-      for (int k = c.level;; ++k) {
-        const int id = terrain.chunk_at(k, x >> k, y >> k);
-        if (id < 0) break;
-        const int g = drawn[static_cast<std::size_t>(id)] - 1;
-        if (g < 0) continue;
-        if (k != c.level || g != kOneQuad) return false;
-        coarser_or_same = true;
-        break;
+      // The first chunk drawn across, of c's level or coarser, must be of c's level, as one
+      // quad; where none is, no finer one may be drawn along the side (side ^ 1 faces c).
+      const Across a = across(c, side);
+      if (a.same < 0) continue;  // the map's edge
+      if (a.drawn >= 0) {
+        if (a.drawn != a.same || drawn[static_cast<std::size_t>(a.same)] != 1 + kOneQuad) return false;
+      } else if (drawn_along(a.same, side ^ 1)) {
+        return false;
       }
-      // Else finer chunks across, if any is drawn along the side (side ^ 1 faces c).
-      if (!coarser_or_same && drawn_along(same, side ^ 1)) return false;
     }
     return true;
   };
@@ -905,6 +909,16 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   // (a pinhole camera's; depth to about 3e-7 relative: the planes were fitted in double).
   float* coef = tile_coef[static_cast<std::size_t>(thread)].data();
   alignas(64) EntrySetup setup;
+  // The footprint's bound over entry e's pixels in the tile (setup_entries() left +inf): where
+  // it shows a layer magnified, its pixels skip their own footprints. It costs about what a few
+  // pixels' footprints do, so entries covering fewer pixels (most of a view over a detailed DEM)
+  // go without.
+  auto footprint_bound = [&](int e, long pixels, int bx0, int bx1, int by0, int by1) {
+    if (!resolve_here || pixels < kBoundMinPixels) return;
+    float* c = coef + kPlaneFloats * e;
+    c[9] = plane_footprint_bound_log2(c, static_cast<float>(bx0 - x0), static_cast<float>(bx1 - x0),
+                                      static_cast<float>(by0 - y0), static_cast<float>(by1 - y0));
+  };
   // A tile wholly inside its only triangle (most tiles of a view over flat ground, drawn as
   // one quad): every pixel sees that triangle, so it needs no visibility buffer, and the
   // resolve reads a row of entry 0s (the bytes are those the buffer would hold).
@@ -912,8 +926,7 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
       covers_box(tris[static_cast<std::size_t>(bin_entries[static_cast<std::size_t>(first)])], x0, y0, x1, y1, true)) {
     setup_entries(tris.get(), bin_entries.get() + first, 1, x0, y0, x1, y1, vw, vh, setup, coef);
     frags = static_cast<long>(x1 - x0 + 1) * (y1 - y0 + 1);
-    if (frags >= kBoundMinPixels)
-      coef[9] = plane_footprint_bound_log2(coef, 0.0f, static_cast<float>(x1 - x0), 0.0f, static_cast<float>(y1 - y0));
+    footprint_bound(0, frags, x0, x1, y0, y1);
     RasterScratch& scratch = raster_scratch[static_cast<std::size_t>(thread)];
     scratch.fragments += frags;
     ++scratch.whole_tiles;
@@ -928,16 +941,6 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
   // and every entry's planes), then drawn in bin order: runs of small entries by
   // draw_small_entries(), the others one by one.
   int covered[EntrySetup::kMax];
-  // The footprint's bound over entry e's pixels in the tile (setup_entries() left +inf): where
-  // it shows a layer magnified, its pixels skip their own footprints. It costs about what a few
-  // pixels' footprints do, so entries covering fewer pixels (most of a view over a detailed DEM)
-  // go without.
-  auto footprint_bound = [&](int e, long pixels, int bx0, int bx1, int by0, int by1) {
-    if (!resolve_here || pixels < kBoundMinPixels) return;
-    float* c = coef + kPlaneFloats * e;
-    c[9] = plane_footprint_bound_log2(c, static_cast<float>(bx0 - x0), static_cast<float>(bx1 - x0),
-                                      static_cast<float>(by0 - y0), static_cast<float>(by1 - y0));
-  };
   for (int e0 = 0; e0 < count; e0 += EntrySetup::kMax) {
     const int batch = std::min(EntrySetup::kMax, count - e0);
     setup_entries(tris.get(), bin_entries.get() + first + e0, batch, x0, y0, x1, y1, vw, vh, setup, coef + kPlaneFloats * e0);
