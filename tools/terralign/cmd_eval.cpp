@@ -25,11 +25,13 @@ constexpr double kPi = 3.14159265358979323846;
 
 struct Errors {
   double epe_m, angle_deg, trans_m, epe_px;
+  iclk::Vec3<double> shift_C;  // mean of T_est X - T_gt X over the reference points, live camera axes
 };
 
 Errors errors(const iclk::SE3<double>& est, const iclk::SE3<double>& gt, const ImageF& depth, const geo::CameraModel& cam) {
   const iclk::Pinhole<double> K{cam.fx, cam.fy, cam.cx, cam.cy};
   double s3 = 0, s2 = 0;
+  iclk::Vec3<double> shift = iclk::Vec3<double>::Zero();
   long n3 = 0, n2 = 0;
   for (int y = 0; y < depth.height(); y += 2)
     for (int x = 0; x < depth.width(); x += 2) {
@@ -37,6 +39,7 @@ Errors errors(const iclk::SE3<double>& est, const iclk::SE3<double>& gt, const I
       if (!std::isfinite(d)) continue;
       const iclk::Vec3<double> X(d * (x - cam.cx) / cam.fx, d * (y - cam.cy) / cam.fy, d);
       s3 += (est * X - gt * X).norm();
+      shift += est * X - gt * X;
       ++n3;
       double u1, v1, u2, v2;
       if (iclk::SE3DepthWarp<double>::apply(est, X, x, y, K, u1, v1) && iclk::SE3DepthWarp<double>::apply(gt, X, x, y, K, u2, v2)) {
@@ -48,6 +51,7 @@ Errors errors(const iclk::SE3<double>& est, const iclk::SE3<double>& gt, const I
   Errors e;
   e.epe_m = n3 ? s3 / static_cast<double>(n3) : NAN;
   e.epe_px = n2 ? s2 / static_cast<double>(n2) : NAN;
+  e.shift_C = n3 ? iclk::Vec3<double>(shift / static_cast<double>(n3)) : iclk::Vec3<double>::Constant(NAN);
   e.angle_deg = Eigen::AngleAxisd(dR).angle() * 180 / kPi;
   e.trans_m = (gt.t - dR * est.t).norm();
   return e;
@@ -73,6 +77,8 @@ struct Method {
   bool learned = false;
   std::vector<double> epe_m, angle, trans, epe_px, ms;
   std::vector<Eigen::Vector3d> position_error;  // estimated camera centre - true one, map x y z (east north up)
+  std::vector<Eigen::Vector3d> ground_shift;    // mean displacement of the seen ground, estimate - truth, map axes
+  std::vector<Eigen::Vector3d> truth_position;  // the true camera centre, map x y z
   std::vector<char> ok;  // reported converged
   std::vector<double> cost_init, cost_final, residual_init, residual_final, sharpness, disagreement;
   std::vector<double> sigma_position, sigma_angle, residual_correlation;  // the covariance's (m, deg: root of its trace)
@@ -113,7 +119,8 @@ ImageU8 overlay(const ImageF& ref_grey, const ImageF& depth, const ImageF& query
 int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
-                                 "min-sharpness", "max-disagreement", "coarse-search", "input-scale", "nn-levels", "imu-tilt", "tilt-prior"}, {});
+                                 "min-sharpness", "max-disagreement", "coarse-search", "input-scale", "nn-levels", "imu-tilt", "tilt-prior",
+                                 "prior-scale"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -139,6 +146,9 @@ int run_eval(const std::vector<std::string>& argv) {
   auto imu_tilt = args->get_double("imu-tilt", 0.0);
   if (!imu_tilt.ok() || !(imu_tilt.value() >= 0 && imu_tilt.value() <= 10))
     return usage_error("eval", Error{"--imu-tilt must be in [0, 10] degrees (0: the protocol's prior rotation)"});
+  auto prior_scale = args->get_double("prior-scale", 1.0);
+  if (!prior_scale.ok() || !(prior_scale.value() > 0 && prior_scale.value() <= 4))
+    return usage_error("eval", Error{"--prior-scale must be in (0, 4] (1: the protocol's priors)"});
   auto topt = parse_tracker_options(args.value());
   if (!topt.ok()) return usage_error("eval", topt.error());
   // The learned tracker's working size and levels (as the firmware sets them): 0 keeps the
@@ -196,7 +206,8 @@ int run_eval(const std::vector<std::string>& argv) {
     area = area.intersect(a);
     if (area.empty()) return fail(Error{"--area '" + args->get("area") + "' does not overlap the map"});
   }
-  auto samples = sample_poses(map.value(), cam, area, count.value(), seed, lo, hi, tilt.value(), imu_tilt.value());
+  auto samples =
+      sample_poses(map.value(), cam, area, count.value(), seed, lo, hi, tilt.value(), imu_tilt.value(), prior_scale.value());
   if (!samples.ok()) return fail(samples.error());
 
   iclk::TrackerOptions opt = topt.value();
@@ -283,6 +294,8 @@ int run_eval(const std::vector<std::string>& argv) {
       // The estimate as a camera pose in the map: T_W_live = T_W_ref T_ref_live.
       const geo::Pose T_live_ref{Eigen::Quaterniond(est.R), est.t};
       m.position_error.push_back((s.prior * T_live_ref.inverse()).t_W_C - s.truth.t_W_C);
+      m.ground_shift.push_back(s.truth.R() * e.shift_C);
+      m.truth_position.push_back(s.truth.t_W_C);
       if (!overlays.empty() && i < 20) {
         iclk::rgb_to_grey(loc.value()->reference().rgb[0].view(), ref_grey);
         iclk::rgb_to_grey(query->rgb[0].view(), query_grey);
@@ -340,6 +353,9 @@ int run_eval(const std::vector<std::string>& argv) {
       const Eigen::Vector3d& dp = m.position_error[k];
       nlohmann::json sj = {{"epe_px", m.epe_px[k]}, {"epe_m", m.epe_m[k]}, {"converged", m.ok[k] != 0},
                            {"position_error_m", {dp.x(), dp.y(), dp.z()}}};
+      const Eigen::Vector3d &g = m.ground_shift[k], &tp = m.truth_position[k];
+      if (g.allFinite()) sj["ground_shift_m"] = {g.x(), g.y(), g.z()};
+      sj["truth_position_m"] = {tp.x(), tp.y(), tp.z()};
       if (k < m.cost_final.size()) {
         sj["cost_init"] = m.cost_init[k];
         sj["cost_final"] = m.cost_final[k];

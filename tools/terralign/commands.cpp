@@ -44,7 +44,8 @@ const std::vector<Command>& commands() {
        "                      [--robust none|huber|tukey] [--levels L] [--json OUT] [--overlays DIR]\n"
        "                      [--threads N] [--weights FILE] [--area MINX,MINY,MAXX,MAXY]\n"
        "                      [--min-sharpness S] [--max-disagreement PX] [--coarse-search PX]\n"
-       "                      [--input-scale S] [--nn-levels L] [--imu-tilt DEG] [--tilt-prior DEG]\n\n"
+       "                      [--input-scale S] [--nn-levels L] [--imu-tilt DEG] [--tilt-prior DEG]\n"
+       "                      [--prior-scale F]\n\n"
        "Samples N true poses with the whole footprint on the map (altitude above ground in\n"
        "[LO, HI] m, tilt off nadir up to DEG, any heading), perturbs each for the prior (rotation\n"
        "about a random axis by U[0, 6] deg, translation by U[0, 0.13 x altitude] m in a random\n"
@@ -68,7 +69,11 @@ const std::vector<Command>& commands() {
        "--imu-tilt DEG: the priors' tilt error is an attitude reference's, N(0, DEG^2) about each\n"
        "horizontal axis, instead of the protocol's (their heading error, the true poses and the\n"
        "priors' positions stay the protocol's); --tilt-prior DEG: both trackers hold the answer's\n"
-       "tilt to the prior's with that sigma (as align's --tilt-prior).\n",
+       "tilt to the prior's with that sigma (as align's --tilt-prior). --prior-scale F: every\n"
+       "prior's rotation and move times F, the same draws otherwise (F < 1: priors nearer the\n"
+       "truth, as a tracking loop's, to tell a narrow basin from a biased minimum). --json OUT\n"
+       "also holds per pose and method the 2-D and 3-D EPE, the converged flag and the tests'\n"
+       "numbers, the true camera centre and the mean ground shift (estimate - truth, map axes, m).\n",
        run_eval},
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
        "usage: terralign flight --map MAP.json --camera CAMERA.json --layer NAME --path lawnmower|circle|FILE\n"

@@ -48,7 +48,7 @@ Eigen::Quaterniond exp_so3(const Eigen::Vector3d& phi) {
 
 Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, const geo::Extent& e, int count,
                                          std::uint64_t seed, double lo, double hi, double tilt_deg,
-                                         double imu_tilt_deg) {
+                                         double imu_tilt_deg, double prior_scale) {
   Rng rng{seed};
   Rng imu{seed ^ 0x1e5a7c3b9d2f4601ULL};
   std::vector<Sample> out;
@@ -79,10 +79,10 @@ Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraM
       s.truth = T;
       s.altitude = alt;
       // The prior: rotated about a random axis by U[0, 6] deg (in the camera frame), moved by
-      // U[0, 0.13 alt] m in a random direction.
-      const double angle = rng.uniform(0, 6) * kPi / 180;
+      // U[0, 0.13 alt] m in a random direction; both times prior_scale.
+      const double angle = prior_scale * rng.uniform(0, 6) * kPi / 180;
       const Eigen::Vector3d raxis = rng.unit();
-      const double len = rng.uniform(0, 0.13 * alt);
+      const double len = prior_scale * rng.uniform(0, 0.13 * alt);
       const Eigen::Vector3d dir = rng.unit();
       s.prior.q_W_C = (T.q_W_C * Eigen::Quaterniond(Eigen::AngleAxisd(angle, raxis))).normalized();
       s.prior.t_W_C = T.t_W_C + len * dir;

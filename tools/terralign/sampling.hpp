@@ -34,9 +34,12 @@ struct Sample {
 // rotation error about the world's two horizontal axes is replaced by N(0, imu_tilt_deg^2)
 // each (its heading error, about the vertical, stays the protocol's). Those draws come from a
 // second stream, so the true poses and the priors' positions are the protocol's.
+// prior_scale shrinks (or widens) each prior's rotation angle and move by that factor, the
+// same draws otherwise: the same true poses, priors on the same axes and directions (a
+// tracking loop's prediction is far nearer than a failing GPS's).
 Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, const geo::Extent& area, int count,
                                          std::uint64_t seed, double lo, double hi, double tilt_deg,
-                                         double imu_tilt_deg = 0);
+                                         double imu_tilt_deg = 0, double prior_scale = 1);
 
 // An attitude reference's reading of the camera's rotation q_W_C: rotated about the world's
 // two horizontal axes by N(0, sigma_deg^2) each (its roll and pitch error), heading exact.
