@@ -22,6 +22,7 @@ import time
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import deep_iclk as D  # noqa: E402
@@ -148,6 +149,24 @@ def augment_survey(x, gen, p=0.5):
     return on * y + (1 - on) * x
 
 
+def near_start(truth, depth, gen, scale):
+    """A start near the truth, as the eval protocol's prior (train_deep.py's pairs carry it)
+    shrunk by `scale`: T_live_ref perturbed on the live side by a rotation of U[0, 6 scale]
+    deg about a random axis and a move of U[0, 0.13 scale] x the median reference depth in a
+    random direction. Trains the features to keep an answer a few pixels off where it is
+    (README, "Session 26"). Draws only from `gen`."""
+    R_gt, t_gt = truth
+    B, dtype = R_gt.shape[0], R_gt.dtype
+    u = lambda *shape: torch.rand(*shape, generator=gen, dtype=dtype)  # noqa: E731
+    unit = lambda: F.normalize(torch.randn(B, 3, generator=gen, dtype=dtype), dim=1)  # noqa: E731
+    angle = u(B) * (6.0 * scale * np.pi / 180)
+    dR, _ = D.se3_exp(torch.cat((unit() * angle.view(B, 1), torch.zeros(B, 3, dtype=dtype)), 1))
+    med = torch.stack([d[torch.isfinite(d)].median() if torch.isfinite(d).any() else d.new_tensor(1.0)
+                       for d in depth[:, 0]])
+    move = unit() * (u(B) * 0.13 * scale * med).view(B, 1)
+    return dR @ R_gt, (dR @ t_gt.unsqueeze(-1)).squeeze(-1) + move
+
+
 def year_gaps(layers):
     """|year_b - year_c| for every pair of layers named by year, or None when a name is not a year."""
     try:
@@ -256,6 +275,11 @@ def main():
                         "altitudes, so a pixel of error weighs the same in both; its validation pairs are logged as "
                         "'val_extra' rows")
     p.add_argument("--extra-p", type=float, default=0.3)
+    p.add_argument("--near-p", type=float, default=0.0,
+                   help="probability that a batch starts near the truth (near_start()) instead of at the "
+                        "prior the pairs were rendered at")
+    p.add_argument("--near-scale", type=float, default=0.1,
+                   help="the near start's perturbation as a fraction of the eval protocol's prior's")
     p.add_argument("--gap-power", type=float, default=0.0,
                    help="draw a cross-year pair's query year with weight (year gap)^P (0: uniformly); with "
                         "P > 0 the validation also logs 'val_far', pairs of the main set's largest year gaps")
@@ -324,7 +348,10 @@ def main():
             ref, qry = augment_survey(ref, gen, a.augment_survey), augment_survey(qry, gen, a.augment_survey)
         if a.augment > 0:
             ref, qry = augment(ref, gen, a.augment), augment(qry, gen, a.augment)
-        _, _, losses, _ = model(ref, depth, qry, K, truth=truth)
+        R_start = t_start = None  # the prior the pair was rendered at (identity)
+        if a.near_p > 0 and rng.random() < a.near_p:
+            R_start, t_start = near_start(truth, depth, gen, a.near_scale)
+        _, _, losses, _ = model(ref, depth, qry, K, R0=R_start, t0=t_start, truth=truth)
         per = torch.stack(losses).sum(0)
         ok = torch.isfinite(per)
         if ok.any():
