@@ -185,6 +185,19 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   check_refused(cmd + "--min-sharpness 1001", dir + "/err.txt", "--min-sharpness '1001' must be in [-1000, 1000]");
   check_refused(cmd + "--max-disagreement -1001", dir + "/err.txt", "--max-disagreement '-1001' must be in [-1000, 1000]");
   check_refused(cmd + "--coarse-search 17", dir + "/err.txt", "--coarse-search '17' must be an integer in [-1, 16]");
+  // --nn-levels reaches the learned tracker: with 3 iterations a level, all five levels take
+  // 14-15 steps a frame, the finest alone at most 3.
+  for (const int levels : {0, 1}) {
+    REQUIRE(run(cmd + "--iterations 3 --nn-levels " + std::to_string(levels)) == 0);
+    const auto rows = csv_rows(dir + "/sharp.csv");
+    REQUIRE(rows.size() == 12);
+    for (const auto& r : rows) {
+      CAPTURE(levels);
+      if (levels == 1) CHECK(std::stoi(r[10]) <= 3);
+      else CHECK(std::stoi(r[10]) > 3);
+    }
+  }
+  check_refused(cmd + "--nn-levels 7", dir + "/err.txt", "--nn-levels '7' must be an integer in [0, 6]");
 }
 
 TEST_CASE("track reports bad frames by name and goes on: a missing image, a wrong size, time going backwards") {

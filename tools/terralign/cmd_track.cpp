@@ -112,12 +112,18 @@ geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, d
 int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
                                  "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor",
-                                 "min-sharpness", "max-disagreement", "coarse-search"}, {});
+                                 "min-sharpness", "max-disagreement", "coarse-search", "nn-levels"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
   const std::string method = args->get("method", "classic");
   if (method != "classic" && method != "nn") return usage_error("track", Error{"--method '" + method + "' must be classic or nn"});
+  LocalizerSizes sizes;  // the learned tracker's levels: 0, the weight file's
+  auto nn_levels = args->get_int("nn-levels", 0, 0, 6);
+  if (!nn_levels.ok()) return usage_error("track", nn_levels.error());
+  if (nn_levels.value() > 0 && method != "nn")
+    return usage_error("track", Error{"--nn-levels sets the learned tracker's levels: it needs --method nn"});
+  sizes.levels = nn_levels.value();
   auto iters = args->get_int("iterations", 20, 1, 1000);
   auto threads = args->get_int("threads", 2, 1, 64);
   if (!iters.ok()) return usage_error("track", iters.error());
@@ -155,7 +161,8 @@ int run_track(const std::vector<std::string>& argv) {
     if (!w.ok()) return fail(w.error());
     weights = std::move(w.value());
   }
-  auto loc = Localizer::create(map.value(), cam, args->get("layer"), opt, threads.value(), weights ? &*weights : nullptr);
+  auto loc =
+      Localizer::create(map.value(), cam, args->get("layer"), opt, threads.value(), weights ? &*weights : nullptr, sizes);
   if (!loc.ok()) return fail(loc.error());
   std::vector<geo::Pose> truth;
   if (args->has("truth")) {

@@ -93,7 +93,8 @@ const std::vector<Command>& commands() {
        "                       [--truth POSES] [--json SUMMARY] [--iterations N] [--threads N]\n"
        "                       [--weights FILE] [--attitude FILE [--tilt-prior DEG]]\n"
        "                       [--init-velocity \"vx vy vz\"] [--registration-floor PX]\n"
-       "                       [--min-sharpness S] [--max-disagreement PX] [--coarse-search PX]\n\n"
+       "                       [--min-sharpness S] [--max-disagreement PX] [--coarse-search PX]\n"
+       "                       [--nn-levels L]\n\n"
        "LIST has 'timestamp image-path' lines; --init is the pose at the first frame's time. Each\n"
        "frame's prior is the last converged estimate, moved by the velocity of the last two; a frame that fails (not converged, an unreadable or\n"
        "wrongly sized image, a timestamp going backwards) keeps the prediction, says why on stderr,\n"
@@ -111,7 +112,9 @@ const std::vector<Command>& commands() {
        "each answer's tilt to it with that sigma (as align's).\n"
        "--registration-floor PX: as align's (default 0.1 camera pixels; 0.7 for a map of another year).\n"
        "--min-sharpness S, --max-disagreement PX and --coarse-search PX: as eval's (the converged\n"
-       "tests, negative: none; the search before the coarsest level, -1: none).\n",
+       "tests, negative: none; the search before the coarsest level, -1: none).\n"
+       "--nn-levels L: the learned tracker aligns on the finest L of the weight file's levels (as\n"
+       "eval's; 0: all).\n",
        run_track},
       {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
        "usage: terralign dataset --map MAP.json --camera CAMERA.json --count N --seed S --out DIR\n"
