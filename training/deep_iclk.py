@@ -49,14 +49,18 @@ def conv_block(cin, cout, dilation):
 
 
 class Encoder(nn.Module):
-    def __init__(self, widths):
+    def __init__(self, widths, channels=1):
         super().__init__()
-        self.widths = widths
+        self.widths, self.channels = widths, channels
+        for w in widths:
+            if w[-1] % channels:
+                raise ValueError(f"{channels} feature channels do not divide a level's {w[-1]} outputs")
         self.levels = nn.ModuleList(
             nn.Sequential(*[conv_block(w[k], w[k + 1], d) for k, d in enumerate(ENCODER_DILATIONS)]) for w in widths)
 
     def forward(self, rgb):
-        """rgb: N x 3 x H x W in 0..255 -> one-channel features per level, finest first."""
+        """rgb: N x 3 x H x W in 0..255 -> features per level, finest first: each level's
+        outputs averaged in `channels` equal groups (1: all of them, Lv et al.'s design)."""
         mean = torch.tensor(RGB_MEAN, dtype=rgb.dtype).view(1, 3, 1, 1)
         std = torch.tensor(RGB_STD, dtype=rgb.dtype).view(1, 3, 1, 1)
         x = (rgb / 255.0 - mean) / std
@@ -65,7 +69,8 @@ class Encoder(nn.Module):
             if level > 0:
                 x = F.avg_pool2d(x, 2)
             x = net(x)
-            feats.append(x.mean(1, keepdim=True))
+            n, c, h, w = x.shape
+            feats.append(x.view(n, self.channels, c // self.channels, h, w).mean(2))
         return feats
 
 
@@ -145,6 +150,14 @@ def normalise(f, mask):
     return (f - mean) / torch.sqrt(var.clamp(min=1e-20))
 
 
+def normalise_channels(f, mask):
+    """normalise() for each channel on its own (the multi-channel experiment)."""
+    n = mask.sum((2, 3), keepdim=True).clamp(min=2)
+    mean = (f * mask).sum((2, 3), keepdim=True) / n
+    var = ((f * f) * mask).sum((2, 3), keepdim=True) / n - mean * mean
+    return (f - mean) / torch.sqrt(var.clamp(min=1e-20))
+
+
 def usable_mask(valid):
     """Pixels whose 3x3 neighbourhood has depth, not on the border."""
     m = -F.max_pool2d(-valid, 3, 1, 1)
@@ -215,11 +228,11 @@ def epe(R, t, R_gt, t_gt, X, valid):
 
 
 class DeepICLK(nn.Module):
-    def __init__(self, size="s16", iterations=20, lam=1e-6):
+    def __init__(self, size="s16", iterations=20, lam=1e-6, channels=1):
         super().__init__()
-        self.size = size
+        self.size, self.channels = size, channels
         levels = len(SIZES[size]["encoder"])
-        self.encoder = Encoder(SIZES[size]["encoder"])
+        self.encoder = Encoder(SIZES[size]["encoder"], channels)
         self.mest = MEstimator(SIZES[size]["mest"])
         self.levels, self.iterations, self.lam = levels, iterations, lam
 
@@ -246,22 +259,35 @@ class DeepICLK(nn.Module):
         for level in range(self.levels - 1, -1, -1):
             Kl = Ks[level]
             depth, valid = dp[level]
-            f_ref = normalise(fr[level], valid)
-            f_live = normalise(fl[level], torch.ones_like(fl[level]))
+            multi = self.channels > 1
+            if multi:  # each channel normalised on its own; Jacobians per channel
+                f_ref = normalise_channels(fr[level], valid)
+                f_live = normalise_channels(fl[level], torch.ones_like(fl[level][:, :1]))
+            else:
+                f_ref = normalise(fr[level], valid)
+                f_live = normalise(fl[level], torch.ones_like(fl[level]))
             mask = usable_mask(valid)
             X = points(depth, Kl)
-            J = jacobian(sobel(f_ref), X, Kl) * mask
+            if multi:
+                J = torch.stack([jacobian(sobel(f_ref[:, c:c + 1]), X, Kl) * mask for c in range(self.channels)], 1)
+            else:
+                J = jacobian(sobel(f_ref), X, Kl) * mask
             val, inside = warp_sample(f_live, X, R, t, Kl)
-            abs_r = (val - f_ref).abs() * mask * inside
+            if multi:  # the M-estimator sees the residual's RMS over channels and the channel means
+                abs_r = torch.sqrt(((val - f_ref) ** 2).mean(1, keepdim=True) + 1e-12) * mask * inside
+                m_ref, m_live = f_ref.mean(1, keepdim=True), f_live.mean(1, keepdim=True)
+            else:
+                abs_r = (val - f_ref).abs() * mask * inside
+                m_ref, m_live = f_ref, f_live
             if w_prev is None:
-                w_prev = torch.ones_like(f_ref)
+                w_prev = torch.ones_like(m_ref)
             else:
                 w_prev = F.interpolate(w_prev, size=f_ref.shape[-2:], mode="bilinear", align_corners=False)
-            w = self.mest(abs_r, f_ref, f_live, w_prev)
+            w = self.mest(abs_r, m_ref, m_live, w_prev)
             weights[level] = w
             w_prev = w
             Wm = w * mask
-            Jf = J.flatten(2)  # B x 6 x n
+            Jf = J.flatten(-2)  # B x 6 x n, or B x C x 6 x n
             with torch.no_grad():  # the C++ solver's step bound is in units of the median depth
                 med = torch.stack([d[m > 0].median() if (m > 0).any() else d.new_tensor(1.0)
                                    for d, m in zip(depth[:, 0], mask[:, 0])])
@@ -269,8 +295,13 @@ class DeepICLK(nn.Module):
                 val, inside = warp_sample(f_live, X, R, t, Kl)
                 r = (val - f_ref).flatten(2)
                 wi = (Wm * inside).flatten(2)
-                H = torch.einsum("bin,bjn->bij", Jf * wi, Jf).double()
-                g = torch.einsum("bin,bn->bi", Jf * wi, r[:, 0]).double()
+                if multi:
+                    wc = wi.unsqueeze(1)  # B x 1 x 1 x n
+                    H = torch.einsum("bcin,bcjn->bij", Jf * wc, Jf).double()
+                    g = torch.einsum("bcin,bcn->bi", Jf * wc, r).double()
+                else:
+                    H = torch.einsum("bin,bjn->bij", Jf * wi, Jf).double()
+                    g = torch.einsum("bin,bn->bi", Jf * wi, r[:, 0]).double()
                 A = H + self.lam * torch.diag_embed(torch.diagonal(H, dim1=1, dim2=2))
                 A = A + 1e-12 * torch.eye(6, dtype=A.dtype)  # keeps solve defined when nothing is seen
                 delta = torch.linalg.solve(A, g.unsqueeze(-1)).squeeze(-1).to(dtype)

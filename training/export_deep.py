@@ -63,6 +63,9 @@ def main():
     p.add_argument("--note", default="")
     a = p.parse_args()
     ck = torch.load(a.checkpoint, map_location="cpu")
+    if ck.get("channels", 1) != 1:
+        sys.exit(f"export_deep: {a.checkpoint} has {ck['channels']} feature channels a level; the C++ learned "
+                 "tracker (src/iclk/deep_aligner.cpp) runs one")
     n, params = export(ck["model"], ck["size"], a.out, a.note + f"\ncheckpoint step {ck['step']}")
     print(f"{a.out}: {n} tensors, {params} parameters (size {ck['size']}, step {ck['step']})")
 

@@ -275,6 +275,9 @@ def main():
                         "altitudes, so a pixel of error weighs the same in both; its validation pairs are logged as "
                         "'val_extra' rows")
     p.add_argument("--extra-p", type=float, default=0.3)
+    p.add_argument("--channels", type=int, default=1,
+                   help="feature channels a level (each the mean of an equal group of the level's outputs); "
+                        "1 is Lv et al.'s design and the only one src/iclk/deep_aligner.cpp runs (an experiment)")
     p.add_argument("--near-p", type=float, default=0.0,
                    help="probability that a batch starts near the truth (near_start()) instead of at the "
                         "prior the pairs were rendered at")
@@ -305,7 +308,7 @@ def main():
         extra_items = sample_items(random.Random(12345), len(extra_val.ids), len(extra_val.layers), a.val_count, cross=1.0)
         extra_weight = float(train.altitude.mean() / extra.altitude.mean())
         print(f"extra set {a.extra}: batches with p = {a.extra_p}, loss x {extra_weight:.2f}", flush=True)
-    model = D.DeepICLK(a.size, iterations=a.iterations)
+    model = D.DeepICLK(a.size, iterations=a.iterations, channels=a.channels)
     opt = torch.optim.Adam(model.parameters(), lr=a.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=a.steps, eta_min=a.lr * 0.05)
     step, best = 0, float("inf")
@@ -387,6 +390,7 @@ def main():
                 validation("val_extra", extra_val, extra_items)
             state = {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "step": step,
                      "best": min(best, fmed), "rng": rng.getstate(), "torch_rng": torch.get_rng_state(), "size": a.size,
+                     "channels": a.channels,
                      "aug_rng": gen.get_state()}
             if fmed < best:
                 best = fmed
