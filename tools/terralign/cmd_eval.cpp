@@ -38,8 +38,9 @@ Errors errors(const iclk::SE3<double>& est, const iclk::SE3<double>& gt, const I
       const double d = depth.at(x, y);
       if (!std::isfinite(d)) continue;
       const iclk::Vec3<double> X(d * (x - cam.cx) / cam.fx, d * (y - cam.cy) / cam.fy, d);
-      s3 += (est * X - gt * X).norm();
-      shift += est * X - gt * X;
+      const iclk::Vec3<double> d3 = est * X - gt * X;
+      s3 += d3.norm();
+      shift += d3;
       ++n3;
       double u1, v1, u2, v2;
       if (iclk::SE3DepthWarp<double>::apply(est, X, x, y, K, u1, v1) && iclk::SE3DepthWarp<double>::apply(gt, X, x, y, K, u2, v2)) {

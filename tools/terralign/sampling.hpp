@@ -36,7 +36,8 @@ struct Sample {
 // second stream, so the true poses and the priors' positions are the protocol's.
 // prior_scale shrinks (or widens) each prior's rotation angle and move by that factor, the
 // same draws otherwise: the same true poses, priors on the same axes and directions (a
-// tracking loop's prediction is far nearer than a failing GPS's).
+// tracking loop's prediction is far nearer than a failing GPS's); with imu_tilt_deg the tilt
+// error stays the attitude reference's.
 Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, const geo::Extent& area, int count,
                                          std::uint64_t seed, double lo, double hi, double tilt_deg,
                                          double imu_tilt_deg = 0, double prior_scale = 1);
