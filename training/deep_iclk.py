@@ -143,15 +143,8 @@ def half(K):
 
 
 def normalise(f, mask):
-    """Zero mean, unit variance over mask (per image); as the C++ tracker (population variance)."""
-    n = mask.sum((1, 2, 3), keepdim=True).clamp(min=2)
-    mean = (f * mask).sum((1, 2, 3), keepdim=True) / n
-    var = ((f * f) * mask).sum((1, 2, 3), keepdim=True) / n - mean * mean
-    return (f - mean) / torch.sqrt(var.clamp(min=1e-20))
-
-
-def normalise_channels(f, mask):
-    """normalise() for each channel on its own (the multi-channel experiment)."""
+    """Zero mean, unit variance over mask (B x 1 x h x w), per image and channel; as the C++
+    tracker (population variance)."""
     n = mask.sum((2, 3), keepdim=True).clamp(min=2)
     mean = (f * mask).sum((2, 3), keepdim=True) / n
     var = ((f * f) * mask).sum((2, 3), keepdim=True) / n - mean * mean
@@ -259,13 +252,9 @@ class DeepICLK(nn.Module):
         for level in range(self.levels - 1, -1, -1):
             Kl = Ks[level]
             depth, valid = dp[level]
-            multi = self.channels > 1
-            if multi:  # each channel normalised on its own; Jacobians per channel
-                f_ref = normalise_channels(fr[level], valid)
-                f_live = normalise_channels(fl[level], torch.ones_like(fl[level][:, :1]))
-            else:
-                f_ref = normalise(fr[level], valid)
-                f_live = normalise(fl[level], torch.ones_like(fl[level]))
+            multi = self.channels > 1  # each channel normalised on its own; Jacobians per channel
+            f_ref = normalise(fr[level], valid)
+            f_live = normalise(fl[level], torch.ones_like(valid))
             mask = usable_mask(valid)
             X = points(depth, Kl)
             if multi:
