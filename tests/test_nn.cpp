@@ -434,6 +434,38 @@ TEST_CASE("bad weight files are refused with the tensor and the numbers") {
   }
 }
 
+TEST_CASE("mean over channels: in equal groups of consecutive channels, and refused where they do not divide") {
+  WeightFile w;
+  w.name = "groups.tlw";
+  w.version = kWeightFormatVersion;
+  w.architecture = "terralign-net 1\nnet encoder\ninput x 12\nmean one x\nmean four x 4\noutput one four\n";
+  auto n = Network::plan(w, "encoder", 11, 3, 2);  // 11: one pixel group of eight and a tail of three
+  REQUIRE_MESSAGE(n.ok(), (n.ok() ? "" : n.error().message));
+  Tensor* x = n.value()->input("x");
+  for (int y = 0; y < 3; ++y)
+    for (int i = 0; i < 11; ++i)
+      for (int c = 0; c < 12; ++c) x->at(y, i)[c] = static_cast<float>(100 * y + 10 * i + c * c);
+  n.value()->forward();
+  const Tensor& one = *n.value()->output("one");
+  const Tensor& four = *n.value()->output("four");
+  REQUIRE((one.c == 1 && four.c == 4));
+  // The group sums of c^2: 506 over all twelve, 5, 50, 149, 302 over each three (the kernel
+  // multiplies by 1/3 in float: a rounding, hence 1e-6).
+  for (int y = 0; y < 3; ++y)
+    for (int i = 0; i < 11; ++i) {
+      const float base = static_cast<float>(100 * y + 10 * i);
+      CHECK(one.at(y, i)[0] == doctest::Approx(base + 506.0f / 12.0f).epsilon(1e-6));
+      CHECK(four.at(y, i)[0] == doctest::Approx(base + 5.0f / 3.0f).epsilon(1e-6));
+      CHECK(four.at(y, i)[1] == doctest::Approx(base + 50.0f / 3.0f).epsilon(1e-6));
+      CHECK(four.at(y, i)[2] == doctest::Approx(base + 149.0f / 3.0f).epsilon(1e-6));
+      CHECK(four.at(y, i)[3] == doctest::Approx(base + 302.0f / 3.0f).epsilon(1e-6));
+    }
+  w.architecture = "terralign-net 1\nnet encoder\ninput x 12\nmean five x 5\noutput five\n";
+  auto refused = Network::plan(w, "encoder", 11, 3, 1);
+  REQUIRE_FALSE(refused.ok());
+  CHECK(refused.error().message.find("5 groups do not divide 12 channels") != std::string::npos);
+}
+
 TEST_CASE("every conv kernel's ELU matches expm1 to 5e-7 (the vector wrappers' exp)") {
   // A 1 -> 1 channel conv whose only non-zero weight is the centre tap: out = ELU(in).
   std::vector<float> w(9, 0.0f);

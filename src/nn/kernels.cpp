@@ -99,26 +99,32 @@ void avgpool2_rows(const Tensor& in, Tensor& out, int y0, int y1) {
 }
 
 void mean_channels_rows(const Tensor& in, Tensor& out, int y0, int y1) {
+  // out.c groups of in.c / out.c consecutive channels, each averaged (one group: all of them).
   // double: the mean of 128 channels keeps float's full precision. Each pixel's sum is one
   // chain of dependent adds in channel order; eight pixels' chains run side by side (the same
   // bits as one pixel at a time, at a fraction of the latency).
-  const float inv = 1.0f / static_cast<float>(in.c);
+  const int group = in.c / out.c;
+  const float inv = 1.0f / static_cast<float>(group);
   constexpr int kPixels = 8;
   const std::ptrdiff_t cp = in.cp;
   for (int y = y0; y < y1; ++y) {
     int x = 0;
     for (; x + kPixels <= out.w; x += kPixels) {
       const float* p = in.at(y, x);
-      double s[kPixels] = {};
-      for (int k = 0; k < in.c; ++k)
-        for (int l = 0; l < kPixels; ++l) s[l] += p[l * cp + k];
-      for (int l = 0; l < kPixels; ++l) out.at(y, x + l)[0] = static_cast<float>(s[l]) * inv;
+      for (int g = 0; g < out.c; ++g, p += group) {
+        double s[kPixels] = {};
+        for (int k = 0; k < group; ++k)
+          for (int l = 0; l < kPixels; ++l) s[l] += p[l * cp + k];
+        for (int l = 0; l < kPixels; ++l) out.at(y, x + l)[g] = static_cast<float>(s[l]) * inv;
+      }
     }
     for (; x < out.w; ++x) {
       const float* p = in.at(y, x);
-      double s = 0;
-      for (int k = 0; k < in.c; ++k) s += p[k];
-      out.at(y, x)[0] = static_cast<float>(s) * inv;
+      for (int g = 0; g < out.c; ++g, p += group) {
+        double s = 0;
+        for (int k = 0; k < group; ++k) s += p[k];
+        out.at(y, x)[g] = static_cast<float>(s) * inv;
+      }
     }
   }
 }

@@ -67,7 +67,13 @@ Result<std::vector<NetDesc>> parse_architecture(const std::string& text, const s
       else if (t[5] == "none") node.act = Act::None;
       else return Error{at + ": activation '" + t[5] + "' (none, elu, relu)"};
       node.param = t[6];
-    } else if (node.op == "pool" || node.op == "upsample" || node.op == "mean" || node.op == "sigmoid") {
+    } else if (node.op == "mean") {
+      if (t.size() != 3 && t.size() != 4) return Error{at + ": 'mean NAME IN [GROUPS]'"};
+      node.name = t[1];
+      node.inputs = {t[2]};
+      node.channels = 1;
+      if (t.size() == 4) TERRALIGN_TRY(integer(t[3], 1, 4096, node.channels));
+    } else if (node.op == "pool" || node.op == "upsample" || node.op == "sigmoid") {
       if (t.size() != 3) return Error{at + ": '" + node.op + " NAME IN'"};
       node.name = t[1];
       node.inputs = {t[2]};
@@ -159,7 +165,10 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
       h *= 2;
       w *= 2;
     } else if (node.op == "mean") {
-      c = 1;
+      if (c % node.channels)
+        return Error{at + ": " + std::to_string(node.channels) + " groups do not divide " + std::to_string(c) +
+                     " channels"};
+      c = node.channels;
     } else if (node.op == "concat") {
       c = 0;
       for (int i : step.in) {

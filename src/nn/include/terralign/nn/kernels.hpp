@@ -64,7 +64,8 @@ bool nn_cpu_has_avx2();
 bool nn_cpu_has_avx512();
 bool nn_cpu_has_neon();  // an aarch64 build
 
-// 2x2 average pooling (floor sizes), mean over channels to one channel, sigmoid in place,
+// 2x2 average pooling (floor sizes), mean over channels (out.c equal groups of consecutive
+// channels, each to one; one group: all of them), sigmoid in place,
 // bilinear 2x upsampling (PyTorch's align_corners = False, edges clamped), concatenation
 // of channels. Rows [y0, y1) of the output.
 void avgpool2_rows(const Tensor& in, Tensor& out, int y0, int y1);

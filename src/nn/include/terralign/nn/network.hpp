@@ -8,7 +8,8 @@
 //                                     batch norm folded in; ACT: none, elu, relu
 //   pool NAME IN                      2x2 average pooling (floor)
 //   upsample NAME IN                  2x bilinear (align_corners = False)
-//   mean NAME IN                      mean over channels -> 1 channel
+//   mean NAME IN [G]                  mean over channels -> 1 channel; G groups of
+//                                     consecutive channels, each averaged -> G channels
 //   sigmoid NAME IN
 //   concat NAME IN1 IN2 ...           channels of the inputs, in order
 //   output NAME ...                   the nodes the caller may read
@@ -34,7 +35,7 @@ namespace terralign::nn {
 struct Node {
   std::string op, name;
   std::vector<std::string> inputs;
-  int channels = 0;   // input: C; conv: COUT
+  int channels = 0;   // input: C; conv: COUT; mean: G (1 unless given)
   int dilation = 1;
   Act act = Act::None;
   std::string param;  // conv: tensor name prefix
