@@ -310,3 +310,27 @@ def quat_to_R(q):
     return torch.stack((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
                         2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
                         2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)), -1).view(-1, 3, 3)
+
+
+def load_model(path, iterations=20, channels=None):
+    """A model from a checkpoint (train_deep.py's .pt) or a weight file (export_deep.py's .tlw:
+    its size from the '# terralign learned tracker, size X' line, its channels from the 'mean
+    f0 IN G' line). `channels` overrides either: the same tensors, their outputs grouped
+    otherwise. Returns the model and (size, channels, step or None)."""
+    if path.endswith(".tlw"):
+        import re
+        import tlw
+        arch, _ = tlw.architecture(path)
+        size = re.search(r"^# terralign learned tracker, size (\w+)$", arch, re.M)
+        mean = re.search(r"^mean f0 \S+(?: (\d+))?$", arch, re.M)
+        if not size or not mean:
+            raise ValueError(f"{path}: not a learned-tracker weight file (no size line or no 'mean f0')")
+        k = channels or int(mean.group(1) or 1)
+        model = DeepICLK(size.group(1), iterations=iterations, channels=k)
+        model.load_state_dict({n: torch.from_numpy(v) for n, v in tlw.read(path).items()})
+        return model, (size.group(1), k, None)
+    ck = torch.load(path, map_location="cpu")
+    k = channels or ck.get("channels", 1)
+    model = DeepICLK(ck["size"], iterations=iterations, channels=k)
+    model.load_state_dict(ck["model"])
+    return model, (ck["size"], k, ck.get("step"))

@@ -1,13 +1,13 @@
 #!/usr/bin/python3
-"""The PyTorch model (training/deep_iclk.py) on pairs written by `terralign dataset`, for
-what the C++ cannot run yet (train_deep.py --channels > 1): one reference layer against one
+"""The PyTorch model (training/deep_iclk.py) on pairs written by `terralign dataset`, to compare
+checkpoints the converter has not written yet: one reference layer against one
 query layer over every pose of the data set, from the rendered prior, 20 iterations a level,
 no coarse search and no converged test (the C++ tracker has both: compare models here with
 each other, not with `terralign eval`). Prints the 3-D EPE mean / median (m), the 2-D EPE
 median at the camera's full width (px) and the share within 1 and 5 px there.
 
   /usr/bin/python3 training/eval_torch.py --data DIR --ref-layer 2009 --query-layer 2020 \\
-      [--tlw-channels K] MODEL [MODEL ...]     # checkpoints (.pt) or s16 weight files (.tlw)
+      [--channels K] MODEL [MODEL ...]     # checkpoints (.pt) or weight files (.tlw)
 """
 import argparse
 import os
@@ -18,19 +18,7 @@ import torch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import deep_iclk as D  # noqa: E402
-import tlw  # noqa: E402
 from train_deep import PairSet  # noqa: E402
-
-
-def load(path, tlw_channels=1):
-    if path.endswith(".tlw"):
-        model = D.DeepICLK("s16", iterations=20, channels=tlw_channels)  # the shipped size
-        model.load_state_dict({k: torch.from_numpy(v) for k, v in tlw.read(path).items()})
-        return model
-    ck = torch.load(path, map_location="cpu")
-    model = D.DeepICLK(ck["size"], iterations=20, channels=ck.get("channels", 1))
-    model.load_state_dict(ck["model"])
-    return model
 
 
 def px_error(R, t, R_gt, t_gt, X, valid, K):
@@ -49,8 +37,9 @@ def main():
     p.add_argument("--ref-layer", required=True)
     p.add_argument("--query-layer", required=True)
     p.add_argument("--full-width", type=int, default=752, help="the camera's width, for pixels at its size")
-    p.add_argument("--tlw-channels", type=int, default=1,
-                   help="run .tlw weights with this many feature channels a level (their outputs grouped)")
+    p.add_argument("--channels", type=int, default=None,
+                   help="run the models with this many feature channels a level (their outputs grouped; "
+                        "default: each model's own)")
     p.add_argument("models", nargs="+")
     a = p.parse_args()
     torch.set_num_threads(2)
@@ -60,7 +49,7 @@ def main():
         if a.ref_layer not in s.layers or a.query_layer not in s.layers:
             sys.exit(f"eval_torch: {a.data} has layers {', '.join(s.layers)}, not {a.ref_layer} and {a.query_layer}")
     for path in a.models:
-        model = load(path, a.tlw_channels)
+        model, _ = D.load_model(path, channels=a.channels)
         model.eval()
         epe, px = [], []
         with torch.no_grad():

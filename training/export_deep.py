@@ -5,7 +5,8 @@ file (.tlw) that `terralign align --method nn --weights FILE` reads.
   /usr/bin/python3 training/export_deep.py CHECKPOINT.pt OUT.tlw [--note "data, licence, commit"]
 
 The architecture text holds two networks, `encoder` (input x: 3 channels, normalised RGB;
-outputs f0..fN-1: one-channel features per level) and `mestimator` (input x: |r|, f_ref, f_live,
+outputs f0..fN-1: the features of each level, one channel, or K from train_deep.py --channels K,
+each the mean of an equal group of the level's outputs) and `mestimator` (input x: |r|, f_ref, f_live,
 w_prev; output w), and comment lines the C++ reads: `# input-scale 0.5` (the working
 resolution relative to the camera) and `# levels N` (the encoder's and the solver's).
 """
@@ -22,7 +23,7 @@ import tlw  # noqa: E402
 INPUT_SCALE = 0.5  # training/README.md: the dataset is rendered at half the camera's size
 
 
-def architecture(size, note):
+def architecture(size, note, channels=1):
     enc = D.SIZES[size]["encoder"]
     a, b, c = D.SIZES[size]["mest"]
     lines = ["terralign-net 1", f"# terralign learned tracker, size {size}", f"# input-scale {INPUT_SCALE}",
@@ -38,7 +39,7 @@ def architecture(size, note):
             name = f"e{level}_{k}"
             lines.append(f"conv {name} {prev} {widths[k + 1]} {dil} elu encoder.levels.{level}.{k}.0")
             prev = name
-        lines.append(f"mean f{level} {prev}")
+        lines.append(f"mean f{level} {prev}" + (f" {channels}" if channels > 1 else ""))
         outs.append(f"f{level}")
     lines.append("output " + " ".join(outs))
     lines += ["", "net mestimator", "input x 4",
@@ -50,9 +51,9 @@ def architecture(size, note):
     return "\n".join(lines) + "\n"
 
 
-def export(state, size, dst, note=""):
+def export(state, size, dst, note="", channels=1):
     tensors = [(k, v.detach().numpy()) for k, v in state.items()]
-    tlw.write(dst, architecture(size, note), tensors)
+    tlw.write(dst, architecture(size, note, channels), tensors)
     return len(tensors), sum(t.size for _, t in tensors)
 
 
@@ -63,10 +64,11 @@ def main():
     p.add_argument("--note", default="")
     a = p.parse_args()
     ck = torch.load(a.checkpoint, map_location="cpu")
-    if ck.get("channels", 1) != 1:
-        sys.exit(f"export_deep: {a.checkpoint} has {ck['channels']} feature channels a level; the C++ learned "
-                 "tracker (src/iclk/deep_aligner.cpp) runs one")
-    n, params = export(ck["model"], ck["size"], a.out, a.note + f"\ncheckpoint step {ck['step']}")
+    k = ck.get("channels", 1)
+    if k not in (1, 2, 4):
+        sys.exit(f"export_deep: {a.checkpoint} has {k} feature channels a level; the C++ learned tracker "
+                 "(src/iclk/deep_aligner.cpp) runs 1, 2 or 4")
+    n, params = export(ck["model"], ck["size"], a.out, a.note + f"\ncheckpoint step {ck['step']}", k)
     print(f"{a.out}: {n} tensors, {params} parameters (size {ck['size']}, step {ck['step']})")
 
 

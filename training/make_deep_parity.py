@@ -5,7 +5,13 @@ training/deep_iclk.py with the given weights (20 iterations per level, identity 
 float32. tests/test_deep_iclk.cpp runs the C++ pipeline on the same inputs and weights and
 compares the final pose (1e-4 rad, 1e-3 of the altitude).
 
-  /usr/bin/python3 training/make_deep_parity.py CHECKPOINT.pt DATASET_DIR OUT.tlw [--pairs 3]
+  /usr/bin/python3 training/make_deep_parity.py MODEL DATASET_DIR OUT.tlw [--pairs 3]
+  /usr/bin/python3 training/make_deep_parity.py MODEL VECTORS.tlw OUT.tlw [--channels K]
+
+MODEL: a checkpoint (.pt) or a weight file (.tlw); --channels K runs it with K feature channels
+a level (deep_iclk.load_model). With earlier vectors in place of the data set, their pairs are
+aligned again and only the poses are written (R_k, t_k, wmean_k): a second model's parity on
+the same committed images.
 
 Stored per pair k: ref_k (H x W x 3, 0..255), depth_k (H x W, metres, NaN: none),
 live_k (H x W x 3), K_k (fx, fy, cx, cy), altitude_k, R_k and t_k (PyTorch's final
@@ -30,18 +36,19 @@ CROP_W, CROP_H = 192, 128
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("checkpoint")
+    p.add_argument("model")
     p.add_argument("data")
     p.add_argument("out")
     p.add_argument("--pairs", type=int, default=3)
     p.add_argument("--seed", type=int, default=5)
+    p.add_argument("--channels", type=int, default=None, help="feature channels a level (default: the model's)")
     p.add_argument("--max-ratio", type=float, default=0.25, help="keep pairs whose final EPE is below this x the initial")
     a = p.parse_args()
     torch.set_grad_enabled(False)
-    ck = torch.load(a.checkpoint, map_location="cpu")
-    model = D.DeepICLK(ck["size"], iterations=20)
-    model.load_state_dict(ck["model"])
+    model, (size, channels, step) = D.load_model(a.model, channels=a.channels)
     model.eval()
+    if a.data.endswith(".tlw"):
+        return again(model, a.data, a.out, f"{os.path.basename(a.model)} ({size}, {channels} channels)")
     val = PairSet(a.data, "val")
     rng = random.Random(a.seed)
     tensors, k, tried = [], 0, 0
@@ -75,10 +82,35 @@ def main():
         k += 1
     if k < a.pairs:
         raise SystemExit(f"only {k} of {a.pairs} pairs aligned well enough to serve as parity vectors")
-    note = (f"parity vectors: the learned tracker ({ck['size']}, step {ck['step']}) on {k} validation pairs of "
+    note = (f"parity vectors: the learned tracker ({size}, {channels} channels, step {step}) on {k} validation pairs of "
             f"{os.path.basename(os.path.normpath(a.data))}, {CROP_W}x{CROP_H}\n")
     tlw.write(a.out, note, tensors)
     print(f"{a.out}: {k} pairs")
+
+
+def again(model, vectors, out, what):
+    """The pairs of earlier vectors aligned by `model`; only its poses and weight means written."""
+    v = tlw.read(vectors)
+    tensors, k = [], 0
+    while f"ref_{k}" in v:
+        img = lambda name: torch.from_numpy(v[f"{name}_{k}"]).permute(2, 0, 1).unsqueeze(0)  # noqa: E731
+        ref, live = img("ref"), img("live")
+        depth = torch.from_numpy(v[f"depth_{k}"]).unsqueeze(0).unsqueeze(0)
+        K = tuple(torch.tensor([float(x)]) for x in v[f"K_{k}"])
+        R, t, _, ws = model(ref, depth, live, K, return_weights=True)
+        gtR, gtt = torch.from_numpy(v[f"gtR_{k}"]).unsqueeze(0), torch.from_numpy(v[f"gt_t_{k}"]).unsqueeze(0)
+        X = D.points(D.depth_pyramid(depth, 1)[0][0], K)
+        valid = torch.isfinite(depth).float()
+        e = D.epe(R, t, gtR, gtt, X, valid).item()
+        e0 = D.epe(torch.eye(3).unsqueeze(0), torch.zeros(1, 3), gtR, gtt, X, valid).item()
+        print(f"pair {k}: EPE {e0:.2f} -> {e:.3f} m, largest step {model.max_step.item():.3f}")
+        if model.max_step.item() > 0.3:  # as main(): a run near the divergence bound is chaotic
+            raise SystemExit(f"pair {k}: a step of {model.max_step.item():.3f} is too near the C++ bound (0.35) for parity")
+        tensors += [(f"R_{k}", R[0].numpy()), (f"t_{k}", t[0].numpy()),
+                    (f"wmean_{k}", np.array([float(w.mean()) for w in ws], np.float32))]
+        k += 1
+    tlw.write(out, f"parity vectors: {what} on the {k} pairs of {os.path.basename(vectors)}\n", tensors)
+    print(f"{out}: {k} pairs")
 
 
 if __name__ == "__main__":

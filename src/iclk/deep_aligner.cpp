@@ -114,12 +114,20 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   if (const nn::Tensor* x = D->enc_in_; !x || x->c != 3)
     return Error{weights.name + ": the encoder must take x, 3 channels of normalised RGB" +
                  (x ? " (this one takes " + std::to_string(x->c) + ")" : std::string(" (it has no input x)"))};
+  // The channels of every level are f0's: 1, 2 or 4 (the solvers built, tracker.cpp).
+  if (const nn::Tensor* f0 = D->encoder_->output("f0")) {
+    if (f0->c != 1 && f0->c != 2 && f0->c != 4)
+      return Error{weights.name + ": the encoder's features have " + std::to_string(f0->c) +
+                   " channels a level; the learned tracker runs 1, 2 or 4"};
+    D->channels_ = f0->c;
+  }
+  const int C = D->channels_;
   for (int l = 0; l < levels; ++l) {
     const std::string name = "f" + std::to_string(l);
     const nn::Tensor* f = D->enc_out_[static_cast<std::size_t>(l)] = D->encoder_->output(name);
-    if (!f || f->c != 1 || f->w != width >> l || f->h != height >> l)
-      return Error{weights.name + ": the encoder must output " + name + ", one channel of " + std::to_string(width >> l) +
-                   " x " + std::to_string(height >> l)};
+    if (!f || f->c != C || f->w != width >> l || f->h != height >> l)
+      return Error{weights.name + ": the encoder must output " + name + ", " + std::to_string(C) + " channel(s) of " +
+                   std::to_string(width >> l) + " x " + std::to_string(height >> l)};
     auto& m = D->mest_[static_cast<std::size_t>(l)];
     TERRALIGN_TRY_ASSIGN(m, nn::Network::plan(weights, "mestimator", width >> l, height >> l, threads, nn::Simd::Auto,
                                               nn::Memory::External));
@@ -127,8 +135,8 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
     const nn::Tensor* w = D->mest_out_[static_cast<std::size_t>(l)] = m->output("w");
     if (!x || x->c != 4 || !w || w->c != 1)
       return Error{weights.name + ": the mestimator must take x (4 channels) and output w (1 channel)"};
-    D->ref_f_[static_cast<std::size_t>(l)].resize(width >> l, height >> l, 1);
-    D->live_f_[static_cast<std::size_t>(l)].resize(width >> l, height >> l, 1);
+    D->ref_f_[static_cast<std::size_t>(l)].resize(width >> l, height >> l, C);
+    D->live_f_[static_cast<std::size_t>(l)].resize(width >> l, height >> l, C);
     D->w_[static_cast<std::size_t>(l)].resize(width >> l, height >> l, 1);
     D->ref_v_[static_cast<std::size_t>(l)] = D->ref_f_[static_cast<std::size_t>(l)].view();
     D->live_v_[static_cast<std::size_t>(l)] = D->live_f_[static_cast<std::size_t>(l)].view();
@@ -141,6 +149,10 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   D->encoder_->bind(base);
   for (int l = 0; l < levels; ++l) D->mest_[static_cast<std::size_t>(l)]->bind(base);
   D->up_.resize(width, height, 1);  // used at each level's size, as the top-left part
+  if (C > 1) {
+    D->mean_ref_.resize(width, height, 1);
+    D->mean_live_.resize(width, height, 1);
+  }
   iclk::TrackerOptions o = options;
   o.levels = levels;
   o.normalize = true;
@@ -162,14 +174,20 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   // Every pixel of four levels: enough work per iteration for the threads to pay off
   // (unlike the sparse classical selection); chunked sums keep the result thread-count free.
   o.threads = threads;
-  D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 1>>(width, height, o);
+  if (C == 1) D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 1>>(width, height, o);
+  else if (C == 2) D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 2>>(width, height, o);
+  else D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 4>>(width, height, o);
   return D;
 }
 
 void DeepAligner::set_iterations(int n) {
-  auto o = tracker_->options();
-  o.iterations = n;
-  tracker_->set_options(o);
+  std::visit(
+      [n](auto& t) {
+        auto o = t->options();
+        o.iterations = n;
+        t->set_options(o);
+      },
+      tracker_);
 }
 
 void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out) {
@@ -186,7 +204,8 @@ void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kMaxLeve
     const nn::Tensor* f = enc_out_[static_cast<std::size_t>(l)];
     ImageF& o = out[static_cast<std::size_t>(l)];
     for (int y = 0; y < f->h; ++y)
-      for (int i = 0; i < f->w; ++i) o.at(i, y) = f->at(y, i)[0];
+      for (int i = 0; i < f->w; ++i)
+        for (int c = 0; c < channels_; ++c) o.at(i, y, c) = f->at(y, i)[c];
   }
 }
 
@@ -200,6 +219,22 @@ void DeepAligner::weights(int level, ImageView<const float> abs_r, ImageView<con
   // resized to this level (bilinear, align_corners = False); ones at the coarsest level.
   const bool coarsest = level == levels_ - 1;
   if (!coarsest) resize_bilinear(w_[static_cast<std::size_t>(level + 1)], up_, w, h);
+  // Several channels: the M-estimator sees their means (and abs_r is their RMS residual).
+  if (channels_ > 1) {
+    const float inv = 1.0f / static_cast<float>(channels_);
+    for (int y = 0; y < h; ++y)
+      for (int i = 0; i < w; ++i) {
+        float a = 0, b = 0;
+        for (int c = 0; c < channels_; ++c) {
+          a += ref.at(i, y, c);
+          b += live.at(i, y, c);
+        }
+        mean_ref_.at(i, y) = a * inv;
+        mean_live_.at(i, y) = b * inv;
+      }
+    ref = ImageView<const float>{mean_ref_.data(), w, h, 1, mean_ref_.width()};
+    live = ImageView<const float>{mean_live_.data(), w, h, 1, mean_live_.width()};
+  }
   for (int y = 0; y < h; ++y)
     for (int i = 0; i < w; ++i) {
       float* p = x->at(y, i);
@@ -229,7 +264,11 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align(ImageView<const f
   encode(live_rgb, live_f_);
   ms_encoder_ = elapsed_ms(t0);
   ms_mest_ = 0;
-  return tracker_->align_levels(ref_v_.data(), ref_depth, live_v_.data(), K, init, this);
+  return std::visit(
+      [&](auto& t) -> const iclk::TrackResult<Warp>& {
+        return t->align_levels(ref_v_.data(), ref_depth, live_v_.data(), K, init, this);
+      },
+      tracker_);
 }
 
 }  // namespace terralign::iclk

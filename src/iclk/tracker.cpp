@@ -18,24 +18,25 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
 
-// Zero mean, unit variance over the pixels where `mask` (if given) is finite.
+// Zero mean, unit variance per channel over the pixels where `mask` (if given) is finite.
 void normalize(ImageF& img, const ImageF* mask) {
-  double s = 0, s2 = 0;
-  long n = 0;
-  const int C = img.channels();
-  for (std::size_t k = 0; k < img.size(); ++k) {
-    if (mask && !std::isfinite(mask->data()[k / static_cast<std::size_t>(C)])) continue;
-    const double v = img.data()[k];
-    s += v;
-    s2 += v * v;
-    ++n;
+  const std::size_t C = static_cast<std::size_t>(img.channels());
+  for (std::size_t c = 0; c < C; ++c) {
+    double s = 0, s2 = 0;
+    long n = 0;
+    for (std::size_t k = c; k < img.size(); k += C) {
+      if (mask && !std::isfinite(mask->data()[k / C])) continue;
+      const double v = img.data()[k];
+      s += v;
+      s2 += v * v;
+      ++n;
+    }
+    if (n < 2) continue;
+    const double mean = s / static_cast<double>(n);
+    const double var = s2 / static_cast<double>(n) - mean * mean;
+    const double inv = var > 1e-20 ? 1.0 / std::sqrt(var) : 1.0;
+    for (std::size_t k = c; k < img.size(); k += C) img.data()[k] = static_cast<float>((img.data()[k] - mean) * inv);
   }
-  if (n < 2) return;
-  const double mean = s / static_cast<double>(n);
-  const double var = s2 / static_cast<double>(n) - mean * mean;
-  const double inv = var > 1e-20 ? 1.0 / std::sqrt(var) : 1.0;
-  for (std::size_t k = 0; k < img.size(); ++k)
-    img.data()[k] = static_cast<float>((img.data()[k] - mean) * inv);
 }
 
 // The covariance inflation f = ((1 + rho) / (1 - rho))^2 of a residual field whose
@@ -77,6 +78,7 @@ Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& option
     L.h = h;
     L.ref.resize(w, h, C);
     L.live.resize(w, h, C);
+    if (kSe3Kernel && C > 1) L.live_planes.resize(w, h * C, 1);
     L.depth.resize(w, h, 1);
     L.abs_r.resize(w, h, 1);
     L.weight.resize(w, h, 1);
@@ -178,6 +180,13 @@ void Tracker<S, Warp, C>::normalize_levels() {
       normalize(L.ref, &L.depth);
       normalize(L.live, nullptr);
     }
+  if constexpr (kSe3Kernel && C > 1)  // the kernel's live planes, one channel each
+    for (auto& L : levels_)
+      for (int c = 0; c < C; ++c)
+        for (int y = 0; y < L.h; ++y) {
+          float* row = &L.live_planes.at(0, c * L.h + y);
+          for (int x = 0; x < L.w; ++x) row[x] = L.live.at(x, y, c);
+        }
 }
 
 template <class S, class Warp, int C>
@@ -377,7 +386,7 @@ void Tracker<S, Warp, C>::write_band(int level, const Pinhole<S>& K, Band& band)
       S gx, gy;
       sobel(x, y, c, gx, gy);
       for (int a = 0; a < DoF; ++a) jac(n, c, a) = gx * dW(0, a) + gy * dW(1, a);
-      val_[static_cast<std::size_t>(n) * C + static_cast<std::size_t>(c)] = static_cast<S>(L.ref.at(x, y, c));
+      val_[at(static_cast<std::size_t>(n), c)] = static_cast<S>(L.ref.at(x, y, c));
     }
     pu_[static_cast<std::size_t>(n)] = u;
     pv_[static_cast<std::size_t>(n)] = v;
@@ -453,10 +462,7 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
     in.px = px_.data();
     in.py = py_.data();
     in.pz = pz_.data();
-    in.val = val_.data();
     in.w = w_.data();
-    for (int a = 0; a < DoF; ++a) in.jac[a] = &jac(0, 0, a);
-    in.live = Lv.live.data();
     in.stride = Lv.w;
     in.width = Lv.w;
     in.height = Lv.h;
@@ -470,12 +476,18 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
     in.cy = K.cy;
     in.out = out_index_.data() + static_cast<std::size_t>(chunk) * kChunk;
     detail::Se3EvalSums sums;
-    se3_kernel_(in, i0, i1, r_.data(), ok_.data(), sums);
-    // Lanes combined in lane order, in double.
-    for (int l = 0; l < detail::kLanes; ++l) {
-      for (int a = 0; a < DoF; ++a) P.g[a] += static_cast<double>(sums.g[a][l]);
-      P.cost += static_cast<double>(sums.cost[l]);
-      P.wsum += static_cast<double>(sums.wsum[l]);
+    // One channel after another, each its own plane (the same pixels land or leave in each);
+    // lanes combined in lane order, channels in channel order, in double.
+    for (int c = 0; c < C; ++c) {
+      in.val = val_.data() + at(0, c);
+      for (int a = 0; a < DoF; ++a) in.jac[a] = &jac(0, c, a);
+      in.live = C == 1 ? Lv.live.data() : &Lv.live_planes.at(0, c * Lv.h);
+      se3_kernel_(in, i0, i1, r_.data() + at(0, c), ok_.data(), sums);
+      for (int l = 0; l < detail::kLanes; ++l) {
+        for (int a = 0; a < DoF; ++a) P.g[a] += static_cast<double>(sums.g[a][l]);
+        P.cost += static_cast<double>(sums.cost[l]);
+        P.wsum += static_cast<double>(sums.wsum[l]);
+      }
     }
     P.valid = sums.valid;
     if (sums.valid == i1 - i0) return;  // every pixel landed: nothing leaves H
@@ -504,13 +516,13 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
       const S a = static_cast<S>(Lv.live.at(x0, y0, c)), b = static_cast<S>(Lv.live.at(x0 + 1, y0, c));
       const S d = static_cast<S>(Lv.live.at(x0, y0 + 1, c)), e = static_cast<S>(Lv.live.at(x0 + 1, y0 + 1, c));
       const S live = (S(1) - fy) * ((S(1) - fx) * a + fx * b) + fy * ((S(1) - fx) * d + fx * e);
-      const S r = live - val_[k * C + static_cast<std::size_t>(c)];
-      r_[k * C + static_cast<std::size_t>(c)] = r;
+      const S r = live - val_[at(k, c)];
+      r_[at(k, c)] = r;
       const S wr = w_[k] * r;
       for (int a2 = 0; a2 < DoF; ++a2) g_s[a2] += wr * jac(i, c, a2);
       cost_s += wr * r;
     }
-    wsum_s += w_[k];
+    wsum_s += S(C) * w_[k];  // a weight per residual: cost / wsum is a mean per channel
     ++valid;
   }
   for (int a2 = 0; a2 < DoF; ++a2) P.g[a2] = static_cast<double>(g_s[a2]);
@@ -634,9 +646,9 @@ void Tracker<S, Warp, C>::learned_weights(int n, int level, const Params& p, con
   for (int i = 0; i < n; ++i) {
     const std::size_t k = static_cast<std::size_t>(i);
     if (!ok_[k]) continue;
-    double a = 0;
-    for (int c = 0; c < C; ++c) a += static_cast<double>(r_[k * C + static_cast<std::size_t>(c)]) * static_cast<double>(r_[k * C + static_cast<std::size_t>(c)]);
-    L.abs_r.at(static_cast<int>(pu_[k]), static_cast<int>(pv_[k])) = static_cast<float>(std::sqrt(a));
+    double a = 0;  // the RMS over channels (one channel: |r|)
+    for (int c = 0; c < C; ++c) a += static_cast<double>(r_[at(k, c)]) * static_cast<double>(r_[at(k, c)]);
+    L.abs_r.at(static_cast<int>(pu_[k]), static_cast<int>(pv_[k])) = static_cast<float>(std::sqrt(a / C));
   }
   lw.weights(level, L.abs_r.view(), L.ref.view(), L.live.view(), L.weight.view());
   for (int i = 0; i < n; ++i) {
@@ -657,8 +669,8 @@ double Tracker<S, Warp, C>::residual_correlation(int n) const {
     if (!ok_[a] || !ok_[b] || pv_[a] != pv_[b] || pu_[b] - pu_[a] > S(2 * block)) continue;
     if (!(w_[a] > 0) || !(w_[b] > 0)) continue;
     for (int c = 0; c < C; ++c) {
-      const double ra = static_cast<double>(r_[a * C + static_cast<std::size_t>(c)]);
-      const double rb = static_cast<double>(r_[b * C + static_cast<std::size_t>(c)]);
+      const double ra = static_cast<double>(r_[at(a, c)]);
+      const double rb = static_cast<double>(r_[at(b, c)]);
       sab += ra * rb;
       saa += ra * ra;
       sbb += rb * rb;
@@ -675,7 +687,7 @@ double Tracker<S, Warp, C>::mean_square_residual(int n) const {
     const std::size_t k = static_cast<std::size_t>(i);
     if (!ok_[k]) continue;
     for (int c = 0; c < C; ++c) {
-      const double r = static_cast<double>(r_[k * C + static_cast<std::size_t>(c)]);
+      const double r = static_cast<double>(r_[at(k, c)]);
       sum += r * r;
     }
     ++count;
@@ -782,7 +794,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       auto norm_r = [&](int i) {
         double a = 0;
         for (int c = 0; c < C; ++c) {
-          const double r = static_cast<double>(r_[static_cast<std::size_t>(i) * C + static_cast<std::size_t>(c)]);
+          const double r = static_cast<double>(r_[at(static_cast<std::size_t>(i), c)]);
           a += r * r;
         }
         return std::sqrt(a);
@@ -961,6 +973,8 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
 }
 
 template class Tracker<float, SE3DepthWarp<float>, 1>;
+template class Tracker<float, SE3DepthWarp<float>, 2>;  // the learned tracker's feature channels
+template class Tracker<float, SE3DepthWarp<float>, 4>;
 template class Tracker<double, SE3DepthWarp<double>, 1>;
 template class Tracker<float, HomographyWarp<float>, 1>;
 template class Tracker<double, HomographyWarp<double>, 1>;

@@ -1,6 +1,8 @@
 // The learned tracker: the encoder (src/nn) turns the reference and the live image into a
-// pyramid of one-channel features, the M-estimator (src/nn) weights each pixel when a level
-// starts, and the inverse-compositional LM (src/iclk) aligns coarse to fine. The same
+// pyramid of features (one channel a level, or 2 or 4: the weight file's `mean fL IN G`, each
+// channel normalised on its own, one weight a pixel for all of them), the M-estimator (src/nn)
+// weights each pixel when a level starts, and the inverse-compositional LM (src/iclk) aligns
+// coarse to fine. The same
 // mathematics as training/deep_iclk.py, which trains the weights (tests/test_deep_iclk.cpp
 // checks the final pose against PyTorch's).
 //
@@ -16,6 +18,7 @@
 #include <array>
 #include <memory>
 #include <string>
+#include <variant>
 #include <vector>
 
 #include <terralign/geo/image.hpp>
@@ -75,9 +78,10 @@ class DeepAligner : public iclk::LevelWeights {
   void set_iterations(int n);
   // The world's up in the reference camera (iclk::Tracker::set_up), for the tilt prior.
   void set_up(const Eigen::Vector3d& up_in_reference, const Eigen::Vector3d& tilt = Eigen::Vector3d::Zero()) {
-    tracker_->set_up(up_in_reference, tilt);
+    std::visit([&](auto& t) { t->set_up(up_in_reference, tilt); }, tracker_);
   }
   int level_count() const { return levels_; }
+  int channels() const { return channels_; }  // feature channels a level
   // The weights of each level from the last align() (level 0 finest), for figures and tests.
   const ImageF& weights_of(int level) const { return w_[static_cast<std::size_t>(level)]; }
   double ms_encoder() const { return ms_encoder_; }
@@ -89,7 +93,7 @@ class DeepAligner : public iclk::LevelWeights {
  private:
   DeepAligner() = default;
   void encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out);
-  int width_ = 0, height_ = 0, levels_ = 0;
+  int width_ = 0, height_ = 0, levels_ = 0, channels_ = 1;
   std::unique_ptr<nn::Network> encoder_;
   std::array<std::unique_ptr<nn::Network>, kMaxLevels> mest_;
   // The networks' tensors, looked up once: the encoder's input and level outputs, each
@@ -101,8 +105,11 @@ class DeepAligner : public iclk::LevelWeights {
   std::vector<float> scratch_;  // every network's tensors (nn::Memory::External)
   std::array<ImageF, kMaxLevels> ref_f_, live_f_, w_;
   std::array<ImageView<const float>, kMaxLevels> ref_v_, live_v_;
-  ImageF up_;
-  std::unique_ptr<iclk::Tracker<float, Warp, 1>> tracker_;
+  ImageF up_, mean_ref_, mean_live_;  // the M-estimator's inputs of several channels: their means
+  // The solver for the weights' channel count.
+  std::variant<std::unique_ptr<iclk::Tracker<float, Warp, 1>>, std::unique_ptr<iclk::Tracker<float, Warp, 2>>,
+               std::unique_ptr<iclk::Tracker<float, Warp, 4>>>
+      tracker_;
   double ms_encoder_ = 0, ms_mest_ = 0;
 };
 

@@ -64,7 +64,7 @@ struct TrackerOptions {
   int iterations = 20;               // per level
   double lambda = 1e-6;              // LM damping, times diag(H)
   Robust robust = Robust::None;
-  bool normalize = true;             // zero mean, unit variance per image and level
+  bool normalize = true;             // zero mean, unit variance per image, level and channel
   double step_tol = 1e-6;            // rad, and m per metre of median depth
   int min_valid_pixels = 200;        // at the finest level
   double max_step_rotation = 0.35;   // rad in one iteration
@@ -139,7 +139,7 @@ struct TrackResult {
   const char* reason = "not run";
   int iterations = 0;                // over all levels
   int valid_pixels = 0;              // at the finest level, final iteration
-  // Mean weighted squared residual at the finest level: at the initial parameters, where
+  // Mean weighted squared residual (per channel) at the finest level: at the initial parameters, where
   // the finest level started (after the coarse levels), and at the end.
   double cost_init = 0, cost_start = 0, cost_final = 0;
   // The same without the weights: the mean squared residual per channel over the finest
@@ -177,9 +177,10 @@ struct TrackResult {
 };
 
 // Per-pixel weights computed when a level starts (a learned M-estimator). The tracker hands
-// over, on the level's reference grid: |r| at the pose the level starts from (0 where a
-// pixel is not used or lands outside the live image), the level's reference and live
-// feature images (normalised when TrackerOptions::normalize), and an image to fill with
+// over, on the level's reference grid: |r| at the pose the level starts from (the RMS over
+// channels; 0 where a pixel is not used or lands outside the live image), the level's
+// reference and live feature images (C channels, each normalised on its own when
+// TrackerOptions::normalize), and an image to fill with
 // weights (0 or NaN: the pixel is not used). Called from align(), on the caller's thread.
 class LevelWeights {
  public:
@@ -233,6 +234,7 @@ class Tracker {
   struct Level {
     int w = 0, h = 0;
     ImageF ref, live, depth;
+    ImageF live_planes;    // several channels: live's, one plane after another (the kernel's)
     ImageF abs_r, weight;  // for LevelWeights
   };
   void build_pyramids(ImageView<const float> ref, ImageView<const float> depth, ImageView<const float> live);
@@ -271,8 +273,9 @@ class Tracker {
   // H = J^T W J over the selected pixels, in chunks of kChunk pixels summed in chunk order.
   void hessian(int n, Eigen::Matrix<double, DoF, DoF>& H);
   void robust_weights(int n, const ImageView<const float>* weights, int level);
-  // Residuals and J^T W r at `p`; returns the valid count, fills cost (sum w r^2), sum of w
-  // and H_out (J^T W J over the pixels that left the image).
+  // Residuals and J^T W r at `p`; returns the valid count, fills cost (sum w r^2 over pixels
+  // and channels), wsum (sum of w, counted once per channel: cost / wsum is the mean per
+  // residual, and sigma^2 its variance) and H_out (J^T W J over the pixels that left the image).
   int evaluate(int n, const Params& p, const Pinhole<S>& K, Eigen::Matrix<double, DoF, 1>& g,
                Eigen::Matrix<double, DoF, DoF>& H_out, double& cost, double& wsum);
 
@@ -281,14 +284,16 @@ class Tracker {
   std::vector<Level> levels_;
   // Per selected reference pixel (structure of arrays, sized for the finest level).
   std::vector<S> pu_, pv_, px_, py_, pz_;   // pixel and 3-D point in the reference camera
-  std::vector<S> val_;                      // C reference feature values
+  std::vector<S> val_;                      // reference feature values, one array per channel
   std::vector<S> jac_;                      // Jacobians, one array per channel and parameter
   std::size_t jac_stride_ = 0;
   S& jac(int i, int c, int a) {
     return jac_[(static_cast<std::size_t>(c) * DoF + static_cast<std::size_t>(a)) * jac_stride_ + static_cast<std::size_t>(i)];
   }
+  // Pixel i's place in a per-channel array (val_, r_): channel c's array starts at c * stride.
+  std::size_t at(std::size_t i, int c) const { return static_cast<std::size_t>(c) * jac_stride_ + i; }
   std::vector<S> w_;                        // weight
-  std::vector<S> r_;                        // residual scratch (C per pixel)
+  std::vector<S> r_;                        // residuals, one array per channel
   std::vector<unsigned char> ok_;           // landed inside the live image
   std::vector<S> abs_;                      // scratch: absolute residuals
   Eigen::Matrix<double, DoF, DoF> motion0_;  // sum over used finest-level pixels of dW^T dW
@@ -313,8 +318,8 @@ class Tracker {
   std::unique_ptr<ThreadPool> pool_;
   void evaluate_chunk(int chunk, int n, const Params& p, const Pinhole<S>& K);
   void add_outer(Partial& P, int i);  // pixel i's share of J^T W J into P.H_out (a pixel that left; hessian())
-  // The 6-DoF warp on one float channel has a vector kernel (evaluate_kernels.hpp).
-  static constexpr bool kSe3Kernel = std::is_same_v<S, float> && std::is_same_v<Warp, SE3DepthWarp<float>> && C == 1;
+  // The 6-DoF float warp has a vector kernel (evaluate_kernels.hpp), run once per channel.
+  static constexpr bool kSe3Kernel = std::is_same_v<S, float> && std::is_same_v<Warp, SE3DepthWarp<float>>;
   detail::Se3EvalFn se3_kernel_ = nullptr;
   // J^T W J of the 6-DoF float trackers has one too, whatever the warp and channels.
   static constexpr bool kOuterKernel = std::is_same_v<S, float> && DoF == 6;
