@@ -418,6 +418,64 @@ TEST_CASE("1, 2 and 3 threads, and the scalar and vector (AVX2, NEON) residual k
   }
 }
 
+TEST_CASE("four feature channels: the same bits on any thread count and kernel, and four copies of one channel align as one") {
+  auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(map.ok());
+  const geo::CameraModel cam = test::paper_camera();
+  const Pair p = render_pair(map.value(), cam, geo::pose_from_ypr({487450, 5207437, 1370}, 10, 1, 0),
+                             geo::pose_from_ypr({487458, 5207431, 1374}, 11, 0, 1), "2012", "2012");
+  const Pinhole<float> K{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
+  // Channels of one image: c = 0 the grey, 1 its square, 2 the grey shifted a pixel right, 3
+  // its negative; `copies`: the grey four times.
+  auto channels = [&](const ImageF& g, bool copies) {
+    ImageF out(g.width(), g.height(), 4);
+    for (int y = 0; y < g.height(); ++y)
+      for (int x = 0; x < g.width(); ++x) {
+        const float v = g.at(x, y);
+        out.at(x, y, 0) = v;
+        out.at(x, y, 1) = copies ? v : v * v;
+        out.at(x, y, 2) = copies ? v : g.at(std::max(x - 1, 0), y);
+        out.at(x, y, 3) = copies ? v : -v;
+      }
+    return out;
+  };
+  const ImageF ref4 = channels(p.ref_grey, false), live4 = channels(p.live_grey, false);
+  TrackerOptions o1, o2, o3;
+  o1.threads = 1;
+  o2.threads = 2;
+  o3.simd = false;
+  Tracker<float, SE3DepthWarp<float>, 4> t1(cam.width, cam.height, o1), t2(cam.width, cam.height, o2),
+      t3(cam.width, cam.height, o3);
+  const auto& r1 = t1.align(ref4.view(), p.depth.view(), live4.view(), K, SE3<float>::identity());
+  CHECK(r1.converged);
+  for (auto* t : {&t2, &t3}) {
+    const auto& r2 = t->align(ref4.view(), p.depth.view(), live4.view(), K, SE3<float>::identity());
+    CHECK(r1.iterations == r2.iterations);
+    CHECK(r1.params.R == r2.params.R);
+    CHECK(r1.params.t == r2.params.t);
+    CHECK(r1.covariance == r2.covariance);
+  }
+  // Four copies: H, g and the cost summed four times over, the step and the cost per residual
+  // the same as one channel's up to float summation order (the sums run per channel): the
+  // pose agrees to 1e-5 of its size, the cost per residual to 1e-4 relative. The covariance
+  // too (to 1e-3): H is four times larger, but the channels' residuals correlate fully, so
+  // the channel factor (1 + 3 x 1) gives it back; without that factor it came out 2-3x too
+  // small.
+  const ImageF refc = channels(p.ref_grey, true), livec = channels(p.live_grey, true);
+  Tracker<float, SE3DepthWarp<float>, 1> one(cam.width, cam.height, o2);
+  const auto r1c = one.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());
+  const auto& r4c = t2.align(refc.view(), p.depth.view(), livec.view(), K, SE3<float>::identity());
+  REQUIRE(r1c.converged);
+  CHECK(r4c.converged);
+  CHECK((r4c.params.t - r1c.params.t).norm() <= 1e-5f * std::max(1.0f, r1c.params.t.norm()));
+  CHECK((r4c.params.R - r1c.params.R).norm() <= 1e-5f);
+  CHECK(r4c.cost_final == doctest::Approx(r1c.cost_final).epsilon(1e-4));
+  CHECK(r4c.residual_final == doctest::Approx(r1c.residual_final).epsilon(1e-4));
+  for (int k = 0; k < 6; ++k) CHECK(r4c.covariance(k, k) == doctest::Approx(r1c.covariance(k, k)).epsilon(1e-3));
+  MESSAGE("four copies against one channel: translation differs by " << (r4c.params.t - r1c.params.t).norm()
+                                                                      << ", cost " << r4c.cost_final << " / " << r1c.cost_final);
+}
+
 #if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
 // The vector builds of the solver's kernels this machine runs (AVX2 where the CPU has it,
 // NEON on aarch64), or nulls.

@@ -659,6 +659,31 @@ void Tracker<S, Warp, C>::learned_weights(int n, int level, const Params& p, con
 }
 
 template <class S, class Warp, int C>
+double Tracker<S, Warp, C>::channel_factor(int n) const {
+  if constexpr (C == 1) {
+    (void)n;
+    return 1.0;
+  } else {
+    // The mean correlation of two channels' residuals over the used pixels that landed,
+    // clamped to [0, 1]; Kish's design effect 1 + (C - 1) rho: C copies of one channel (rho 1)
+    // carry one channel's information, independent channels (rho 0) C times it.
+    double sab[C][C] = {};
+    for (int i = 0; i < n; ++i) {
+      const std::size_t k = static_cast<std::size_t>(i);
+      if (!ok_[k] || !(w_[k] > 0)) continue;
+      for (int a = 0; a < C; ++a)
+        for (int b = 0; b <= a; ++b) sab[a][b] += static_cast<double>(r_[at(k, a)]) * static_cast<double>(r_[at(k, b)]);
+    }
+    double rho = 0;
+    for (int a = 1; a < C; ++a)
+      for (int b = 0; b < a; ++b)
+        if (sab[a][a] > 0 && sab[b][b] > 0) rho += sab[a][b] / std::sqrt(sab[a][a] * sab[b][b]);
+    rho = std::clamp(rho / (C * (C - 1) / 2), 0.0, 1.0);
+    return 1.0 + (C - 1) * rho;
+  }
+}
+
+template <class S, class Warp, int C>
 double Tracker<S, Warp, C>::residual_correlation(int n) const {
   // Pixels are selected row of blocks by row of blocks, left to right: consecutive pixels on
   // the same row, at most two blocks apart, are horizontal neighbours at the sampling step.
@@ -776,7 +801,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
     tilt_info = (Eigen::Matrix3d::Identity() - u * u.transpose()) / (opt_.tilt_prior_rad * opt_.tilt_prior_rad);
   }
   auto image_noise = [&](int n) {  // sigma^2 f of the last evaluate()
-    return inflation_of(residual_correlation(n)) * cost / std::max(wsum - DoF, 1.0);
+    return inflation_of(residual_correlation(n)) * channel_factor(n) * cost / std::max(wsum - DoF, 1.0);
   };
   double noise = 0;
   for (int level = opt_.levels - 1; level >= 0; --level) {
@@ -923,7 +948,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       }
       const double sigma2 = cost / std::max(wsum - DoF, 1.0);
       R.residual_correlation = residual_correlation(n);
-      R.covariance_inflation = inflation_of(R.residual_correlation);
+      R.covariance_inflation = inflation_of(R.residual_correlation) * channel_factor(n);
       Eigen::Matrix<double, DoF, DoF> Hp = Hv;  // with the tilt prior's information
       if (tilt) Hp.template topLeftCorner<3, 3>() += R.covariance_inflation * sigma2 * tilt_info;
       R.covariance = R.covariance_inflation * sigma2 * Hp.inverse();

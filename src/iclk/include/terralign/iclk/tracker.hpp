@@ -168,11 +168,13 @@ struct TrackResult {
   // texture-phase error of a rendered reference are smooth), so the least-squares covariance
   // is inflated by f = ((1 + rho) / (1 - rho))^2, the variance factor of a 2-D field whose
   // neighbours correlate by rho (first-order autoregressive in each axis); rho is measured on
-  // horizontally adjacent used pixels at the end, clamped to [0, 0.9]. To that the
+  // horizontally adjacent used pixels at the end, clamped to [0, 0.9]; with C channels f is
+  // also multiplied by 1 + (C - 1) rho_c, rho_c the channels' residuals' mean correlation in
+  // [0, 1] (four copies of one channel: the one channel's covariance). To that the
   // registration floor (TrackerOptions::registration_floor_px) is added.
   Eigen::Matrix<double, DoF, DoF> covariance = Eigen::Matrix<double, DoF, DoF>::Zero();
   double residual_correlation = 0;   // rho
-  double covariance_inflation = 1;   // f
+  double covariance_inflation = 1;   // f (with the channels' factor)
   double ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
 };
 
@@ -244,6 +246,9 @@ class Tracker {
                                  LevelWeights* level_weights);
   void learned_weights(int n, int level, const Params& p, const Pinhole<S>& K, LevelWeights& lw);
   double residual_correlation(int n) const;
+  // Several channels: 1 + (C - 1) x their residuals' mean correlation, the covariance's factor
+  // for channels that repeat each other (1 for one channel).
+  double channel_factor(int n) const;
   double mean_square_residual(int n) const;  // unweighted, of the residuals of the last evaluate()
   // The RMS image motion over the finest level's n used pixels of a pose change d (6-DoF
   // warp; first order, sum dW^T dW): finest-level pixels.
