@@ -64,7 +64,6 @@ void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
     const __m256i y0 = _mm256_min_epi32(_mm256_cvttps_epi32(v), ymax);
     const __m256 fx = _mm256_sub_ps(u, _mm256_cvtepi32_ps(x0)), fy = _mm256_sub_ps(v, _mm256_cvtepi32_ps(y0));
     const __m256i idx = _mm256_add_epi32(_mm256_mullo_epi32(y0, stride), x0);
-    __m256 a, b, c, d;
     // Neighbouring reference pixels land near each other: where the eight lanes share a row
     // and their columns lie at most 7 right of lane 0's (none left of it), each tap is a
     // permutation of one 8-float load (from that row or the next, at lane 0's column or one
@@ -74,39 +73,45 @@ void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
     const __m256i dx = _mm256_sub_epi32(x0, _mm256_set1_epi32(bx));
     const __m256i off_row = _mm256_xor_si256(_mm256_cmpeq_epi32(y0, _mm256_set1_epi32(by)), all_ones);
     const __m256i off_window = _mm256_or_si256(_mm256_cmpgt_epi32(dx, seven), _mm256_cmpgt_epi32(_mm256_setzero_si256(), dx));
-    if (bx + kLanes + 1 <= in.width && _mm256_testz_si256(_mm256_or_si256(off_row, off_window), all_ones)) {
-      const float* window = in.live + static_cast<std::ptrdiff_t>(by) * in.stride + bx;
-      a = _mm256_permutevar8x32_ps(_mm256_loadu_ps(window), dx);
-      b = _mm256_permutevar8x32_ps(_mm256_loadu_ps(window + 1), dx);
-      c = _mm256_permutevar8x32_ps(_mm256_loadu_ps(window + in.stride), dx);
-      d = _mm256_permutevar8x32_ps(_mm256_loadu_ps(window + in.stride + 1), dx);
-    } else {
-      // Each pixel's two horizontal neighbours as one 64-bit load: half the gathered elements.
-      pairs(in.live, idx, a, b);
-      pairs(in.live + in.stride, idx, c, d);
-    }
-    const __m256 gx = _mm256_sub_ps(one, fx);
-    const __m256 top = _mm256_add_ps(_mm256_mul_ps(gx, a), _mm256_mul_ps(fx, b));
-    const __m256 bot = _mm256_add_ps(_mm256_mul_ps(gx, c), _mm256_mul_ps(fx, d));
-    const __m256 live = _mm256_add_ps(_mm256_mul_ps(_mm256_sub_ps(one, fy), top), _mm256_mul_ps(fy, bot));
-    const __m256 res = _mm256_and_ps(_mm256_sub_ps(live, get(in.val)), inside);
+    const bool window = bx + kLanes + 1 <= in.width && _mm256_testz_si256(_mm256_or_si256(off_row, off_window), all_ones);
+    const __m256 gx = _mm256_sub_ps(one, fx), gy = _mm256_sub_ps(one, fy);
     const __m256 w = _mm256_and_ps(get(in.w), inside);
-    const __m256 wr = _mm256_mul_ps(w, res);
-    for (int k = 0; k < 6; ++k) g[k] = _mm256_add_ps(g[k], _mm256_mul_ps(wr, get(in.jac[k])));
-    cost = _mm256_add_ps(cost, _mm256_mul_ps(wr, res));
-    wsum = _mm256_add_ps(wsum, w);
+    for (int ch = 0; ch < in.channels; ++ch) {
+      const float* live_c = in.live + ch * in.live_plane;
+      __m256 a, b, c, d;
+      if (window) {
+        const float* p = live_c + static_cast<std::ptrdiff_t>(by) * in.stride + bx;
+        a = _mm256_permutevar8x32_ps(_mm256_loadu_ps(p), dx);
+        b = _mm256_permutevar8x32_ps(_mm256_loadu_ps(p + 1), dx);
+        c = _mm256_permutevar8x32_ps(_mm256_loadu_ps(p + in.stride), dx);
+        d = _mm256_permutevar8x32_ps(_mm256_loadu_ps(p + in.stride + 1), dx);
+      } else {
+        // Each pixel's two horizontal neighbours as one 64-bit load: half the gathered elements.
+        pairs(live_c, idx, a, b);
+        pairs(live_c + in.stride, idx, c, d);
+      }
+      const __m256 top = _mm256_add_ps(_mm256_mul_ps(gx, a), _mm256_mul_ps(fx, b));
+      const __m256 bot = _mm256_add_ps(_mm256_mul_ps(gx, c), _mm256_mul_ps(fx, d));
+      const __m256 live = _mm256_add_ps(_mm256_mul_ps(gy, top), _mm256_mul_ps(fy, bot));
+      const __m256 res = _mm256_and_ps(_mm256_sub_ps(live, get(in.val + ch * in.plane)), inside);
+      const __m256 wr = _mm256_mul_ps(w, res);
+      for (int k = 0; k < 6; ++k) g[k] = _mm256_add_ps(g[k], _mm256_mul_ps(wr, get(in.jac[k] + ch * in.jac_plane)));
+      cost = _mm256_add_ps(cost, _mm256_mul_ps(wr, res));
+      wsum = _mm256_add_ps(wsum, w);
+      float* rc = r + ch * in.plane + i;
+      if (n == kLanes) _mm256_storeu_ps(rc, res);
+      else _mm256_maskstore_ps(rc, load, res);
+    }
     const int bits = _mm256_movemask_ps(inside);
     valid += __builtin_popcount(static_cast<unsigned>(bits));
     for (unsigned left = ~static_cast<unsigned>(bits) & ((1u << n) - 1u); left != 0; left &= left - 1u)
       in.out[n_out++] = i + __builtin_ctz(left);
     if (n == kLanes) {
-      _mm256_storeu_ps(r + i, res);
       // The eight mask bits spread to eight bytes of 0 or 1.
       const unsigned long long one_bit = (static_cast<unsigned long long>(bits) * 0x0101010101010101ULL) & 0x8040201008040201ULL;
       const unsigned long long spread = ((one_bit + 0x7F7F7F7F7F7F7F7FULL) & 0x8080808080808080ULL) >> 7;
       std::memcpy(ok + i, &spread, 8);
     } else {
-      _mm256_maskstore_ps(r + i, load, res);
       for (int k = 0; k < n; ++k) ok[i + k] = static_cast<unsigned char>((bits >> k) & 1);
     }
   }

@@ -1,6 +1,7 @@
-// The residual kernel of the solver's iterations for the 6-DoF warp with depth on one
-// channel (the hot loop of every tracker in terralign): warp each selected reference pixel
-// into the live level, sample it bilinearly, and sum J^T w r, w r^2 and w.
+// The residual kernel of the solver's iterations for the 6-DoF warp with depth (the hot loop
+// of every tracker in terralign): warp each selected reference pixel into the live level,
+// sample each of its channels bilinearly, and sum J^T w r, w r^2 and w over pixels and
+// channels (the channels of a pixel one after another, in channel order).
 //
 // Sums run in eight float lanes, pixel i of [i0, i1) in lane (i - i0) mod 8, and every
 // operation is a separate IEEE operation (no FMA contraction, correctly rounded division):
@@ -19,10 +20,14 @@ constexpr int kLanes = 8;
 struct Se3EvalInput {
   const float *px, *py, *pz;  // reference points in the reference camera
   const float* val;           // reference values
-  const float* w;             // weights
+  const float* w;             // weights (one a pixel)
   const float* jac[6];        // Jacobian rows, one array per parameter
   const float* live;          // live level, row-major
   std::ptrdiff_t stride;      // floats per live row
+  // Channels: val, the residuals r, jac and live hold one plane per channel, channel c's at
+  // c times these offsets (floats) from channel 0's.
+  int channels = 1;
+  std::ptrdiff_t plane = 0, jac_plane = 0, live_plane = 0;
   int width, height;          // live level size
   float R[9], t[3];           // T_live_ref, row-major rotation
   float fx, fy, cx, cy;
@@ -37,8 +42,8 @@ struct Se3EvalSums {
   int n_out;  // entries written to out: i1 - i0 - valid
 };
 
-// Pixels [i0, i1): writes r[i] (0 where the pixel did not land), ok[i] and the list of
-// those that did not, fills `sums`
+// Pixels [i0, i1): writes r[i + c plane] (0 where the pixel did not land), ok[i] and the list
+// of those that did not, fills `sums` (wsum counts a pixel's weight once per channel)
 // (the signature is detail::Se3EvalFn, declared with the tracker).
 
 void evaluate_se3_scalar(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);

@@ -45,12 +45,12 @@ void evaluate_se3_neon(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
   for (int i = i0; i < i1; i += kLanes) {
     const int n = std::min(kLanes, i1 - i);
     const F8 x = load8(in.px, i, n), y = load8(in.py, i, n), z = load8(in.pz, i, n);
-    const F8 val = load8(in.val, i, n), wgt = load8(in.w, i, n);
-    F8 jac[6];
-    for (int k = 0; k < 6; ++k) jac[k] = load8(in.jac[k], i, n);
-    float res_lanes[kLanes];
-    uint32_t in_lanes[kLanes];
-    for (int h = 0; h < 2; ++h) {  // the scalar twin's operations, four lanes at a time
+    const F8 wgt = load8(in.w, i, n);
+    // Where each lane lands, four lanes at a time (the scalar twin's operations).
+    float32x4_t fx[2], fy[2], w[2];
+    uint32x4_t inside[2];
+    int32_t xs[kLanes], ys[kLanes];
+    for (int h = 0; h < 2; ++h) {
       auto row = [&](int k) {
         return vaddq_f32(vaddq_f32(vaddq_f32(vmulq_f32(R[3 * k], x.v[h]), vmulq_f32(R[3 * k + 1], y.v[h])),
                                    vmulq_f32(R[3 * k + 2], z.v[h])),
@@ -59,40 +59,53 @@ void evaluate_se3_neon(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
       const float32x4_t X = row(0), Y = row(1), Z = row(2);
       float32x4_t u = vaddq_f32(vdivq_f32(vmulq_f32(fxv, X), Z), cxv);
       float32x4_t v = vaddq_f32(vdivq_f32(vmulq_f32(fyv, Y), Z), cyv);
-      uint32x4_t inside = vandq_u32(vcltq_u32(vld1q_u32(lane_ids + 4 * h), vdupq_n_u32(static_cast<uint32_t>(n))), vcgtq_f32(Z, zmin));
-      inside = vandq_u32(inside, vandq_u32(vcgeq_f32(u, zero), vcgeq_f32(v, zero)));
-      inside = vandq_u32(inside, vandq_u32(vcleq_f32(u, umax), vcleq_f32(v, vmax)));
+      uint32x4_t in_h = vandq_u32(vcltq_u32(vld1q_u32(lane_ids + 4 * h), vdupq_n_u32(static_cast<uint32_t>(n))), vcgtq_f32(Z, zmin));
+      in_h = vandq_u32(in_h, vandq_u32(vcgeq_f32(u, zero), vcgeq_f32(v, zero)));
+      in_h = vandq_u32(in_h, vandq_u32(vcleq_f32(u, umax), vcleq_f32(v, vmax)));
       // Lanes that did not land sample pixel (0, 0); their results are masked below.
-      u = masked(u, inside);
-      v = masked(v, inside);
+      u = masked(u, in_h);
+      v = masked(v, in_h);
       const int32x4_t x0 = vminq_s32(vcvtq_s32_f32(u), xmax), y0 = vminq_s32(vcvtq_s32_f32(v), ymax);
-      const float32x4_t fx = vsubq_f32(u, vcvtq_f32_s32(x0)), fy = vsubq_f32(v, vcvtq_f32_s32(y0));
-      int32_t xs[4], ys[4];
-      vst1q_s32(xs, x0);
-      vst1q_s32(ys, y0);
-      float ta[4], tb[4], tc[4], td[4];
-      for (int l = 0; l < 4; ++l) {
-        const float* p = in.live + static_cast<std::ptrdiff_t>(ys[l]) * in.stride + xs[l];
-        ta[l] = p[0];
-        tb[l] = p[1];
-        tc[l] = p[in.stride];
-        td[l] = p[in.stride + 1];
-      }
-      const float32x4_t gx = vsubq_f32(one, fx);
-      const float32x4_t top = vaddq_f32(vmulq_f32(gx, vld1q_f32(ta)), vmulq_f32(fx, vld1q_f32(tb)));
-      const float32x4_t bot = vaddq_f32(vmulq_f32(gx, vld1q_f32(tc)), vmulq_f32(fx, vld1q_f32(td)));
-      const float32x4_t live = vaddq_f32(vmulq_f32(vsubq_f32(one, fy), top), vmulq_f32(fy, bot));
-      const float32x4_t res = masked(vsubq_f32(live, val.v[h]), inside);
-      const float32x4_t w = masked(wgt.v[h], inside);
-      const float32x4_t wr = vmulq_f32(w, res);
-      for (int k = 0; k < 6; ++k) g[k].v[h] = vaddq_f32(g[k].v[h], vmulq_f32(wr, jac[k].v[h]));
-      cost.v[h] = vaddq_f32(cost.v[h], vmulq_f32(wr, res));
-      wsum.v[h] = vaddq_f32(wsum.v[h], w);
-      vst1q_f32(res_lanes + 4 * h, res);
-      vst1q_u32(in_lanes + 4 * h, inside);
+      fx[h] = vsubq_f32(u, vcvtq_f32_s32(x0));
+      fy[h] = vsubq_f32(v, vcvtq_f32_s32(y0));
+      vst1q_s32(xs + 4 * h, x0);
+      vst1q_s32(ys + 4 * h, y0);
+      inside[h] = in_h;
+      w[h] = masked(wgt.v[h], in_h);
     }
+    // Each channel's taps, residuals and sums, in channel order.
+    for (int c = 0; c < in.channels; ++c) {
+      const float* live_c = in.live + c * in.live_plane;
+      const F8 val = load8(in.val + c * in.plane, i, n);
+      F8 jac[6];
+      for (int k = 0; k < 6; ++k) jac[k] = load8(in.jac[k] + c * in.jac_plane, i, n);
+      float res_lanes[kLanes];
+      for (int h = 0; h < 2; ++h) {
+        float ta[4], tb[4], tc[4], td[4];
+        for (int l = 0; l < 4; ++l) {
+          const float* p = live_c + static_cast<std::ptrdiff_t>(ys[4 * h + l]) * in.stride + xs[4 * h + l];
+          ta[l] = p[0];
+          tb[l] = p[1];
+          tc[l] = p[in.stride];
+          td[l] = p[in.stride + 1];
+        }
+        const float32x4_t gx = vsubq_f32(one, fx[h]);
+        const float32x4_t top = vaddq_f32(vmulq_f32(gx, vld1q_f32(ta)), vmulq_f32(fx[h], vld1q_f32(tb)));
+        const float32x4_t bot = vaddq_f32(vmulq_f32(gx, vld1q_f32(tc)), vmulq_f32(fx[h], vld1q_f32(td)));
+        const float32x4_t live = vaddq_f32(vmulq_f32(vsubq_f32(one, fy[h]), top), vmulq_f32(fy[h], bot));
+        const float32x4_t res = masked(vsubq_f32(live, val.v[h]), inside[h]);
+        const float32x4_t wr = vmulq_f32(w[h], res);
+        for (int k = 0; k < 6; ++k) g[k].v[h] = vaddq_f32(g[k].v[h], vmulq_f32(wr, jac[k].v[h]));
+        cost.v[h] = vaddq_f32(cost.v[h], vmulq_f32(wr, res));
+        wsum.v[h] = vaddq_f32(wsum.v[h], w[h]);
+        vst1q_f32(res_lanes + 4 * h, res);
+      }
+      std::memcpy(r + c * in.plane + i, res_lanes, sizeof(float) * static_cast<std::size_t>(n));
+    }
+    uint32_t in_lanes[kLanes];
+    vst1q_u32(in_lanes, inside[0]);
+    vst1q_u32(in_lanes + 4, inside[1]);
     for (int l = 0; l < n; ++l) {
-      r[i + l] = res_lanes[l];
       ok[i + l] = in_lanes[l] != 0;
       if (in_lanes[l] != 0) ++valid;
       else in.out[n_out++] = i + l;

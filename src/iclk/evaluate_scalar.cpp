@@ -25,24 +25,32 @@ void evaluate_se3_scalar(const Se3EvalInput& in, int i0, int i1, float* r, unsig
     // NaN compares false: a NaN coordinate is outside.
     const bool inside = Z > 1e-6f && u >= 0.0f && v >= 0.0f && u <= umax && v <= vmax;
     ok[i] = inside;
-    float wr = 0.0f, res = 0.0f, w = 0.0f;
+    int x0 = 0, y0 = 0;
+    float fx = 0.0f, fy = 0.0f;
     if (inside) {
-      const int x0 = std::min(static_cast<int>(u), in.width - 2), y0 = std::min(static_cast<int>(v), in.height - 2);
-      const float fx = u - static_cast<float>(x0), fy = v - static_cast<float>(y0);
-      const float* p = in.live + static_cast<std::ptrdiff_t>(y0) * in.stride + x0;
-      const float a = p[0], b = p[1], c = p[in.stride], d = p[in.stride + 1];
-      const float live = (1.0f - fy) * ((1.0f - fx) * a + fx * b) + fy * ((1.0f - fx) * c + fx * d);
-      res = live - in.val[i];
-      w = in.w[i];
-      wr = w * res;
+      x0 = std::min(static_cast<int>(u), in.width - 2);
+      y0 = std::min(static_cast<int>(v), in.height - 2);
+      fx = u - static_cast<float>(x0);
+      fy = v - static_cast<float>(y0);
       ++s.valid;
     } else {
       in.out[s.n_out++] = i;
     }
-    r[i] = res;
-    for (int k = 0; k < 6; ++k) s.g[k][lane] += wr * in.jac[k][i];
-    s.cost[lane] += wr * res;
-    s.wsum[lane] += w;
+    for (int c = 0; c < in.channels; ++c) {
+      float wr = 0.0f, res = 0.0f, w = 0.0f;
+      if (inside) {
+        const float* p = in.live + c * in.live_plane + static_cast<std::ptrdiff_t>(y0) * in.stride + x0;
+        const float a = p[0], b = p[1], cc = p[in.stride], d = p[in.stride + 1];
+        const float live = (1.0f - fy) * ((1.0f - fx) * a + fx * b) + fy * ((1.0f - fx) * cc + fx * d);
+        res = live - in.val[c * in.plane + i];
+        w = in.w[i];
+        wr = w * res;
+      }
+      r[c * in.plane + i] = res;
+      for (int k = 0; k < 6; ++k) s.g[k][lane] += wr * in.jac[k][c * in.jac_plane + i];
+      s.cost[lane] += wr * res;
+      s.wsum[lane] += w;
+    }
   }
 }
 

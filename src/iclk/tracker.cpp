@@ -475,19 +475,21 @@ void Tracker<S, Warp, C>::evaluate_chunk(int chunk, int n, const Params& p, cons
     in.cx = K.cx;
     in.cy = K.cy;
     in.out = out_index_.data() + static_cast<std::size_t>(chunk) * kChunk;
+    // Several channels: each its own plane (val_, r_, jac_ and the live planes).
+    in.val = val_.data();
+    for (int a = 0; a < DoF; ++a) in.jac[a] = &jac(0, 0, a);
+    in.live = C == 1 ? Lv.live.data() : Lv.live_planes.data();
+    in.channels = C;
+    in.plane = static_cast<std::ptrdiff_t>(jac_stride_);  // at(i, c), jac(i, c, a)
+    in.jac_plane = static_cast<std::ptrdiff_t>(jac_stride_) * DoF;
+    in.live_plane = static_cast<std::ptrdiff_t>(Lv.w) * Lv.h;
     detail::Se3EvalSums sums;
-    // One channel after another, each its own plane (the same pixels land or leave in each);
-    // lanes combined in lane order, channels in channel order, in double.
-    for (int c = 0; c < C; ++c) {
-      in.val = val_.data() + at(0, c);
-      for (int a = 0; a < DoF; ++a) in.jac[a] = &jac(0, c, a);
-      in.live = C == 1 ? Lv.live.data() : &Lv.live_planes.at(0, c * Lv.h);
-      se3_kernel_(in, i0, i1, r_.data() + at(0, c), ok_.data(), sums);
-      for (int l = 0; l < detail::kLanes; ++l) {
-        for (int a = 0; a < DoF; ++a) P.g[a] += static_cast<double>(sums.g[a][l]);
-        P.cost += static_cast<double>(sums.cost[l]);
-        P.wsum += static_cast<double>(sums.wsum[l]);
-      }
+    se3_kernel_(in, i0, i1, r_.data(), ok_.data(), sums);
+    // Lanes combined in lane order, in double.
+    for (int l = 0; l < detail::kLanes; ++l) {
+      for (int a = 0; a < DoF; ++a) P.g[a] += static_cast<double>(sums.g[a][l]);
+      P.cost += static_cast<double>(sums.cost[l]);
+      P.wsum += static_cast<double>(sums.wsum[l]);
     }
     P.valid = sums.valid;
     if (sums.valid == i1 - i0) return;  // every pixel landed: nothing leaves H
