@@ -149,10 +149,6 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   D->encoder_->bind(base);
   for (int l = 0; l < levels; ++l) D->mest_[static_cast<std::size_t>(l)]->bind(base);
   D->up_.resize(width, height, 1);  // used at each level's size, as the top-left part
-  if (C > 1) {
-    D->mean_ref_.resize(width, height, 1);
-    D->mean_live_.resize(width, height, 1);
-  }
   iclk::TrackerOptions o = options;
   o.levels = levels;
   o.normalize = true;
@@ -220,27 +216,19 @@ void DeepAligner::weights(int level, ImageView<const float> abs_r, ImageView<con
   const bool coarsest = level == levels_ - 1;
   if (!coarsest) resize_bilinear(w_[static_cast<std::size_t>(level + 1)], up_, w, h);
   // Several channels: the M-estimator sees their means (and abs_r is their RMS residual).
-  if (channels_ > 1) {
-    const float inv = 1.0f / static_cast<float>(channels_);
-    for (int y = 0; y < h; ++y)
-      for (int i = 0; i < w; ++i) {
-        float a = 0, b = 0;
-        for (int c = 0; c < channels_; ++c) {
-          a += ref.at(i, y, c);
-          b += live.at(i, y, c);
-        }
-        mean_ref_.at(i, y) = a * inv;
-        mean_live_.at(i, y) = b * inv;
-      }
-    ref = ImageView<const float>{mean_ref_.data(), w, h, 1, mean_ref_.width()};
-    live = ImageView<const float>{mean_live_.data(), w, h, 1, mean_live_.width()};
-  }
+  const float inv = 1.0f / static_cast<float>(channels_);
+  auto mean = [this, inv](ImageView<const float> f, int i, int y) {
+    if (channels_ == 1) return f.at(i, y);
+    float s = 0;
+    for (int c = 0; c < channels_; ++c) s += f.at(i, y, c);
+    return s * inv;
+  };
   for (int y = 0; y < h; ++y)
     for (int i = 0; i < w; ++i) {
       float* p = x->at(y, i);
       p[0] = abs_r.at(i, y);
-      p[1] = ref.at(i, y);
-      p[2] = live.at(i, y);
+      p[1] = mean(ref, i, y);
+      p[2] = mean(live, i, y);
       p[3] = coarsest ? 1.0f : up_.at(i, y);
     }
   m.forward();

@@ -105,7 +105,7 @@ class DeepAligner : public iclk::LevelWeights {
   std::vector<float> scratch_;  // every network's tensors (nn::Memory::External)
   std::array<ImageF, kMaxLevels> ref_f_, live_f_, w_;
   std::array<ImageView<const float>, kMaxLevels> ref_v_, live_v_;
-  ImageF up_, mean_ref_, mean_live_;  // the M-estimator's inputs of several channels: their means
+  ImageF up_;
   // The solver for the weights' channel count.
   std::variant<std::unique_ptr<iclk::Tracker<float, Warp, 1>>, std::unique_ptr<iclk::Tracker<float, Warp, 2>>,
                std::unique_ptr<iclk::Tracker<float, Warp, 4>>>
