@@ -132,6 +132,15 @@ Pair render_pair(const geo::Map& map, const geo::CameraModel& cam, const geo::Po
   return p;
 }
 
+// The bit-for-bit tests' pair: NAIP 2012 against itself, 10 m and a degree or so apart, at
+// the paper's camera.
+Pair naip_2012_pair() {
+  auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(map.ok());
+  return render_pair(map.value(), test::paper_camera(), geo::pose_from_ypr({487450, 5207437, 1370}, 10, 1, 0),
+                     geo::pose_from_ypr({487458, 5207431, 1374}, 11, 0, 1), "2012", "2012");
+}
+
 // Mean 2-D end-point error between two relative poses over the reference points.
 double epe_px(const Pair& p, const SE3<double>& est) {
   double sum = 0;
@@ -394,11 +403,8 @@ TEST_CASE("a pair with no texture reports failure instead of a pose") {
 }
 
 TEST_CASE("1, 2 and 3 threads, and the scalar and vector (AVX2, NEON) residual kernels, give the same pose, bit for bit") {
-  auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
-  REQUIRE(map.ok());
   const geo::CameraModel cam = test::paper_camera();
-  const Pair p = render_pair(map.value(), cam, geo::pose_from_ypr({487450, 5207437, 1370}, 10, 1, 0),
-                             geo::pose_from_ypr({487458, 5207431, 1374}, 11, 0, 1), "2012", "2012");
+  const Pair p = naip_2012_pair();
   const Pinhole<float> K{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
   TrackerOptions o1, o2, o3, o4;
   o1.threads = 1;
@@ -419,11 +425,8 @@ TEST_CASE("1, 2 and 3 threads, and the scalar and vector (AVX2, NEON) residual k
 }
 
 TEST_CASE("four feature channels: the same bits on any thread count and kernel, and four copies of one channel align as one") {
-  auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
-  REQUIRE(map.ok());
   const geo::CameraModel cam = test::paper_camera();
-  const Pair p = render_pair(map.value(), cam, geo::pose_from_ypr({487450, 5207437, 1370}, 10, 1, 0),
-                             geo::pose_from_ypr({487458, 5207431, 1374}, 11, 0, 1), "2012", "2012");
+  const Pair p = naip_2012_pair();
   const Pinhole<float> K{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
   // Channels of one image: c = 0 the grey, 1 its square, 2 the grey shifted a pixel right, 3
   // its negative; `copies`: the grey four times.
