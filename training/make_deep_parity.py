@@ -34,6 +34,14 @@ from train_deep import PairSet  # noqa: E402
 CROP_W, CROP_H = 192, 128
 
 
+def epe_before_after(R, t, truth, depth, K):
+    """3-D EPE (m) of one pair at the identity start and at (R, t)."""
+    X = D.points(D.depth_pyramid(depth, 1)[0][0], K)
+    valid = torch.isfinite(depth).float()
+    e0 = D.epe(torch.eye(3).unsqueeze(0), torch.zeros(1, 3), truth[0], truth[1], X, valid).item()
+    return e0, D.epe(R, t, truth[0], truth[1], X, valid).item()
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("model")
@@ -63,10 +71,7 @@ def main():
         depth = depth[..., y0:y0 + CROP_H, x0:x0 + CROP_W]
         K = (K[0], K[1], K[2] - x0, K[3] - y0)
         R, t, _, ws = model(ref, depth, live, K, return_weights=True)
-        X = D.points(D.depth_pyramid(depth, 1)[0][0], K)
-        valid = torch.isfinite(depth).float()
-        e = D.epe(R, t, truth[0], truth[1], X, valid).item()
-        e0 = D.epe(torch.eye(3).unsqueeze(0), torch.zeros(1, 3), truth[0], truth[1], X, valid).item()
+        e0, e = epe_before_after(R, t, truth, depth, K)
         # Only pairs the model aligns well, with no step near the C++ solver's divergence bound
         # (0.35): a diverging run is chaotic, and parity is about the arithmetic.
         if not (e < a.max_ratio * e0 and (e < 5.0 or a.max_ratio > 1)) or model.max_step.item() > 0.3:
@@ -98,11 +103,8 @@ def again(model, vectors, out, what):
         depth = torch.from_numpy(v[f"depth_{k}"]).unsqueeze(0).unsqueeze(0)
         K = tuple(torch.tensor([float(x)]) for x in v[f"K_{k}"])
         R, t, _, ws = model(ref, depth, live, K, return_weights=True)
-        gtR, gtt = torch.from_numpy(v[f"gtR_{k}"]).unsqueeze(0), torch.from_numpy(v[f"gt_t_{k}"]).unsqueeze(0)
-        X = D.points(D.depth_pyramid(depth, 1)[0][0], K)
-        valid = torch.isfinite(depth).float()
-        e = D.epe(R, t, gtR, gtt, X, valid).item()
-        e0 = D.epe(torch.eye(3).unsqueeze(0), torch.zeros(1, 3), gtR, gtt, X, valid).item()
+        truth = (torch.from_numpy(v[f"gtR_{k}"]).unsqueeze(0), torch.from_numpy(v[f"gt_t_{k}"]).unsqueeze(0))
+        e0, e = epe_before_after(R, t, truth, depth, K)
         print(f"pair {k}: EPE {e0:.2f} -> {e:.3f} m, largest step {model.max_step.item():.3f}")
         if model.max_step.item() > 0.3:  # as main(): a run near the divergence bound is chaotic
             raise SystemExit(f"pair {k}: a step of {model.max_step.item():.3f} is too near the C++ bound (0.35) for parity")
