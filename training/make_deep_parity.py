@@ -6,12 +6,13 @@ float32. tests/test_deep_iclk.cpp runs the C++ pipeline on the same inputs and w
 compares the final pose (1e-4 rad, 1e-3 of the altitude).
 
   /usr/bin/python3 training/make_deep_parity.py MODEL DATASET_DIR OUT.tlw [--pairs 3]
-  /usr/bin/python3 training/make_deep_parity.py MODEL VECTORS.tlw OUT.tlw [--channels K]
+  /usr/bin/python3 training/make_deep_parity.py MODEL VECTORS.tlw OUT.tlw [--channels K] [--keep-pairs]
 
 MODEL: a checkpoint (.pt) or a weight file (.tlw); --channels K runs it with K feature channels
 a level (deep_iclk.load_model). With earlier vectors in place of the data set, their pairs are
 aligned again and only the poses are written (R_k, t_k, wmean_k): a second model's parity on
-the same committed images.
+the same committed images; --keep-pairs writes the pairs too, new vectors for new weights on
+the old images (OUT may be VECTORS: the file is replaced whole or not at all).
 
 Stored per pair k: ref_k (H x W x 3, 0..255), depth_k (H x W, metres, NaN: none),
 live_k (H x W x 3), K_k (fx, fy, cx, cy), altitude_k, R_k and t_k (PyTorch's final
@@ -50,13 +51,15 @@ def main():
     p.add_argument("--pairs", type=int, default=3)
     p.add_argument("--seed", type=int, default=5)
     p.add_argument("--channels", type=int, default=None, help="feature channels a level (default: the model's)")
+    p.add_argument("--keep-pairs", action="store_true", help="with VECTORS.tlw: write its pairs beside the new poses")
     p.add_argument("--max-ratio", type=float, default=0.25, help="keep pairs whose final EPE is below this x the initial")
     a = p.parse_args()
     torch.set_grad_enabled(False)
     model, (size, channels, step) = D.load_model(a.model, channels=a.channels)
     model.eval()
     if a.data.endswith(".tlw"):
-        return again(model, a.data, a.out, f"{os.path.basename(a.model)} ({size}, {channels} channels)")
+        return again(model, a.data, a.out, f"{os.path.basename(a.model)} ({size}, {channels} channels, step {step})",
+                     a.keep_pairs)
     val = PairSet(a.data, "val")
     rng = random.Random(a.seed)
     tensors, k, tried = [], 0, 0
@@ -93,8 +96,9 @@ def main():
     print(f"{a.out}: {k} pairs")
 
 
-def again(model, vectors, out, what):
-    """The pairs of earlier vectors aligned by `model`; only its poses and weight means written."""
+def again(model, vectors, out, what, keep_pairs=False):
+    """The pairs of earlier vectors aligned by `model`; its poses and weight means written, and
+    with keep_pairs the pairs as well, in main()'s order."""
     v = tlw.read(vectors)
     tensors, k = [], 0
     while f"ref_{k}" in v:
@@ -108,8 +112,13 @@ def again(model, vectors, out, what):
         print(f"pair {k}: EPE {e0:.2f} -> {e:.3f} m, largest step {model.max_step.item():.3f}")
         if model.max_step.item() > 0.3:  # as main(): a run near the divergence bound is chaotic
             raise SystemExit(f"pair {k}: a step of {model.max_step.item():.3f} is too near the C++ bound (0.35) for parity")
-        tensors += [(f"R_{k}", R[0].numpy()), (f"t_{k}", t[0].numpy()),
-                    (f"wmean_{k}", np.array([float(w.mean()) for w in ws], np.float32))]
+        pose = [(f"R_{k}", R[0].numpy()), (f"t_{k}", t[0].numpy())]
+        wmean = [(f"wmean_{k}", np.array([float(w.mean()) for w in ws], np.float32))]
+        if keep_pairs:
+            pair = [(f"{n}_{k}", v[f"{n}_{k}"]) for n in ("ref", "depth", "live", "K", "altitude")]
+            tensors += pair + pose + [(f"{n}_{k}", v[f"{n}_{k}"]) for n in ("gtR", "gt_t")] + wmean
+        else:
+            tensors += pose + wmean
         k += 1
     tlw.write(out, f"parity vectors: {what} on the {k} pairs of {os.path.basename(vectors)}\n", tensors)
     print(f"{out}: {k} pairs")
