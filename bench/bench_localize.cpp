@@ -1,8 +1,9 @@
 // The whole localisation of one 752x480 camera image, render + align, as `terralign align`
 // and `track` run it: the classical tracker (20 iterations per level) and the learned one
 // (20 iterations per level) for each weight file given, on the same pairs (NAIP 2016 map,
-// 2017 camera images, the eval protocol's priors: 700-900 m, tilt 10 deg, seed 3), 2 threads.
-// Prints medians per stage, frames per second, and the ratio to the classical tracker.
+// 2017 camera images, the eval protocol's priors: 700-900 m, tilt 10 deg, seed 3), 2 threads,
+// each pair by every method in turn. Prints medians per stage, frames per second, and the
+// ratio to the classical tracker.
 // Then the peak resident memory of `terralign align` on the sample map, classic and nn, each
 // a child process (getrusage of the children).
 //   build/release/bench/bench_localize [N] [weights.tlw ...]   (default: 20 pairs, the shipped weights)
@@ -10,6 +11,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -55,55 +57,63 @@ int main(int argc, char** argv) {
     if (!qr.value()->render(s.truth, qo.value()).ok()) return 1;
     live.push_back(qo->rgb[0]);
   }
-  struct Row {
+  // Every method set up first, then each pair localised by every method in turn: a slow spell
+  // of this VM (minutes long) then slows all methods alike, and the ratios hold.
+  struct Method {
     std::string name;
-    double render, encoder, mest, setup, iterations, total;
-    int converged;
-  };
-  std::vector<Row> rows;
-  auto run = [&](const std::string& name, const nn::WeightFile* w) -> bool {
-    iclk::TrackerOptions opt;
-    opt.iterations = 20;
-    auto loc = cli::Localizer::create(map.value(), cam.value(), "2016", opt, 2, w);
-    if (!loc.ok()) {
-      std::fprintf(stderr, "bench_localize: %s: %s\n", name.c_str(), loc.error().message.c_str());
-      return false;
-    }
+    std::unique_ptr<cli::Localizer> loc;
     std::vector<double> render, encoder, mest, setup, iterations, total;
-    int conv = 0;
-    for (int rep = 0; rep < 2; ++rep)  // the first pass warms caches; the second is measured
-      for (std::size_t i = 0; i < live.size(); ++i) {
-        const auto t0 = Clock::now();
-        auto out = loc.value()->localize(live[i].view(), samples.value()[i].prior);
-        const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-        if (!out.ok() || rep == 0) continue;
-        render.push_back(out->ms_render);
-        encoder.push_back(out->ms_encoder);
-        mest.push_back(out->ms_mestimator);
-        setup.push_back(out->ms_pyramid + out->ms_jacobian - out->ms_mestimator);
-        iterations.push_back(out->ms_iterations);
-        total.push_back(ms);
-        conv += out->converged;
-      }
-    rows.push_back({name, median(render), median(encoder), median(mest), median(setup), median(iterations), median(total), conv});
-    return true;
+    int converged = 0;
   };
-  if (!run("classic:20", nullptr)) return 1;
+  std::vector<nn::WeightFile> weights;
+  weights.reserve(files.size());
   for (const auto& f : files) {
     auto w = nn::read_weights(f);
     if (!w.ok()) {
       std::fprintf(stderr, "bench_localize: %s\n", w.error().message.c_str());
       return 1;
     }
-    const auto slash = f.find_last_of('/');
-    if (!run("nn:20 " + f.substr(slash == std::string::npos ? 0 : slash + 1), &w.value())) return 1;
+    weights.push_back(std::move(w.value()));
   }
+  std::vector<Method> methods;
+  for (std::size_t m = 0; m <= files.size(); ++m) {
+    const std::size_t slash = m == 0 ? 0 : files[m - 1].find_last_of('/');
+    const std::string name =
+        m == 0 ? "classic:20" : "nn:20 " + files[m - 1].substr(slash == std::string::npos ? 0 : slash + 1);
+    iclk::TrackerOptions opt;
+    opt.iterations = 20;
+    auto loc = cli::Localizer::create(map.value(), cam.value(), "2016", opt, 2, m == 0 ? nullptr : &weights[m - 1]);
+    if (!loc.ok()) {
+      std::fprintf(stderr, "bench_localize: %s: %s\n", name.c_str(), loc.error().message.c_str());
+      return 1;
+    }
+    methods.push_back({name, std::move(loc.value()), {}, {}, {}, {}, {}, {}, 0});
+  }
+  for (int rep = 0; rep < 2; ++rep)  // the first pass warms caches; the second is measured
+    for (std::size_t i = 0; i < live.size(); ++i)
+      for (Method& M : methods) {
+        const auto t0 = Clock::now();
+        auto out = M.loc->localize(live[i].view(), samples.value()[i].prior);
+        const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+        if (!out.ok() || rep == 0) continue;
+        M.render.push_back(out->ms_render);
+        M.encoder.push_back(out->ms_encoder);
+        M.mest.push_back(out->ms_mestimator);
+        M.setup.push_back(out->ms_pyramid + out->ms_jacobian - out->ms_mestimator);
+        M.iterations.push_back(out->ms_iterations);
+        M.total.push_back(ms);
+        M.converged += out->converged;
+      }
   std::printf("752x480 camera, NAIP 2016 map, 2017 images, %d pairs, 2 threads, medians in ms\n\n", n);
   std::printf("| method | render | encoders | M-estimator | solver set-up | solver iterations | total | frames/s | x classic | converged |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
-  for (const auto& r : rows)
-    std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.0f | %.2f | %d/%d |\n", r.name.c_str(), r.render, r.encoder,
-                r.mest, r.setup, r.iterations, r.total, 1000.0 / r.total, r.total / rows[0].total, r.converged, n);
+  const double classic_total = median(methods[0].total);
+  for (const Method& M : methods) {
+    const double total = median(M.total);
+    std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.0f | %.2f | %d/%d |\n", M.name.c_str(), median(M.render),
+                median(M.encoder), median(M.mest), median(M.setup), median(M.iterations), total, 1000.0 / total,
+                total / classic_total, M.converged, n);
+  }
 #if defined(TERRALIGN_CLI)
   // Peak RSS of the command-line program on one localisation (the first pair), each method in
   // its own child; ru_maxrss of the children is the largest so far, so classic runs first.
