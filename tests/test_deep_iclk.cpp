@@ -69,6 +69,30 @@ iclk::TrackerOptions parity_options() {
   return o;
 }
 
+// Aligns p with `weights` from the identity, as PyTorch's model starts, and checks the answer
+// against PyTorch's pose in p: converged, within the issue's bound of 1e-4 rad and 1e-3 of the
+// altitude. Both sides are float32 with double 6x6 solves; they differ in summation order
+// (chunked sums here, BLAS there), so agreement is to float rounding amplified by 80
+// iterations, not to the bit. Returns the C++ answer.
+iclk::SE3<double> check_parity(const nn::WeightFile& weights, const Pair& p, int channels, const std::string& what) {
+  auto D = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), parity_options(), 2);
+  REQUIRE_MESSAGE(D.ok(), (D.ok() ? "" : D.error().message));
+  CAPTURE(what);
+  CHECK(D.value()->channels() == channels);
+  const auto& r = D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
+  const std::string why = r.reason;
+  CAPTURE(why);
+  CHECK(r.converged);
+  const iclk::SE3<double> T = r.params.cast<double>();
+  const double angle = Eigen::AngleAxisd(T.R * p.R.transpose()).angle();
+  const double dt = (T.t - p.t).norm();
+  MESSAGE(what << ": rotation differs by " << angle << " rad, translation by " << dt << " m (altitude " << p.altitude
+               << " m)");
+  CHECK(angle <= 1e-4);
+  CHECK(dt <= 1e-3 * p.altitude);
+  return T;
+}
+
 }  // namespace
 
 TEST_CASE("learned tracker: the C++ pipeline ends where PyTorch ends on the committed validation pairs") {
@@ -77,27 +101,8 @@ TEST_CASE("learned tracker: the C++ pipeline ends where PyTorch ends on the comm
   int pairs = 0;
   while (vectors.find("ref_" + std::to_string(pairs))) ++pairs;
   REQUIRE(pairs >= 2);
-  for (int k = 0; k < pairs; ++k) {
-    const Pair p = pair_of(vectors, k);
-    auto D = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), parity_options(), 2);
-    REQUIRE_MESSAGE(D.ok(), (D.ok() ? "" : D.error().message));
-    CHECK(D.value()->channels() == 2);  // since session 28; one and four channels: the next case
-    const auto& r = D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
-    CAPTURE(k);
-    const std::string why = r.reason;
-    CAPTURE(why);
-    CHECK(r.converged);
-    const iclk::SE3<double> T = r.params.cast<double>();
-    // The issue's bound: 1e-4 rad and 1e-3 of the altitude. Both sides are float32 with
-    // double 6x6 solves; they differ in summation order (chunked sums here, BLAS there), so
-    // agreement is to float rounding amplified by 80 iterations, not to the bit.
-    const double angle = Eigen::AngleAxisd(T.R * p.R.transpose()).angle();
-    const double dt = (T.t - p.t).norm();
-    MESSAGE("pair " << k << ": rotation differs by " << angle << " rad, translation by " << dt << " m (altitude "
-                    << p.altitude << " m)");
-    CHECK(angle <= 1e-4);
-    CHECK(dt <= 1e-3 * p.altitude);
-  }
+  for (int k = 0; k < pairs; ++k)  // two channels since session 28; one and four: the next case
+    check_parity(weights, pair_of(vectors, k), 2, "pair " + std::to_string(k));
 }
 
 namespace {
@@ -140,20 +145,8 @@ TEST_CASE("learned tracker: with one and with four feature channels a level the 
         for (int c = 0; c < 3; ++c) p.R(r, c) = R[r * 3 + c];
         p.t[r] = t[r];
       }
-      auto D = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), parity_options(), 2);
-      REQUIRE_MESSAGE(D.ok(), (D.ok() ? "" : D.error().message));
-      CHECK(D.value()->channels() == channels);
-      const auto& r = D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
-      CAPTURE(channels);
-      CAPTURE(n);
-      CHECK(r.converged);
-      const iclk::SE3<double> T = r.params.cast<double>();
-      const double angle = Eigen::AngleAxisd(T.R * p.R.transpose()).angle();
-      const double dt = (T.t - p.t).norm();
-      MESSAGE("pair " << n << " (" << channels << " channels): rotation differs by " << angle << " rad, translation by "
-                      << dt << " m");
-      CHECK(angle <= 1e-4);  // the issue's bounds, as the shipped parity
-      CHECK(dt <= 1e-3 * p.altitude);
+      const iclk::SE3<double> T =
+          check_parity(weights, p, channels, "pair " + std::to_string(n) + ", " + std::to_string(channels) + " channels");
       // Not the shipped answer: the grouping changed the features, not only their layout
       // (PyTorch's answers differ by 0.3-1.5 m here, and the C++ follows each within 0.1 m).
       const Pair shipped = pair_of(pairs, n);
