@@ -6,7 +6,9 @@ Per image pair (reference: rendered RGB + metric depth; live: camera RGB), at th
 resolution (half of 752x480):
   - colour normalisation (Lv et al.'s mean and std), the encoder: five levels of three 3x3
     convs (dilations 1, 2, 2; ELU), 2x2 average pooling between levels; each level's
-    channels averaged to one feature image;
+    channels averaged to one feature image, or in K equal groups to K (`channels`; the
+    shipped weights have 2 since session 28: each normalised on its own, residuals and
+    Jacobians per channel, the M-estimator seeing their RMS |r| and their means);
   - per level, coarse to fine: the feature images are normalised (reference over its pixels
     with depth, live over all) to zero mean and unit variance; the reference pixels with a
     full 3x3 neighbourhood of depth (not on the border) are used; their Jacobians come from

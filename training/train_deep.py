@@ -277,7 +277,8 @@ def main():
     p.add_argument("--extra-p", type=float, default=0.3)
     p.add_argument("--channels", type=int, default=1,
                    help="feature channels a level (each the mean of an equal group of the level's outputs); "
-                        "1 is Lv et al.'s design and the only one src/iclk/deep_aligner.cpp runs (an experiment)")
+                        "1 is Lv et al.'s design; src/iclk/deep_aligner.cpp runs 1, 2 and 4; the shipped weights "
+                        "have 2 since session 28")
     p.add_argument("--near-p", type=float, default=0.0,
                    help="probability that a batch starts near the truth (near_start()) instead of at the "
                         "prior the pairs were rendered at")
