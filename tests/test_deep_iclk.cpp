@@ -30,6 +30,16 @@ struct Pair {
   Eigen::Vector3d t;
 };
 
+// PyTorch's final pose for pair k of a vectors file (R_k, t_k), into p.
+void read_pose(const nn::WeightFile& v, int k, Pair& p) {
+  const float* R = v.find("R_" + std::to_string(k))->data.data();
+  const float* t = v.find("t_" + std::to_string(k))->data.data();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) p.R(r, c) = R[r * 3 + c];
+    p.t[r] = t[r];
+  }
+}
+
 Pair pair_of(const nn::WeightFile& v, int k) {
   const std::string s = std::to_string(k);
   Pair p;
@@ -46,12 +56,7 @@ Pair pair_of(const nn::WeightFile& v, int k) {
   const float* K = v.find("K_" + s)->data.data();
   p.K = {K[0], K[1], K[2], K[3]};
   p.altitude = v.find("altitude_" + s)->data[0];
-  const float* R = v.find("R_" + s)->data.data();
-  const float* t = v.find("t_" + s)->data.data();
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) p.R(r, c) = R[r * 3 + c];
-    p.t[r] = t[r];
-  }
+  read_pose(v, k, p);
   return p;
 }
 
@@ -139,19 +144,14 @@ TEST_CASE("learned tracker: with one and with four feature channels a level the 
     int n = 0;
     for (; poses.find("R_" + std::to_string(n)); ++n) {
       Pair p = pair_of(pairs, n);
-      const float* R = poses.find("R_" + std::to_string(n))->data.data();
-      const float* t = poses.find("t_" + std::to_string(n))->data.data();
-      for (int r = 0; r < 3; ++r) {
-        for (int c = 0; c < 3; ++c) p.R(r, c) = R[r * 3 + c];
-        p.t[r] = t[r];
-      }
+      const Eigen::Vector3d shipped_t = p.t;
+      read_pose(poses, n, p);
       const iclk::SE3<double> T =
           check_parity(weights, p, channels, "pair " + std::to_string(n) + ", " + std::to_string(channels) + " channels");
       // Not the shipped answer: the grouping changed the features, not only their layout
       // (PyTorch's answers differ from the shipped ones by 0.6-4.5 m here, and the C++ follows
       // each within 3 mm).
-      const Pair shipped = pair_of(pairs, n);
-      CHECK((T.t - shipped.t).norm() > 0.1);
+      CHECK((T.t - shipped_t).norm() > 0.1);
     }
     CHECK(n == 3);
   }
