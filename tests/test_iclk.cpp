@@ -256,6 +256,31 @@ TEST_CASE("the coarse search starts the coarsest level nearer a prior that is a 
   CHECK(start[1] < 0.5 * start[0]);
 }
 
+TEST_CASE("set_options: fewer levels run only the finest, and the levels built come back (a refinement pass)") {
+  auto naip = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(naip.ok());
+  const geo::CameraModel cam = test::paper_camera();
+  const geo::Pose truth = geo::pose_from_ypr({487450, 5207437, 570 + 800}, 30, 2, -3);
+  const geo::Pose prior = geo::pose_from_ypr({487452, 5207437, 570 + 800}, 30, 2.2, -3);
+  const Pair p = render_pair(naip.value(), cam, prior, truth, "2016", "2016");
+  TrackerOptions opt;
+  opt.iterations = 3;
+  Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, opt);
+  auto steps = [&] {
+    return tracker.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), p.K, SE3<double>::identity()).iterations;
+  };
+  CHECK(steps() > 3);  // four levels of up to 3 steps
+  tracker.set_options(refinement_options(tracker.options(), 1));
+  CHECK(tracker.options().levels == 1);
+  CHECK(tracker.options().coarse_search_px == 0);
+  CHECK(tracker.options().agree_px == 0);
+  CHECK(steps() <= 3);  // the finest alone
+  opt.levels = 9;       // more than built: the four built
+  tracker.set_options(opt);
+  CHECK(tracker.options().levels == 4);
+  CHECK(steps() > 3);
+}
+
 TEST_CASE("the tilt prior holds the answer's roll and pitch to the prior's and leaves heading and position free") {
   auto naip = geo::load_map(test::source_path("data/naip_west/map.json"));
   REQUIRE(naip.ok());

@@ -133,7 +133,7 @@ void Tracker<S, Warp, C>::pick_kernel() {
 
 template <class S, class Warp, int C>
 void Tracker<S, Warp, C>::set_options(const TrackerOptions& o) {
-  const int levels = opt_.levels;
+  const int levels = static_cast<int>(levels_.size());  // as built
   opt_ = o;
   opt_.levels = std::max(1, std::min(levels, o.levels));
   pick_kernel();
