@@ -260,3 +260,27 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align(ImageView<const f
 }
 
 }  // namespace terralign::iclk
+
+namespace terralign::iclk {
+
+const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::refine(ImageView<const float> ref_rgb,
+                                                                ImageView<const float> ref_depth,
+                                                                const iclk::Pinhole<float>& K, int levels) {
+  TERRALIGN_ASSERT(ref_rgb.width == width_ && ref_rgb.height == height_ && ref_rgb.channels == 3,
+                   "DeepAligner::refine: an image of another size than the aligner was built for");
+  const auto t0 = std::chrono::steady_clock::now();
+  encode(ref_rgb, ref_f_);
+  ms_encoder_ = elapsed_ms(t0);
+  ms_mest_ = 0;
+  return std::visit(
+      [&](auto& t) -> const iclk::TrackResult<Warp>& {
+        const iclk::TrackerOptions keep = t->options();
+        t->set_options(iclk::refinement_options(keep, levels));
+        const auto& r = t->align_levels(ref_v_.data(), ref_depth, live_v_.data(), K, iclk::SE3<float>::identity(), this);
+        t->set_options(keep);
+        return r;
+      },
+      tracker_);
+}
+
+}  // namespace terralign::iclk

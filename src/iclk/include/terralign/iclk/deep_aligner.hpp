@@ -75,6 +75,15 @@ class DeepAligner : public iclk::LevelWeights {
   const iclk::TrackResult<Warp>& align(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
                                        ImageView<const float> live_rgb, const iclk::Pinhole<float>& K,
                                        const iclk::SE3<float>& init);
+  // Aligns again from a reference rendered where the last align() or refine() ended (its
+  // depth and the same K): the reference is encoded anew, the live image's features are the
+  // last align()'s, and only the finest `levels` levels run, from the identity, with no coarse
+  // search (the start is a pixel or so from the answer). The learned features trade a tilt
+  // for a shift a little (the weakest direction of a nadir view): an answer 0.8 degree of tilt
+  // from its reference keeps about a tenth of it, and a reference rendered at the answer takes
+  // it out (README, "Re-rendered refinement").
+  const iclk::TrackResult<Warp>& refine(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
+                                        const iclk::Pinhole<float>& K, int levels);
   void set_iterations(int n);
   // The world's up in the reference camera (iclk::Tracker::set_up), for the tilt prior.
   void set_up(const Eigen::Vector3d& up_in_reference, const Eigen::Vector3d& tilt = Eigen::Vector3d::Zero()) {
