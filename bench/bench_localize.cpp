@@ -1,6 +1,7 @@
 // The whole localisation of one 752x480 camera image, render + align, as `terralign align`
 // and `track` run it: the classical tracker (20 iterations per level) and the learned one
-// (20 iterations per level) for each weight file given, on the same pairs (NAIP 2016 map,
+// (20 iterations per level, without and with one re-rendered refinement pass) for each weight
+// file given, on the same pairs (NAIP 2016 map,
 // 2017 camera images, the eval protocol's priors: 700-900 m, tilt 10 deg, seed 3), 2 threads,
 // each pair by every method in turn. Prints medians per stage, frames per second, and the
 // ratio to the classical tracker.
@@ -76,19 +77,22 @@ int main(int argc, char** argv) {
     weights.push_back(std::move(w.value()));
   }
   std::vector<Method> methods;
-  for (std::size_t m = 0; m <= files.size(); ++m) {
-    const std::size_t slash = m == 0 ? 0 : files[m - 1].find_last_of('/');
-    const std::string name =
-        m == 0 ? "classic:20" : "nn:20 " + files[m - 1].substr(slash == std::string::npos ? 0 : slash + 1);
-    iclk::TrackerOptions opt;
-    opt.iterations = 20;
-    auto loc = cli::Localizer::create(map.value(), cam.value(), "2016", opt, 2, m == 0 ? nullptr : &weights[m - 1]);
-    if (!loc.ok()) {
-      std::fprintf(stderr, "bench_localize: %s: %s\n", name.c_str(), loc.error().message.c_str());
-      return 1;
+  for (std::size_t m = 0; m <= files.size(); ++m)
+    for (int refine = 0; refine <= (m == 0 ? 0 : 1); ++refine) {  // the learned: also with one refinement pass
+      const std::size_t slash = m == 0 ? 0 : files[m - 1].find_last_of('/');
+      const std::string name = m == 0 ? "classic:20"
+                                      : std::string(refine ? "nn:20 --refine 1 " : "nn:20 ") +
+                                            files[m - 1].substr(slash == std::string::npos ? 0 : slash + 1);
+      iclk::TrackerOptions opt;
+      opt.iterations = 20;
+      auto loc = cli::Localizer::create(map.value(), cam.value(), "2016", opt, 2, m == 0 ? nullptr : &weights[m - 1]);
+      if (!loc.ok()) {
+        std::fprintf(stderr, "bench_localize: %s: %s\n", name.c_str(), loc.error().message.c_str());
+        return 1;
+      }
+      loc.value()->set_refinement(refine);
+      methods.push_back({name, std::move(loc.value()), {}, {}, {}, {}, {}, {}, 0});
     }
-    methods.push_back({name, std::move(loc.value()), {}, {}, {}, {}, {}, {}, 0});
-  }
   for (int rep = 0; rep < 2; ++rep)  // the first pass warms caches; the second is measured
     for (std::size_t i = 0; i < live.size(); ++i)
       for (Method& M : methods) {

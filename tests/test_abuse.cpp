@@ -62,6 +62,7 @@ TEST_CASE("abuse: 1000 random poses through align give a pose or a named failure
   opt.levels = 3;
   auto loc = cli::Localizer::create(map.value(), cam, "2016", opt, 2);
   REQUIRE(loc.ok());
+  loc.value()->set_refinement(cli::kDefaultRefinePasses);  // as the command line runs it
   auto renderer = raster::Renderer::create(map.value(), cam);
   REQUIRE(renderer.ok());
   auto view = renderer.value()->make_output({"2017"});

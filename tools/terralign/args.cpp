@@ -1,5 +1,7 @@
 #include "args.hpp"
 
+#include "localizer.hpp"
+
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
@@ -109,6 +111,12 @@ Result<iclk::TrackerOptions> parse_tracker_options(const Args& args) {
   opt.max_disagreement_px = agree.value();
   TERRALIGN_TRY_ASSIGN(opt.coarse_search_px, args.get_int("coarse-search", 0, -1, 16));
   return opt;
+}
+
+Result<int> parse_refine(const Args& args) {
+  auto n = args.get_int("refine", kDefaultRefinePasses, 0, 5);
+  if (!n.ok()) return Error{"--refine '" + args.get("refine") + "' must be 0 to 5 re-rendered passes"};
+  return n;
 }
 
 }  // namespace terralign::cli

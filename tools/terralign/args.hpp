@@ -54,5 +54,7 @@ Result<nn::WeightFile> learned_weights(const Args& args);
 //   coarsest-level pixels; 0 (the default): each tracker's own (kClassicCoarseSearchPx,
 //   iclk::DeepAligner::kCoarseSearchPx); -1: none.
 Result<iclk::TrackerOptions> parse_tracker_options(const Args& args);
+// --refine N: the re-rendered refinement's passes (Localizer::set_refinement), 0..5.
+Result<int> parse_refine(const Args& args);
 
 }  // namespace terralign::cli

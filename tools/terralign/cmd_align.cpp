@@ -43,7 +43,7 @@ nlohmann::json pose_json(const geo::Pose& p) {
 
 int run_align(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "image", "prior", "layer", "method", "iterations", "robust", "threads", "weights",
-                                 "tilt-prior", "registration-floor"}, {});
+                                 "tilt-prior", "registration-floor", "refine"}, {});
   if (!args.ok()) return usage_error("align", args.error());
   for (const char* k : {"map", "camera", "image", "prior", "layer"})
     if (!args->has(k)) return usage_error("align", Error{std::string("missing required option --") + k});
@@ -59,6 +59,8 @@ int run_align(const std::vector<std::string>& argv) {
   if (!prior.ok()) return fail(prior.error());
   auto topt = parse_tracker_options(args.value());
   if (!topt.ok()) return usage_error("align", topt.error());
+  auto refine = parse_refine(args.value());
+  if (!refine.ok()) return usage_error("align", refine.error());
 
   const auto t0 = std::chrono::steady_clock::now();
   auto map = geo::load_map(args->get("map"));
@@ -86,6 +88,7 @@ int run_align(const std::vector<std::string>& argv) {
   auto loc = Localizer::create(map.value(), pinhole_of(cam.value()), args->get("layer"), opt, threads.value(),
                                weights ? &*weights : nullptr);
   if (!loc.ok()) return fail(loc.error());
+  loc.value()->set_refinement(refine.value());
   const double ms_load = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   auto out = loc.value()->localize(live.view(), prior.value());
   if (!out.ok()) return fail(out.error());

@@ -121,7 +121,7 @@ int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
                                  "min-sharpness", "max-disagreement", "coarse-search", "input-scale", "nn-levels", "imu-tilt", "tilt-prior",
-                                 "prior-scale"}, {});
+                                 "prior-scale", "refine"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -152,6 +152,8 @@ int run_eval(const std::vector<std::string>& argv) {
     return usage_error("eval", Error{"--prior-scale must be in (0, 4] (1: the protocol's priors)"});
   auto topt = parse_tracker_options(args.value());
   if (!topt.ok()) return usage_error("eval", topt.error());
+  auto refine = parse_refine(args.value());
+  if (!refine.ok()) return usage_error("eval", refine.error());
   // The learned tracker's working size and levels (as the firmware sets them): 0 keeps the
   // weight file's.
   LocalizerSizes sizes;
@@ -216,6 +218,7 @@ int run_eval(const std::vector<std::string>& argv) {
   opt.levels = levels.value();
   auto loc = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value());
   if (!loc.ok()) return fail(loc.error());
+  loc.value()->set_refinement(refine.value());
   std::unique_ptr<Localizer> learned;
   if (std::any_of(methods.begin(), methods.end(), [](const Method& m) { return m.learned; })) {
     auto w = learned_weights(args.value());
@@ -227,6 +230,7 @@ int run_eval(const std::vector<std::string>& argv) {
     auto l = Localizer::create(map.value(), cam, args->get("ref-layer"), lopt, threads.value(), &w.value(), sizes);
     if (!l.ok()) return fail(l.error());
     learned = std::move(l.value());
+    learned->set_refinement(refine.value());
   }
   raster::RenderOptions ro;
   ro.threads = threads.value();
@@ -259,7 +263,9 @@ int run_eval(const std::vector<std::string>& argv) {
           std::fprintf(stderr, "terralign eval: sample %zu: %s\n", i, out.error().message.c_str());
           break;
         }
-        have_ref = have_ref || !m.learned;  // the metrics use the classical (full-size) reference
+        // The metrics use the classical (full-size) reference rendered at the prior: the
+        // classical tracker's own, unless it refined (rendered again at its answer).
+        if (!m.learned) have_ref = out->refinements == 0;
         est = out->T_live_ref;
         ms = out->ms_encoder + out->ms_pyramid + out->ms_jacobian + out->ms_iterations;
         m.converged += out->converged;
@@ -281,9 +287,7 @@ int run_eval(const std::vector<std::string>& argv) {
         m.ok.push_back(1);
       }
       if (!have_ref) {  // the reference for the metrics (the init method renders nothing)
-        loc.value()->set_iterations(1);
-        auto out = loc.value()->localize(query->rgb[0].view(), s.prior);
-        if (!out.ok()) break;
+        if (!loc.value()->render_at(s.prior).ok()) break;
         have_ref = true;
       }
       const Errors e = errors(est, gt, loc.value()->reference_depth(), cam);

@@ -112,7 +112,7 @@ geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, d
 int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
                                  "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor",
-                                 "min-sharpness", "max-disagreement", "coarse-search", "nn-levels"}, {});
+                                 "min-sharpness", "max-disagreement", "coarse-search", "nn-levels", "refine"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
@@ -145,6 +145,8 @@ int run_track(const std::vector<std::string>& argv) {
   const geo::CameraModel cam = pinhole_of(cam_in.value());
   auto topt = parse_tracker_options(args.value());
   if (!topt.ok()) return usage_error("track", topt.error());
+  auto refine = parse_refine(args.value());
+  if (!refine.ok()) return usage_error("track", refine.error());
   if (topt->tilt_prior_rad > 0 && !args->has("attitude"))
     return usage_error("track", Error{"--tilt-prior needs --attitude FILE: the tilt it holds the answer to"});
   std::vector<Eigen::Quaterniond> attitude;
@@ -164,6 +166,7 @@ int run_track(const std::vector<std::string>& argv) {
   auto loc =
       Localizer::create(map.value(), cam, args->get("layer"), opt, threads.value(), weights ? &*weights : nullptr, sizes);
   if (!loc.ok()) return fail(loc.error());
+  loc.value()->set_refinement(refine.value());
   std::vector<geo::Pose> truth;
   if (args->has("truth")) {
     std::ifstream in(args->get("truth"));

@@ -21,7 +21,8 @@ const std::vector<Command>& commands() {
       {"align", "align one camera image to the map from a prior pose; prints the pose as JSON",
        "usage: terralign align --map MAP.json --camera CAMERA.json --image IMG --prior \"x y z qw qx qy qz\"\n"
        "                       --layer NAME [--method classic|nn] [--iterations N] [--robust none|huber|tukey]\n"
-       "                       [--threads N] [--weights FILE] [--tilt-prior DEG] [--registration-floor PX]\n\n"
+       "                       [--threads N] [--weights FILE] [--tilt-prior DEG] [--registration-floor PX]\n"
+       "                       [--refine N]\n\n"
        "Renders LAYER at the prior, aligns the image to it (inverse-compositional LM on SE(3),\n"
        "4 levels, N iterations per level, default 20) and prints {\"pose\", \"covariance\",\n"
        "\"converged\", \"reason\", \"iterations\", \"ms\"}. The covariance is 6x6 over\n"
@@ -36,7 +37,13 @@ const std::vector<Command>& commands() {
        "its heading and position stay free (default 0: no tilt prior).\n"
        "--registration-floor PX: the smallest registration error the covariance admits, in camera\n"
        "pixels (default 0.1, as same-year renders are registered; a map of another year than the\n"
-       "image calls for more: 0.7 made the learned tracker's NEES honest across a year, README).\n",
+       "image calls for more: 0.7 made the learned tracker's NEES honest across a year, README).\n"
+       "--refine N: up to N refinement passes (default 2; 0: none): while a converged answer turned\n"
+       "by more than 0.05 degree from where its reference was rendered, the reference is rendered\n"
+       "again at the answer and the image aligned again from it on the finest level. An alignment\n"
+       "keeps part of its reference's tilt error as a shift; the pass takes it out (same year: a\n"
+       "tenth of the error; README). The answer and its covariance are the last pass's; a pass\n"
+       "that fails fails the alignment. \"iterations\" and \"ms\" count every pass.\n",
        run_align},
       {"eval", "the paper's evaluation: sampled poses, rendered pairs, error tables per method",
        "usage: terralign eval --map MAP.json --camera CAMERA.json --ref-layer A --query-layer B --count N\n"
@@ -45,7 +52,7 @@ const std::vector<Command>& commands() {
        "                      [--threads N] [--weights FILE] [--area MINX,MINY,MAXX,MAXY]\n"
        "                      [--min-sharpness S] [--max-disagreement PX] [--coarse-search PX]\n"
        "                      [--input-scale S] [--nn-levels L] [--imu-tilt DEG] [--tilt-prior DEG]\n"
-       "                      [--prior-scale F]\n\n"
+       "                      [--prior-scale F] [--refine N]\n\n"
        "Samples N true poses with the whole footprint on the map (altitude above ground in\n"
        "[LO, HI] m, tilt off nadir up to DEG, any heading), perturbs each for the prior (rotation\n"
        "about a random axis by U[0, 6] deg, translation by U[0, 0.13 x altitude] m in a random\n"
@@ -73,7 +80,8 @@ const std::vector<Command>& commands() {
        "prior's rotation and move times F, the same draws otherwise (F < 1: priors nearer the\n"
        "truth, as a tracking loop's, to tell a narrow basin from a biased minimum). --json OUT\n"
        "also holds per pose and method the 2-D and 3-D EPE, the converged flag and the tests'\n"
-       "numbers, the true camera centre and the mean ground shift (estimate - truth, map axes, m).\n",
+       "numbers, the true camera centre and the mean ground shift (estimate - truth, map axes, m).\n"
+       "--refine N: both trackers' refinement passes, as align's (default 2; the time includes them).\n",
        run_eval},
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
        "usage: terralign flight --map MAP.json --camera CAMERA.json --layer NAME --path lawnmower|circle|FILE\n"
@@ -94,7 +102,7 @@ const std::vector<Command>& commands() {
        "                       [--weights FILE] [--attitude FILE [--tilt-prior DEG]]\n"
        "                       [--init-velocity \"vx vy vz\"] [--registration-floor PX]\n"
        "                       [--min-sharpness S] [--max-disagreement PX] [--coarse-search PX]\n"
-       "                       [--nn-levels L]\n\n"
+       "                       [--nn-levels L] [--refine N]\n\n"
        "LIST has 'timestamp image-path' lines; --init is the pose at the first frame's time. Each\n"
        "frame's prior is the last converged estimate, moved by the velocity of the last two; a frame that fails (not converged, an unreadable or\n"
        "wrongly sized image, a timestamp going backwards) keeps the prediction, says why on stderr,\n"
@@ -114,7 +122,10 @@ const std::vector<Command>& commands() {
        "--min-sharpness S, --max-disagreement PX and --coarse-search PX: as eval's (the converged\n"
        "tests, negative: none; the search before the coarsest level, -1: none).\n"
        "--nn-levels L: the learned tracker aligns on the finest L of the weight file's levels (as\n"
-       "eval's; 0: all).\n",
+       "eval's; 0: all).\n"
+       "--refine N: as align's (default 2): a frame whose answer turned by more than 0.05 degree\n"
+       "from its prediction is aligned again from a reference rendered at it, as the first frames\n"
+       "of a track started from an IMU's tilt are; the frames after them are not.\n",
        run_track},
       {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
        "usage: terralign dataset --map MAP.json --camera CAMERA.json --count N --seed S --out DIR\n"

@@ -36,6 +36,7 @@ struct LocalizeOutput {
   double sharpness = 0;                          // iclk::TrackResult
   double disagreement_px = 0;                    // iclk::TrackResult
   double residual_correlation = 0, covariance_inflation = 1;  // see iclk::TrackResult
+  int refinements = 0;  // re-rendered passes after the first (Localizer::set_refinement)
   double ms_render = 0, ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
   double ms_encoder = 0, ms_mestimator = 0;  // learned: both encoders; the M-estimator (inside ms_jacobian)
 };
@@ -65,6 +66,17 @@ constexpr int kClassicCoarseSearchPx = 4;
 constexpr double kClassicAgreePx = 2.0;
 constexpr double kClassicMaxDisagreementPx = 0.95;
 
+// The re-rendered refinement's defaults (Localizer::set_refinement, README "Re-rendered
+// refinement"): up to two passes (the command line's --refine), each on the finest level
+// alone (one, two or three levels gave the same answers on 200 same-year poses), again while
+// the last pass turned the answer by more than 0.05 degree from its reference (the learned
+// tracker keeps about an eighth of that turn as a tilt error, 0.1 m at 800 m; 0.02 degree
+// did no better on the tracks, 0.2 left the first frames of a track started from an IMU's
+// tilt 0.6 m off).
+constexpr int kDefaultRefinePasses = 2;
+constexpr int kRefineLevels = 1;
+constexpr double kRefineMinDeg = 0.05;
+
 class Localizer {
  public:
   // `camera` must be a pinhole (undistort the live image first); `layer` is the reference.
@@ -80,6 +92,19 @@ class Localizer {
   Result<LocalizeOutput> localize(ImageView<const std::uint8_t> live, const geo::Pose& prior,
                                   const Eigen::Quaterniond* attitude = nullptr);
   void set_iterations(int n);
+  // Re-rendered refinement: after a converged alignment, up to `passes` times, render the
+  // reference again at the answer and align again from it on the finest `levels` levels (the
+  // learned tracker keeps the live image's features), while the last answer turned by more
+  // than `min_deg` from where its reference was rendered. The answer, its covariance and its
+  // converged flag are the last pass's; a pass that fails ends the alignment failed. Default:
+  // none.
+  void set_refinement(int passes, int levels = kRefineLevels, double min_deg = kRefineMinDeg);
+  // Renders the reference at `at` without aligning (the metrics' and figures' reference).
+  Status render_at(const geo::Pose& at) {
+    LocalizeOutput unused;
+    return render_reference(at, unused);
+  }
+  // The reference of the last localize() (its last pass) or render_at().
   const raster::RenderOutput& reference() const { return ref_; }
   const ImageF& reference_depth() const { return depth_; }
   // The camera the reference is rendered with (the working size of the learned tracker).
@@ -88,6 +113,12 @@ class Localizer {
 
  private:
   Localizer() = default;
+  Status render_reference(const geo::Pose& at, LocalizeOutput& out);
+  const iclk::TrackResult<iclk::SE3DepthWarp<float>>& align_once(ImageView<const std::uint8_t> live,
+                                                                 const geo::Pose& ref_pose,
+                                                                 const Eigen::Quaterniond* attitude, bool first);
+  int refine_passes_ = 0, refine_levels_ = kRefineLevels;
+  double refine_min_deg_ = kRefineMinDeg;
   geo::CameraModel camera_, work_;
   std::unique_ptr<iclk::DeepAligner> deep_;
   ImageF ref_rgb_, live_rgb_;  // learned: float RGB at the working size
