@@ -10,7 +10,7 @@ Rz(kappa) for camera axes x right, y up, z back; ours look along +z with y down,
 R_W_C(ours) = R_PATB diag(1, -1, -1) (geo::pose_from_opk does the same).
 
 usage: scripts/eval_baviaanskloof.py [--terralign BIN] [--shared DIR] [--priors N] [--seed S]
-                                      [--weights FILE] [--json OUT]
+                                      [--weights FILE] [--json OUT] [--refine N]
 Python standard library only."""
 import argparse
 import json
@@ -89,6 +89,7 @@ def main():
     ap.add_argument('--seed', type=int, default=5)
     ap.add_argument('--json', help='write every result here')
     ap.add_argument('--weights', help="the learned tracker's weight file (default: the shipped one)")
+    ap.add_argument('--refine', type=int, help="align's refinement passes (default: align's)")
     args = ap.parse_args()
     S = os.path.join(args.shared, 'ngi_baviaanskloof_2015')
     if not os.path.isdir(S):
@@ -135,6 +136,8 @@ def main():
                            '--image', image, '--prior', prior, '--layer', layer, '--method', method]
                     if method == 'nn' and args.weights:
                         cmd += ['--weights', args.weights]
+                    if args.refine is not None:
+                        cmd += ['--refine', str(args.refine)]
                     p = subprocess.run(cmd, capture_output=True, text=True)
                     if p.returncode not in (0, 3):
                         sys.exit(f'eval_baviaanskloof: {" ".join(cmd)}: exit {p.returncode}: {p.stderr.strip()}')

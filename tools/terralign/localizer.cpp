@@ -1,7 +1,7 @@
 #include "localizer.hpp"
 
-#include <chrono>
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 
 namespace terralign::cli {
@@ -158,6 +158,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
       out.converged = false;  // an answer whose view cannot be rendered (under the ground, the horizon)
       out.reason = "refinement: the view from the answer cannot be rendered";
       out.T_W_C = prior;
+      out.T_live_ref = iclk::SE3<double>::identity();
       out.covariance.setZero();
       return out;
     }
@@ -170,28 +171,28 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
       out.ms_encoder += deep_->ms_encoder();
       out.ms_mestimator += deep_->ms_mestimator();
     }
-    if (pass == 0) {
+    if (pass == 0) {  // the start, and the tests' measures (a refinement pass has none)
       out.cost_init = r.cost_init;
       out.residual_init = r.residual_init;
+      out.sharpness = r.sharpness;
+      out.disagreement_px = r.disagreement_px;
     }
     out.converged = r.converged;
     out.reason = r.reason;
     out.cost_final = r.cost_final;
     out.residual_final = r.residual_final;
-    if (pass == 0) {  // the tests' measures are the first pass's (iclk::refinement_options)
-      out.sharpness = r.sharpness;
-      out.disagreement_px = r.disagreement_px;
-    }
     out.residual_correlation = r.residual_correlation;
     out.covariance_inflation = r.covariance_inflation;
     out.refinements = pass;
+    if (!r.converged) {  // failure as data: the prior, whichever pass failed
+      out.T_W_C = prior;
+      out.T_live_ref = iclk::SE3<double>::identity();
+      out.covariance.setZero();
+      return out;
+    }
     // T_live_prior = T_live_ref T_ref_prior: the relative pose to the prior's reference.
     const iclk::SE3<double> T_live_ref = r.params.cast<double>();
     out.T_live_ref = T_live_ref * T_ref_prior;
-    if (!r.converged) {
-      out.T_W_C = prior;  // failure as data: the prior, whichever pass failed
-      return out;
-    }
     const iclk::SE3<double> T_ref_live = T_live_ref.inverse();
     geo::Pose rel;
     rel.q_W_C = Eigen::Quaterniond(T_ref_live.R).normalized();

@@ -24,7 +24,7 @@ namespace terralign::cli {
 
 struct LocalizeOutput {
   geo::Pose T_W_C;                      // the estimate (the prior when not converged)
-  iclk::SE3<double> T_live_ref;         // the relative pose found
+  iclk::SE3<double> T_live_ref;         // the relative pose found, to the prior (identity when not converged)
   // Covariance of [dtheta; dp]: a rotation about the world axes applied on the left of
   // R_W_C (rad) and a shift of the camera centre (m, world axes), in that order.
   Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
