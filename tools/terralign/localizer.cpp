@@ -199,8 +199,10 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     rel.t_W_C = T_ref_live.t;
     out.T_W_C = ref_pose * rel;
     out.covariance = covariance_in_world(r.covariance, ref_pose, T_ref_live);
-    // Again while the answer turned by more than min_deg from where the reference was rendered.
+    // Again while the answer turned by more than min_deg from where the reference was
+    // rendered, where the image agrees with the map (kRefineMaxResidual).
     if (!(Eigen::AngleAxisd(T_live_ref.R).angle() * (180.0 / 3.14159265358979323846) > refine_min_deg_)) break;
+    if (!(r.residual_final <= kRefineMaxResidual)) break;
     ref_pose = out.T_W_C;
     T_ref_prior = out.T_live_ref;
   }
