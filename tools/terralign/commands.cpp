@@ -42,8 +42,9 @@ const std::vector<Command>& commands() {
        "by more than 0.05 degree from where its reference was rendered, the reference is rendered\n"
        "again at the answer and the image aligned again from it on the finest level. An alignment\n"
        "keeps part of its reference's tilt error as a shift; the pass takes it out (same year: a\n"
-       "tenth of the error; README). The answer and its covariance are the last pass's; a pass\n"
-       "that fails fails the alignment. \"iterations\" and \"ms\" count every pass.\n",
+       "tenth of the error; README). Only answers whose final residual is at most 1.0 (a\n"
+       "correlation of 0.5: same-year maps) are refined. The answer and its covariance are the last\n"
+       "pass's; a pass that fails leaves the one before. \"iterations\" and \"ms\" count every pass.\n",
        run_align},
       {"eval", "the paper's evaluation: sampled poses, rendered pairs, error tables per method",
        "usage: terralign eval --map MAP.json --camera CAMERA.json --ref-layer A --query-layer B --count N\n"

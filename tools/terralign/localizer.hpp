@@ -36,7 +36,7 @@ struct LocalizeOutput {
   double sharpness = 0;                          // iclk::TrackResult
   double disagreement_px = 0;                    // iclk::TrackResult
   double residual_correlation = 0, covariance_inflation = 1;  // see iclk::TrackResult
-  int refinements = 0;  // re-rendered passes after the first (Localizer::set_refinement)
+  int refinements = 0;  // re-rendered passes after the first that converged (Localizer::set_refinement)
   double ms_render = 0, ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
   double ms_encoder = 0, ms_mestimator = 0;  // learned: both encoders; the M-estimator (inside ms_jacobian)
 };
@@ -104,7 +104,7 @@ class Localizer {
   // learned tracker keeps the live image's features), while the last answer turned by more
   // than `min_deg` from where its reference was rendered and its final residual is at most
   // kRefineMaxResidual. The answer, its covariance and its
-  // converged flag are the last pass's; a pass that fails ends the alignment failed. Default:
+  // converged flag are the last converged pass's (a pass that fails leaves the one before it). Default:
   // none.
   void set_refinement(int passes, int levels = kRefineLevels, double min_deg = kRefineMinDeg);
   // Renders the reference at `at` without aligning (the metrics' and figures' reference).
