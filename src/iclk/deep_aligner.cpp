@@ -259,10 +259,6 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align(ImageView<const f
       tracker_);
 }
 
-}  // namespace terralign::iclk
-
-namespace terralign::iclk {
-
 const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::refine(ImageView<const float> ref_rgb,
                                                                 ImageView<const float> ref_depth,
                                                                 const iclk::Pinhole<float>& K, int levels) {

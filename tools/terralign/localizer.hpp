@@ -66,11 +66,11 @@ constexpr int kClassicCoarseSearchPx = 4;
 constexpr double kClassicAgreePx = 2.0;
 constexpr double kClassicMaxDisagreementPx = 0.95;
 
-// The re-rendered refinement's defaults (Localizer::set_refinement, README "Re-rendered
-// refinement"): up to two passes (the command line's --refine), each on the finest level
+// The re-rendered refinement's defaults (Localizer::set_refinement, README "Session 29"): up
+// to two passes (the command line's --refine), each on the finest level
 // alone (one, two or three levels gave the same answers on 200 same-year poses), again while
 // the last pass turned the answer by more than 0.05 degree from its reference (the learned
-// tracker keeps about an eighth of that turn as a tilt error, 0.1 m at 800 m; 0.02 degree
+// tracker keeps an eighth to a fifth of that turn as a tilt error, 0.1 m at 800 m; 0.02 degree
 // did no better on the tracks, 0.2 left the first frames of a track started from an IMU's
 // tilt 0.6 m off).
 // Only where the image agrees with the map, a final residual (LocalizeOutput::residual_final,

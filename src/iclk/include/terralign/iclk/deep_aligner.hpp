@@ -78,10 +78,10 @@ class DeepAligner : public iclk::LevelWeights {
   // Aligns again from a reference rendered where the last align() or refine() ended (its
   // depth and the same K): the reference is encoded anew, the live image's features are the
   // last align()'s, and only the finest `levels` levels run, from the identity, with no coarse
-  // search (the start is a pixel or so from the answer). The learned features trade a tilt
-  // for a shift a little (the weakest direction of a nadir view): an answer 0.8 degree of tilt
-  // from its reference keeps about a tenth of it, and a reference rendered at the answer takes
-  // it out (README, "Re-rendered refinement").
+  // search (the start is a pixel or so from the answer). The learned minimum trades a tilt for
+  // a shift a little (the weakest direction of a nadir view): answers started 0.8 degree of tilt
+  // from their reference kept 0.09-0.16 degree of it, and a reference rendered at the answer
+  // takes most of that out (README, "Session 29").
   const iclk::TrackResult<Warp>& refine(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
                                         const iclk::Pinhole<float>& K, int levels);
   void set_iterations(int n);
