@@ -328,6 +328,7 @@ TEST_CASE("the tilt prior holds the answer's roll and pitch to the prior's and l
   for (int k = 0; k < 3; ++k) {  // no prior; a prior without an up vector; the prior
     opt.tilt_prior_rad = k == 0 ? 0.0 : 0.001 * kDeg;
     opt.registration_floor_px = 0;  // the covariance of the image term and the prior alone
+    opt.registration_floor_per_residual_px = 0;
     Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, opt);
     if (k == 2) tracker.set_up(pitched.R().transpose() * Vec3<double>::UnitZ());
     const auto& res = tracker.align(q.ref_grey.view(), q.depth.view(), q.live_grey.view(), q.K, SE3<double>::identity());

@@ -1,7 +1,8 @@
 // The re-rendered refinement (cli::Localizer::set_refinement): after a converged alignment the
 // reference is rendered again at the answer and the image aligned again from it. A nadir view
 // barely tells a small tilt from a shift, and an alignment keeps a part of its reference's
-// tilt error as a shift; a reference rendered at the answer takes it out.
+// tilt error as a shift; a reference rendered at the answer takes it out. Also the
+// registration floor that grows with the final residual (session 29, as refinement's bound).
 #include <cstring>
 
 #include <doctest/doctest.h>
@@ -26,7 +27,8 @@ struct Scene {
   geo::Map map;
   geo::CameraModel cam;
   geo::Pose truth, prior;
-  ImageU8 live;  // 2016 at the truth
+  ImageU8 live;       // 2016 at the truth
+  ImageU8 live_2017;  // 2017 at the truth
 };
 
 // The sample camera 800 m over the NAIP sample's middle looking down, seen in 2016; the prior
@@ -36,7 +38,7 @@ Scene scene() {
   auto cam = geo::load_camera(test::source_path("data/cameras/uav_752x480.json"));
   REQUIRE(map.ok());
   REQUIRE(cam.ok());
-  Scene s{std::move(map.value()), cam.value(), {}, {}, {}};
+  Scene s{std::move(map.value()), cam.value(), {}, {}, {}, {}};
   const geo::Extent e = s.map.common_extent();
   const double x = 0.5 * (e.min_x + e.max_x), y = 0.5 * (e.min_y + e.max_y);
   s.truth.t_W_C = Eigen::Vector3d(x, y, s.map.dem.height_at(x, y) + 800);
@@ -46,10 +48,11 @@ Scene scene() {
   s.prior.q_W_C = (Eigen::Quaterniond(Eigen::AngleAxisd(1.0 * kDeg, Eigen::Vector3d::UnitX())) * s.truth.q_W_C).normalized();
   auto r = raster::Renderer::create(s.map, s.cam);
   REQUIRE(r.ok());
-  auto out = r.value()->make_output({"2016"});
+  auto out = r.value()->make_output({"2016", "2017"});
   REQUIRE(out.ok());
   REQUIRE(r.value()->render(s.truth, out.value()).ok());
   s.live = out->rgb[0];
+  s.live_2017 = out->rgb[1];
   return s;
 }
 
@@ -137,4 +140,41 @@ TEST_CASE("refinement: same bytes on 1 and 2 threads, no heap allocation, and a 
   CHECK_FALSE(g->converged);
   CHECK(g->refinements == 0);
   CHECK((g->T_W_C.t_W_C - s.prior.t_W_C).norm() == 0);
+}
+
+TEST_CASE("the registration floor grows with the final residual: a map of another year widens the covariance, its own does not") {
+  const Scene s = scene();
+  auto weights = nn::read_weights(test::source_path("weights/deep_iclk_s16.tlw"));
+  REQUIRE(weights.ok());
+  for (const bool same_year : {true, false}) {
+    CAPTURE(same_year);
+    const ImageU8& live = same_year ? s.live : s.live_2017;
+    double residual = 0, variance[2] = {0, 0};
+    for (int k = 0; k < 2; ++k) {  // the fixed floor alone; 1 px per unit of residual (the default)
+      iclk::TrackerOptions opt;
+      opt.registration_floor_per_residual_px = k == 0 ? 0.0 : 1.0;
+      auto loc = cli::Localizer::create(s.map, s.cam, "2016", opt, 2, &weights.value());
+      REQUIRE(loc.ok());
+      auto out = loc.value()->localize(live.view(), s.prior);
+      REQUIRE(out.ok());
+      REQUIRE(out->converged);
+      residual = out->residual_final;
+      variance[k] = out->covariance.bottomRightCorner<2, 2>().trace();  // east and north
+    }
+    MESSAGE((same_year ? "2016" : "2017") << ": residual " << residual << ", horizontal position variance "
+                                          << variance[0] << " -> " << variance[1] << " m^2");
+    if (same_year) {
+      // Same-year answers end at a residual of 0.01-0.08 (200 eval poses), under the fixed
+      // 0.1 px floor: nothing changes, to the bit.
+      CHECK(residual < 0.1);
+      CHECK(variance[1] == variance[0]);
+    } else {
+      // A year apart they end at 0.8-1.5: a floor of 8-15x the fixed one, whose shifts move
+      // the camera sideways. Here the image noise's term dominates the variance (measured 22.7
+      // m^2 of it, then 40.6 with the floor of 1.26 camera px); the floor must add at least
+      // half again.
+      CHECK(residual > 0.5);
+      CHECK(variance[1] > 1.5 * variance[0]);
+    }
+  }
 }

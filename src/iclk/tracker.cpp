@@ -954,13 +954,15 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       Eigen::Matrix<double, DoF, DoF> Hp = Hv;  // with the tilt prior's information
       if (tilt) Hp.template topLeftCorner<3, 3>() += R.covariance_inflation * sigma2 * tilt_info;
       R.covariance = R.covariance_inflation * sigma2 * Hp.inverse();
-      if (opt_.registration_floor_px > 0) {
+      const double floor_px =
+          std::max(opt_.registration_floor_px, opt_.registration_floor_per_residual_px * R.residual_final);
+      if (floor_px > 0) {
         const Eigen::Matrix<double, DoF, DoF> M = motion0_.template selfadjointView<Eigen::Lower>();
         const Eigen::Matrix<double, DoF, DoF> Mi = M.inverse();
         Eigen::Matrix<double, DoF, 4> B = floor0_;
         const double r_rms = std::sqrt(radius2_sum_ / std::max(n, 1));  // rotation and scale: RMS 1 px
         if (r_rms > 0) B.template rightCols<2>() /= r_rms;
-        R.covariance += opt_.registration_floor_px * opt_.registration_floor_px * Mi * B * B.transpose() * Mi;
+        R.covariance += floor_px * floor_px * Mi * B * B.transpose() * Mi;
       }
       if (Warp::kNeedsDepth && opt_.probe_px > 0) {
         double least = INFINITY;

@@ -100,6 +100,11 @@ Result<iclk::TrackerOptions> parse_tracker_options(const Args& args) {
   if (!floor_px.ok() || !(floor_px.value() >= 0 && floor_px.value() <= 100))
     return Error{"--registration-floor '" + args.get("registration-floor") + "' must be in [0, 100] camera pixels"};
   opt.registration_floor_px = floor_px.value();
+  auto per_residual = args.get_double("registration-floor-per-residual", opt.registration_floor_per_residual_px);
+  if (!per_residual.ok() || !(per_residual.value() >= 0 && per_residual.value() <= 100))
+    return Error{"--registration-floor-per-residual '" + args.get("registration-floor-per-residual") +
+                 "' must be in [0, 100] camera pixels"};
+  opt.registration_floor_per_residual_px = per_residual.value();
   auto sharp = args.get_double("min-sharpness", 0.0);
   if (!sharp.ok() || !(std::abs(sharp.value()) <= 1000))
     return Error{"--min-sharpness '" + args.get("min-sharpness") + "' must be in [-1000, 1000] (negative: no sharpness test)"};

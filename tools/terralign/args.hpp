@@ -45,6 +45,8 @@ Result<nn::WeightFile> learned_weights(const Args& args);
 // --registration-floor PX: the smallest registration error the covariance admits, in camera
 //   pixels, [0, 100] (registration_floor_px). The default suits a map of the image's own
 //   year; across years of change the error is larger (README, tracking a flight).
+// --registration-floor-per-residual PX: the floor is at least PX camera pixels per unit of
+//   the final residual, [0, 100] (registration_floor_per_residual_px; default 1; 0: none).
 // --min-sharpness S: the learned tracker's sharpness test (min_sharpness), in [-1000, 1000];
 //   0 (the default): the weight file's '# min-sharpness'; negative: no test.
 // --max-disagreement PX: the agreement test (max_disagreement_px), in [-1000, 1000] of each

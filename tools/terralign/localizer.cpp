@@ -27,6 +27,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
     L->work_ = camera.scaled(s, w, h);
     iclk::TrackerOptions dopt = options;
     dopt.registration_floor_px *= s;  // camera pixels -> working pixels
+    dopt.registration_floor_per_residual_px *= s;
     TERRALIGN_TRY_ASSIGN(L->deep_, iclk::DeepAligner::create(*weights, w, h, dopt, threads, sizes.levels));
     L->ref_rgb_.resize(w, h, 3);
     L->live_rgb_.resize(w, h, 3);

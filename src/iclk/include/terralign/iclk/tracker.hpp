@@ -92,6 +92,14 @@ struct TrackerOptions {
   // sigma_floor^2 M^-1 (sum_m b_m b_m^T) M^-1, M = sum dW^T dW, b_m = sum dW^T d_m.
   // 0.1 px: about the position RMSE of same-year rendered flights (README, tracking).
   double registration_floor_px = 0.1;
+  // ... and at least this many pixels per unit of the final residual (TrackResult::
+  // residual_final, about 2 (1 - NCC) with normalised images): a map that agrees with the
+  // image less is registered to it less well. Same-year answers end at a residual of 0.01-0.08
+  // (the fixed floor stays), a year apart at 0.8-1.5. 1 px took the learned tracker's NEES
+  // across a year from 27.1 / 21.7 to 9.7 / 6.0 (the 40-frame lawnmower without / with an
+  // IMU, where it was chosen) and from 12.7 / 11.4 to 5.5 / 3.7 on a circle (README).
+  // 0: the fixed floor alone.
+  double registration_floor_per_residual_px = 1.0;
   // The sharpness test (TrackResult::sharpness): the nudge in finest-level pixels (0: not
   // measured) and the least sharpness a converged answer must have. Off for the classical
   // tracker; the learned one sets them (DeepAligner).
