@@ -90,7 +90,7 @@ TEST_CASE("refinement: a reference rendered at the answer takes out the tilt the
     // Same-year renders: over 200 eval poses the learned tracker's median 3-D EPE went from
     // 0.16 to 0.016 m, the classical one's from 0.07 to 0.002 m (README). Here the first
     // answers are 0.24 and 0.16 m off and the refined ones 4 and 1 mm (measured); a third of
-    // the first error must go, and what is left must be under 0.1 m (the map's texel is 1 m).
+    // the first error must go, and what is left must be under 0.1 m (the sample map's texel is 5 m).
     CHECK(refined.error_m < once.error_m / 3);
     CHECK(refined.error_m < 0.1);
     // An answer already at its reference is not refined: started at the refined answer, the
@@ -101,7 +101,7 @@ TEST_CASE("refinement: a reference rendered at the answer takes out the tilt the
   }
 }
 
-TEST_CASE("refinement: same bytes on 1 and 2 threads, no heap allocation, and a noise image still fails") {
+TEST_CASE("refinement: same bytes on 1 and 2 threads, no heap allocation, and a flat grey image still fails") {
   const Scene s = scene();
   auto weights = nn::read_weights(test::source_path("weights/deep_iclk_s16.tlw"));
   REQUIRE(weights.ok());
