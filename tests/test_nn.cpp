@@ -344,6 +344,42 @@ TEST_CASE("a forward pass gives the same bytes on 1 and 2 threads and allocates 
   for (const char* o : {"f0", "f3", "e3_2"}) CHECK(same_pixels(*one.value()->output(o), *two.value()->output(o)));
 }
 
+TEST_CASE("forward_until runs the first steps alone, and a pass again on the same input gives the same bytes") {
+  // The learned tracker's refinement encodes only the finest level this way (README,
+  // "Session 30"). Shared memory: the input must outlive every step (until session 30 the
+  // first convolution's output took the input's memory, and a second pass read garbage).
+  const WeightFile weights = load("weights/lv19_tum_abc.tlw");
+  auto part = Network::plan(weights, "encoder", 97, 61, 2);
+  auto whole = Network::plan(weights, "encoder", 97, 61, 2, Simd::Auto, Memory::Separate);
+  REQUIRE((part.ok() && whole.ok()));
+  Network& P = *part.value();
+  Network& W = *whole.value();
+  CHECK(P.step_of("x") == 0);
+  CHECK(P.step_of("f0") == 4);  // x, e0_0, e0_1, e0_2, f0
+  CHECK(P.step_of("no such node") == -1);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> u(-2, 2);
+  for (int y = 0; y < 61; ++y)
+    for (int x = 0; x < 97; ++x)
+      for (int c = 0; c < 8; ++c) P.input("x")->at(y, x)[c] = W.input("x")->at(y, x)[c] = u(rng);
+  W.forward();
+  for (int pass = 0; pass < 2; ++pass) {  // the same input twice: the input is not written over
+    CAPTURE(pass);
+    test::AllocationCounter count;
+    P.forward_until(P.step_of("f0"));
+    CHECK(count.allocations() == 0);
+    CHECK(same_pixels(*P.output("f0"), *W.output("f0")));
+    CHECK(same_pixels(*P.output("e0_2"), *W.output("e0_2")));
+    P.forward_until(-1);  // nothing
+    CHECK(same_pixels(*P.output("f0"), *W.output("f0")));
+    P.forward_until(1000);  // past the end: all of it
+    for (const char* o : {"f0", "f1", "f2", "f3", "e3_2"}) {
+      CAPTURE(o);
+      CHECK(same_pixels(*P.output(o), *W.output(o)));
+    }
+  }
+}
+
 TEST_CASE("shared tensor memory gives the same bytes as separate tensors, frame after frame, in far less memory") {
   // Shared memory reuses what earlier layers wrote, halo included: a second frame through the
   // same buffers must still match separate tensors bit for bit.

@@ -128,6 +128,9 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
     if (!f || f->c != C || f->w != width >> l || f->h != height >> l)
       return Error{weights.name + ": the encoder must output " + name + ", " + std::to_string(C) + " channel(s) of " +
                    std::to_string(width >> l) + " x " + std::to_string(height >> l)};
+    // The last encoder step the finest l + 1 levels need.
+    D->enc_until_[static_cast<std::size_t>(l)] =
+        std::max(l > 0 ? D->enc_until_[static_cast<std::size_t>(l - 1)] : -1, D->encoder_->step_of(name));
     auto& m = D->mest_[static_cast<std::size_t>(l)];
     TERRALIGN_TRY_ASSIGN(m, nn::Network::plan(weights, "mestimator", width >> l, height >> l, threads, nn::Simd::Auto,
                                               nn::Memory::External));
@@ -186,7 +189,7 @@ void DeepAligner::set_iterations(int n) {
       tracker_);
 }
 
-void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out) {
+void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out, int levels) {
   nn::Tensor* x = enc_in_;
   for (int y = 0; y < height_; ++y) {
     const float* s = rgb.row(y);
@@ -195,8 +198,8 @@ void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kMaxLeve
       for (int c = 0; c < 3; ++c) p[c] = (s[c] / 255.0f - kMean[c]) / kStd[c];
     }
   }
-  encoder_->forward();
-  for (int l = 0; l < levels_; ++l) {
+  encoder_->forward_until(enc_until_[static_cast<std::size_t>(levels - 1)]);
+  for (int l = 0; l < levels; ++l) {
     const nn::Tensor* f = enc_out_[static_cast<std::size_t>(l)];
     ImageF& o = out[static_cast<std::size_t>(l)];
     for (int y = 0; y < f->h; ++y)
@@ -248,8 +251,8 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align(ImageView<const f
                        live_rgb.height == height_ && ref_rgb.channels == 3 && live_rgb.channels == 3,
                    "DeepAligner::align: images of another size than the aligner was built for");
   const auto t0 = std::chrono::steady_clock::now();
-  encode(ref_rgb, ref_f_);
-  encode(live_rgb, live_f_);
+  encode(ref_rgb, ref_f_, levels_);
+  encode(live_rgb, live_f_, levels_);
   ms_encoder_ = elapsed_ms(t0);
   ms_mest_ = 0;
   return std::visit(
@@ -265,7 +268,8 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::refine(ImageView<const 
   TERRALIGN_ASSERT(ref_rgb.width == width_ && ref_rgb.height == height_ && ref_rgb.channels == 3,
                    "DeepAligner::refine: an image of another size than the aligner was built for");
   const auto t0 = std::chrono::steady_clock::now();
-  encode(ref_rgb, ref_f_);
+  levels = std::max(1, std::min(levels, levels_));
+  encode(ref_rgb, ref_f_, levels);  // the finest levels alone: the others do not run
   ms_encoder_ = elapsed_ms(t0);
   ms_mest_ = 0;
   return std::visit(

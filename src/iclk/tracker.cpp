@@ -149,7 +149,7 @@ void Tracker<S, Warp, C>::build_pyramids(ImageView<const float> ref, ImageView<c
     std::copy(depth.row(y), depth.row(y) + L0.w, &L0.depth.at(0, y, 0));
   }
   build_depth_pyramid();
-  for (std::size_t l = 1; l < levels_.size(); ++l) {
+  for (std::size_t l = 1; l < levels_in_use(); ++l) {
     const Level& A = levels_[l - 1];
     Level& B = levels_[l];
     for (int y = 0; y < B.h; ++y)
@@ -176,22 +176,24 @@ void Tracker<S, Warp, C>::build_pyramids(ImageView<const float> ref, ImageView<c
 template <class S, class Warp, int C>
 void Tracker<S, Warp, C>::normalize_levels() {
   if (opt_.normalize)
-    for (auto& L : levels_) {
-      normalize(L.ref, &L.depth);
-      normalize(L.live, nullptr);
+    for (std::size_t l = 0; l < levels_in_use(); ++l) {
+      normalize(levels_[l].ref, &levels_[l].depth);
+      normalize(levels_[l].live, nullptr);
     }
   if constexpr (kSe3Kernel && C > 1)  // the kernel's live planes, one channel each
-    for (auto& L : levels_)
-      for (int c = 0; c < C; ++c)
+    for (std::size_t l = 0; l < levels_in_use(); ++l)
+      for (int c = 0; c < C; ++c) {
+        Level& L = levels_[l];
         for (int y = 0; y < L.h; ++y) {
           float* row = &L.live_planes.at(0, c * L.h + y);
           for (int x = 0; x < L.w; ++x) row[x] = L.live.at(x, y, c);
         }
+      }
 }
 
 template <class S, class Warp, int C>
 void Tracker<S, Warp, C>::build_depth_pyramid() {
-  for (std::size_t l = 1; l < levels_.size(); ++l) {
+  for (std::size_t l = 1; l < levels_in_use(); ++l) {
     const Level& A = levels_[l - 1];
     Level& B = levels_[l];
     for (int y = 0; y < B.h; ++y)
@@ -617,7 +619,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::align_levels(const ImageView<const
   TERRALIGN_ASSERT(ref_depth.width == width_ && ref_depth.height == height_ && ref_depth.channels == 1,
                    "Tracker::align_levels: depth size differs from the size the tracker was built for");
   const auto t0 = Clock::now();
-  for (std::size_t l = 0; l < levels_.size(); ++l) {
+  for (std::size_t l = 0; l < levels_in_use(); ++l) {
     Level& L = levels_[l];
     const ImageView<const float>& A = ref_levels[l];
     const ImageView<const float>& B = live_levels[l];

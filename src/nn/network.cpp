@@ -229,8 +229,11 @@ void Network::share_memory(Memory memory) {
   const std::size_t n = tensors_.size();
   std::vector<std::size_t> last(n, 0);
   for (std::size_t k = 0; k < n; ++k) {
-    last[k] = k;
-    for (int i : steps_[k].in) last[static_cast<std::size_t>(i)] = k;
+    last[k] = std::max(last[k], k);
+    // max: an input's n must survive its readers (a plain assignment let the first
+    // convolution's output reuse the input's memory, so a second forward() on the same input
+    // read the first pass's activations; every caller refilled the input, which hid it).
+    for (int i : steps_[k].in) last[static_cast<std::size_t>(i)] = std::max(last[static_cast<std::size_t>(i)], k);
     if (steps_[k].node->op == "input") last[k] = n;
   }
   for (const auto& o : desc_.outputs) last[static_cast<std::size_t>(index_of(o))] = n;
@@ -348,9 +351,19 @@ std::vector<Network::StepTime> Network::step_times() const {
   return out;
 }
 
-void Network::forward() {
+int Network::step_of(const std::string& name) const {
+  for (std::size_t k = 0; k < steps_.size(); ++k)
+    if (steps_[k].node->name == name) return static_cast<int>(k);
+  return -1;
+}
+
+void Network::forward() { forward_until(static_cast<int>(steps_.size()) - 1); }
+
+void Network::forward_until(int last_step) {
   TERRALIGN_ASSERT(bound_, "Network::forward: a Memory::External network before bind()");
-  for (const auto& s : steps_) {
+  const std::size_t end = last_step < 0 ? 0 : std::min(steps_.size(), static_cast<std::size_t>(last_step) + 1);
+  for (std::size_t step = 0; step < end; ++step) {
+    const Step& s = steps_[step];
     if (s.node->op == "input") continue;
     const auto t0 = profile_ ? std::chrono::steady_clock::now() : std::chrono::steady_clock::time_point{};
     // Shared memory: a convolution's input gets its zero padding back (another tensor may

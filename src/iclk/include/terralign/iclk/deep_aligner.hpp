@@ -101,7 +101,8 @@ class DeepAligner : public iclk::LevelWeights {
 
  private:
   DeepAligner() = default;
-  void encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out);
+  // Encodes the finest `levels` levels into out (the encoder stops at the last step they need).
+  void encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out, int levels);
   int width_ = 0, height_ = 0, levels_ = 0, channels_ = 1;
   std::unique_ptr<nn::Network> encoder_;
   std::array<std::unique_ptr<nn::Network>, kMaxLevels> mest_;
@@ -109,6 +110,7 @@ class DeepAligner : public iclk::LevelWeights {
   // level's M-estimator input and output.
   nn::Tensor* enc_in_ = nullptr;
   std::array<const nn::Tensor*, kMaxLevels> enc_out_{};
+  std::array<int, kMaxLevels> enc_until_{};  // [l]: the last encoder step levels 0..l need
   std::array<nn::Tensor*, kMaxLevels> mest_in_{};
   std::array<const nn::Tensor*, kMaxLevels> mest_out_{};
   std::vector<float> scratch_;  // every network's tensors (nn::Memory::External)

@@ -262,6 +262,9 @@ class Tracker {
     ImageF live_planes;    // several channels: live's, one plane after another (the kernel's)
     ImageF abs_r, weight;  // for LevelWeights
   };
+  // The levels the options run (set_options may run fewer than were built: a refinement
+  // pass); only these are built, copied and normalised for an alignment.
+  std::size_t levels_in_use() const { return static_cast<std::size_t>(opt_.levels); }
   void build_pyramids(ImageView<const float> ref, ImageView<const float> depth, ImageView<const float> live);
   void build_depth_pyramid();
   void normalize_levels();

@@ -72,6 +72,14 @@ class Network {
   Tensor* input(const std::string& name);
   const Tensor* output(const std::string& name) const;
   void forward();
+  // The steps run in the description's order; step_of(name) is the step that computes a
+  // node (-1: no such node), and forward_until(k) runs steps 0..k alone (k < 0: none; past
+  // the end: all): a caller that needs only the first outputs (an encoder's finest level)
+  // skips the rest. With shared memory the outputs of the steps that did not run hold
+  // nothing meaningful (the steps that ran may have used their memory). Set-up: step_of;
+  // forward_until allocates nothing.
+  int step_of(const std::string& name) const;
+  void forward_until(int last_step);
   const char* simd_name() const { return simd_name_; }
   // Bytes of tensor memory the network owns (activations and the convolutions' scratch; the
   // packed weights are not counted; 0 for Memory::External).
