@@ -345,7 +345,7 @@ TEST_CASE("a forward pass gives the same bytes on 1 and 2 threads and allocates 
 }
 
 TEST_CASE("forward_until runs the first steps alone, and a pass again on the same input gives the same bytes") {
-  // The learned tracker's refinement encodes only the finest level this way (README,
+  // The learned tracker's refinement encodes only the finest level this way (docs/history.md,
   // "Session 30"). Shared memory: the input must outlive every step (until session 30 the
   // first convolution's output took the input's memory, and a second pass read garbage).
   const WeightFile weights = load("weights/lv19_tum_abc.tlw");

@@ -154,7 +154,7 @@ def near_start(truth, depth, gen, scale):
     shrunk by `scale`: T_live_ref perturbed on the live side by a rotation of U[0, 6 scale]
     deg about a random axis and a move of U[0, 0.13 scale] x the median reference depth in a
     random direction. Trains the features to keep an answer a few pixels off where it is
-    (README, "Session 26"). Draws only from `gen`."""
+    (docs/history.md, "Session 26"). Draws only from `gen`."""
     R_gt, t_gt = truth
     B, dtype = R_gt.shape[0], R_gt.dtype
     u = lambda *shape: torch.rand(*shape, generator=gen, dtype=dtype)  # noqa: E731

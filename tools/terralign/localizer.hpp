@@ -66,7 +66,7 @@ constexpr int kClassicCoarseSearchPx = 4;
 constexpr double kClassicAgreePx = 2.0;
 constexpr double kClassicMaxDisagreementPx = 0.95;
 
-// The re-rendered refinement's defaults (Localizer::set_refinement, README "Session 29"): up
+// The re-rendered refinement's defaults (Localizer::set_refinement, docs/history.md, "Session 29"): up
 // to two passes (the command line's --refine), each on the finest level
 // alone (one, two or three levels gave the same answers on 200 same-year poses), again while
 // the last pass turned the answer by more than 0.05 degree from its reference (the learned

@@ -81,7 +81,7 @@ class DeepAligner : public iclk::LevelWeights {
   // search (the start is a pixel or so from the answer). The learned minimum trades a tilt for
   // a shift a little (the weakest direction of a nadir view): answers started 0.8 degree of tilt
   // from their reference kept 0.09-0.16 degree of it, and a reference rendered at the answer
-  // takes most of that out (README, "Session 29").
+  // takes most of that out (docs/history.md, "Session 29").
   const iclk::TrackResult<Warp>& refine(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
                                         const iclk::Pinhole<float>& K, int levels);
   void set_iterations(int n);
