@@ -229,7 +229,7 @@ void Network::share_memory(Memory memory) {
   const std::size_t n = tensors_.size();
   std::vector<std::size_t> last(n, 0);
   for (std::size_t k = 0; k < n; ++k) {
-    last[k] = std::max(last[k], k);
+    last[k] = k;
     // max: an input's n must survive its readers (a plain assignment let the first
     // convolution's output reuse the input's memory, so a second forward() on the same input
     // read the first pass's activations; every caller refilled the input, which hid it).
