@@ -276,7 +276,8 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::refine(ImageView<const 
       [&](auto& t) -> const iclk::TrackResult<Warp>& {
         const iclk::TrackerOptions keep = t->options();
         t->set_options(iclk::refinement_options(keep, levels));
-        const auto& r = t->align_levels(ref_v_.data(), ref_depth, live_v_.data(), K, iclk::SE3<float>::identity(), this);
+        // The live levels are the last align()'s, already in the solver.
+        const auto& r = t->align_levels(ref_v_.data(), ref_depth, nullptr, K, iclk::SE3<float>::identity(), this);
         t->set_options(keep);
         return r;
       },

@@ -174,12 +174,14 @@ void Tracker<S, Warp, C>::build_pyramids(ImageView<const float> ref, ImageView<c
 }
 
 template <class S, class Warp, int C>
-void Tracker<S, Warp, C>::normalize_levels() {
+void Tracker<S, Warp, C>::normalize_levels(bool live) {
   if (opt_.normalize)
     for (std::size_t l = 0; l < levels_in_use(); ++l) {
       normalize(levels_[l].ref, &levels_[l].depth);
-      normalize(levels_[l].live, nullptr);
+      if (live) normalize(levels_[l].live, nullptr);
     }
+  if (!live) return;  // the earlier alignment's, normalised and in planes already
+  live_ready_ = levels_in_use();
   if constexpr (kSe3Kernel && C > 1)  // the kernel's live planes, one channel each
     for (std::size_t l = 0; l < levels_in_use(); ++l)
       for (int c = 0; c < C; ++c) {
@@ -619,21 +621,23 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::align_levels(const ImageView<const
   TERRALIGN_ASSERT(ref_depth.width == width_ && ref_depth.height == height_ && ref_depth.channels == 1,
                    "Tracker::align_levels: depth size differs from the size the tracker was built for");
   const auto t0 = Clock::now();
+  TERRALIGN_ASSERT(live_levels || live_ready_ >= levels_in_use(),
+                   "Tracker::align_levels: no live levels given and no earlier alignment's to keep");
   for (std::size_t l = 0; l < levels_in_use(); ++l) {
     Level& L = levels_[l];
     const ImageView<const float>& A = ref_levels[l];
+    TERRALIGN_ASSERT(A.width == L.w && A.height == L.h && A.channels == C,
+                     "Tracker::align_levels: a level's reference features have the wrong size or channels");
+    for (int y = 0; y < L.h; ++y) std::copy(A.row(y), A.row(y) + L.w * C, &L.ref.at(0, y, 0));
+    if (!live_levels) continue;
     const ImageView<const float>& B = live_levels[l];
-    TERRALIGN_ASSERT(A.width == L.w && A.height == L.h && B.width == L.w && B.height == L.h && A.channels == C &&
-                         B.channels == C,
-                     "Tracker::align_levels: a level's feature image has the wrong size or channels");
-    for (int y = 0; y < L.h; ++y) {
-      std::copy(A.row(y), A.row(y) + L.w * C, &L.ref.at(0, y, 0));
-      std::copy(B.row(y), B.row(y) + L.w * C, &L.live.at(0, y, 0));
-    }
+    TERRALIGN_ASSERT(B.width == L.w && B.height == L.h && B.channels == C,
+                     "Tracker::align_levels: a level's live features have the wrong size or channels");
+    for (int y = 0; y < L.h; ++y) std::copy(B.row(y), B.row(y) + L.w * C, &L.live.at(0, y, 0));
   }
   for (int y = 0; y < height_; ++y) std::copy(ref_depth.row(y), ref_depth.row(y) + width_, &levels_[0].depth.at(0, y, 0));
   build_depth_pyramid();
-  normalize_levels();
+  normalize_levels(live_levels != nullptr);
   R.ms_pyramid = ms(t0, Clock::now());
   return solve(K0, init, nullptr, weights);
 }

@@ -237,7 +237,9 @@ class Tracker {
   // Pyramids from outside (learned features): ref_levels and live_levels hold
   // options().levels views each, finest first, level l of size (w >> l, h >> l) (floor);
   // the depth pyramid is built from the full-resolution ref_depth. `weights` (optional) is
-  // asked for each level's weights when the level starts.
+  // asked for each level's weights when the level starts. live_levels null: the live levels
+  // of the last alignment, which ran at least as many (a refinement pass against the same
+  // image: they are not copied and normalised again).
   const TrackResult<Warp>& align_levels(const ImageView<const float>* ref_levels, ImageView<const float> ref_depth,
                                         const ImageView<const float>* live_levels, const Pinhole<S>& K0,
                                         const Params& init, LevelWeights* weights);
@@ -267,7 +269,8 @@ class Tracker {
   std::size_t levels_in_use() const { return static_cast<std::size_t>(opt_.levels); }
   void build_pyramids(ImageView<const float> ref, ImageView<const float> depth, ImageView<const float> live);
   void build_depth_pyramid();
-  void normalize_levels();
+  void normalize_levels(bool live = true);  // live: also the live levels (else they are kept)
+  std::size_t live_ready_ = 0;  // levels whose live images the last alignment normalised
   const TrackResult<Warp>& solve(const Pinhole<S>& K0, const Params& init, const ImageView<const float>* weights,
                                  LevelWeights* level_weights);
   void learned_weights(int n, int level, const Params& p, const Pinhole<S>& K, LevelWeights& lw);
