@@ -220,7 +220,7 @@ nn::WeightFile with_line(nn::WeightFile w, const std::string& line) {
 TEST_CASE("learned tracker: the converged tests read their thresholds from the weights and fail an answer") {
   const nn::WeightFile shipped = load("weights/deep_iclk_s16.tlw");
   // The shipped weights carry the agreement test's threshold (training/calibrate_sharpness.py
-  // --test agreement) and, since it replaced it (README), no sharpness threshold.
+  // --test agreement) and, since it replaced it (docs/history.md, session 20), no sharpness threshold.
   auto agree = iclk::DeepAligner::max_disagreement(shipped);
   REQUIRE(agree.ok());
   CHECK(agree.value() == doctest::Approx(0.95));

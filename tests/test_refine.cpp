@@ -88,7 +88,7 @@ TEST_CASE("refinement: a reference rendered at the answer takes out the tilt the
     CHECK(once.refinements == 0);
     CHECK(refined.refinements >= 1);
     // Same-year renders: over 200 eval poses the learned tracker's median 3-D EPE went from
-    // 0.16 to 0.016 m, the classical one's from 0.07 to 0.002 m (README). Here the first
+    // 0.16 to 0.016 m, the classical one's from 0.07 to 0.002 m (docs/history.md, session 29). Here the first
     // answers are 0.24 and 0.16 m off and the refined ones 4 and 1 mm (measured); a third of
     // the first error must go, and what is left must be under 0.1 m (the sample map's texel is 5 m).
     CHECK(refined.error_m < once.error_m / 3);

@@ -209,7 +209,7 @@ int run_track(const std::vector<std::string>& argv) {
     geo::Pose prior = known == 2 ? predict(prev, t_prev, last, t_last, f.t) : last;
     // With an attitude reference the start keeps the prediction's tilt when two converged
     // frames made it (starting from the IMU's instead: same-year RMSE 0.16 -> 0.31 m, across
-    // a year 7.5 -> 8.1 m, README), else takes the IMU's; the tilt prior holds the answer to
+    // a year 7.5 -> 8.1 m, docs/history.md, session 29), else takes the IMU's; the tilt prior holds the answer to
     // the IMU's either way.
     if (!attitude.empty() && known < 2) prior.q_W_C = with_tilt_of(prior.q_W_C, attitude[i]);
     geo::Pose estimate = prior;

@@ -39,12 +39,12 @@ const std::vector<Command>& commands() {
        "pixels (default 0.1, as same-year renders are registered), and --registration-floor-per-\n"
        "residual PX, at least PX per unit of the final residual (default 1; 0: the fixed floor\n"
        "alone): a map of another year than the image agrees with it less and is registered to it\n"
-       "less well (same year the residual is 0.01-0.08, a year apart 0.8-1.5; README).\n"
+       "less well (same year the residual is 0.01-0.08, a year apart 0.8-1.5; docs/history.md).\n"
        "--refine N: up to N refinement passes (default 2; 0: none): while a converged answer turned\n"
        "by more than 0.05 degree from where its reference was rendered, the reference is rendered\n"
        "again at the answer and the image aligned again from it on the finest level. An alignment\n"
        "keeps part of its reference's tilt error as a shift; the pass takes it out (same year: a\n"
-       "tenth of the error; README). Only answers whose final residual is at most 1.0 (a\n"
+       "tenth of the error; docs/history.md). Only answers whose final residual is at most 1.0 (a\n"
        "correlation of 0.5: same-year maps) are refined. The answer and its covariance are the last\n"
        "pass's; a pass that fails leaves the one before. \"iterations\" and \"ms\" count every pass.\n",
        run_align},
