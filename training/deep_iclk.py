@@ -231,10 +231,15 @@ class DeepICLK(nn.Module):
         self.mest = MEstimator(SIZES[size]["mest"])
         self.levels, self.iterations, self.lam = levels, iterations, lam
 
-    def forward(self, ref_rgb, ref_depth, live_rgb, K, R0=None, t0=None, truth=None, return_weights=False):
+    def forward(self, ref_rgb, ref_depth, live_rgb, K, R0=None, t0=None, truth=None, return_weights=False,
+                anchor_iterations=0):
         """ref_rgb, live_rgb: B x 3 x H x W (0..255); ref_depth: B x 1 x H x W (NaN: none);
         K: (fx, fy, cx, cy), each a B tensor; R0, t0: initial T_live_ref (identity if None);
-        truth: (R_gt, t_gt) for the loss. Returns (R, t, per-level EPE list or None, weights)."""
+        truth: (R_gt, t_gt) for the loss. Returns (R, t, per-level EPE list or None, weights).
+        anchor_iterations > 0 (training only, with truth): each level also runs that many LM
+        iterations started at the truth, its M-estimator's weights taken there, and
+        self.anchor_losses holds each level's 3-D EPE after them: how far the level's learned
+        cost moves a right answer, zero when its minimum is at the truth."""
         B = ref_rgb.shape[0]
         dtype = ref_rgb.dtype
         fr = self.encoder(ref_rgb)
@@ -251,6 +256,7 @@ class DeepICLK(nn.Module):
         # calls a step over 0.35 a divergence (TrackerOptions::max_step_rotation/translation).
         self.max_step = torch.zeros(B, dtype=dtype)
         w_prev = None
+        self.anchor_losses = []
         for level in range(self.levels - 1, -1, -1):
             Kl = Ks[level]
             depth, valid = dp[level]
@@ -274,35 +280,53 @@ class DeepICLK(nn.Module):
                 w_prev = torch.ones_like(m_ref)
             else:
                 w_prev = F.interpolate(w_prev, size=f_ref.shape[-2:], mode="bilinear", align_corners=False)
+            w_level_start = w_prev
             w = self.mest(abs_r, m_ref, m_live, w_prev)
             weights[level] = w
             w_prev = w
-            Wm = w * mask
             Jf = J.flatten(-2)  # B x 6 x n, or B x C x 6 x n
             with torch.no_grad():  # the C++ solver's step bound is in units of the median depth
                 med = torch.stack([d[m > 0].median() if (m > 0).any() else d.new_tensor(1.0)
                                    for d, m in zip(depth[:, 0], mask[:, 0])])
-            for _ in range(self.iterations):
-                val, inside = warp_sample(f_live, X, R, t, Kl)
-                r = (val - f_ref).flatten(2)
-                wi = (Wm * inside).flatten(2)
+            R, t = self._lm(R, t, w * mask, Jf, f_ref, f_live, X, Kl, self.iterations, med)
+            if truth is not None:
+                losses.append(epe(R, t, truth[0], truth[1], X0, dp[0][1]))
+            if anchor_iterations > 0 and truth is not None:
+                val, inside = warp_sample(f_live, X, truth[0], truth[1], Kl)
                 if multi:
-                    wc = wi.unsqueeze(1)  # B x 1 x 1 x n
-                    H = torch.einsum("bcin,bcjn->bij", Jf * wc, Jf).double()
-                    g = torch.einsum("bcin,bcn->bi", Jf * wc, r).double()
+                    abs_a = torch.sqrt(((val - f_ref) ** 2).mean(1, keepdim=True) + 1e-12) * mask * inside
                 else:
-                    H = torch.einsum("bin,bjn->bij", Jf * wi, Jf).double()
-                    g = torch.einsum("bin,bn->bi", Jf * wi, r[:, 0]).double()
-                A = H + self.lam * torch.diag_embed(torch.diagonal(H, dim1=1, dim2=2))
-                A = A + 1e-12 * torch.eye(6, dtype=A.dtype)  # keeps solve defined when nothing is seen
-                delta = torch.linalg.solve(A, g.unsqueeze(-1)).squeeze(-1).to(dtype)
-                R, t = compose_inverse_exp(R, t, delta)
+                    abs_a = (val - f_ref).abs() * mask * inside
+                w_a = self.mest(abs_a, m_ref, m_live, w_level_start)
+                Ra, ta = self._lm(truth[0], truth[1], w_a * mask, Jf, f_ref, f_live, X, Kl, anchor_iterations)
+                self.anchor_losses.append(epe(Ra, ta, truth[0], truth[1], X0, dp[0][1]))
+        return R, t, losses, (weights if return_weights else None)
+
+    def _lm(self, R, t, Wm, Jf, f_ref, f_live, X, Kl, iterations, med=None):
+        """`iterations` inverse-compositional LM steps from (R, t) at one level; with med (the
+        level's median depth) the largest step is recorded in self.max_step."""
+        multi = self.channels > 1
+        dtype = R.dtype
+        for _ in range(iterations):
+            val, inside = warp_sample(f_live, X, R, t, Kl)
+            r = (val - f_ref).flatten(2)
+            wi = (Wm * inside).flatten(2)
+            if multi:
+                wc = wi.unsqueeze(1)  # B x 1 x 1 x n
+                H = torch.einsum("bcin,bcjn->bij", Jf * wc, Jf).double()
+                g = torch.einsum("bcin,bcn->bi", Jf * wc, r).double()
+            else:
+                H = torch.einsum("bin,bjn->bij", Jf * wi, Jf).double()
+                g = torch.einsum("bin,bn->bi", Jf * wi, r[:, 0]).double()
+            A = H + self.lam * torch.diag_embed(torch.diagonal(H, dim1=1, dim2=2))
+            A = A + 1e-12 * torch.eye(6, dtype=A.dtype)  # keeps solve defined when nothing is seen
+            delta = torch.linalg.solve(A, g.unsqueeze(-1)).squeeze(-1).to(dtype)
+            R, t = compose_inverse_exp(R, t, delta)
+            if med is not None:
                 with torch.no_grad():
                     self.max_step = torch.maximum(self.max_step, torch.maximum(
                         delta[:, :3].norm(dim=1), delta[:, 3:].norm(dim=1) / med))
-            if truth is not None:
-                losses.append(epe(R, t, truth[0], truth[1], X0, dp[0][1]))
-        return R, t, losses, (weights if return_weights else None)
+        return R, t
 
 
 def quat_to_R(q):

@@ -8,7 +8,9 @@
 Each step takes `batch` pairs at random: a training pose, a reference year and a query year
 (cross-year with probability 0.8, same year otherwise). The solver is unrolled for
 `iterations` per level while training (20 at test time). Loss: the 3-D EPE after each level,
-summed, as the paper; a sample whose EPE is not finite is left out of the step. Every
+summed, as the paper (with --anchor-w W, plus W x each level's drift from a start at the
+truth: DeepICLK.forward's anchor_iterations); a sample whose EPE is not finite is left out of
+the step. Every
 --val-every steps the validation strip's cross-year pairs (a fixed subset) are aligned with
 20 iterations and the init / final EPE mean and median logged to OUT/log.csv; OUT/curves.png
 plots them; OUT/last.pt is the checkpoint, OUT/best.pt the best validation median.
@@ -287,6 +289,11 @@ def main():
     p.add_argument("--gap-power", type=float, default=0.0,
                    help="draw a cross-year pair's query year with weight (year gap)^P (0: uniformly); with "
                         "P > 0 the validation also logs 'val_far', pairs of the main set's largest year gaps")
+    p.add_argument("--anchor-w", type=float, default=0.0,
+                   help="weight of the anchor loss: at each level, the 3-D EPE after --anchor-iterations LM "
+                        "steps started at the truth (DeepICLK.forward's anchor_iterations), summed over levels "
+                        "and added to the loss; it pulls each level's learned minimum onto the truth")
+    p.add_argument("--anchor-iterations", type=int, default=2)
     p.add_argument("--init", help="start from this checkpoint's (.pt) or weight file's (.tlw) weights where the shapes match (warm start)")
     a = p.parse_args()
     torch.set_num_threads(a.threads)
@@ -355,8 +362,11 @@ def main():
         R_start = t_start = None  # the prior the pair was rendered at (identity)
         if a.near_p > 0 and rng.random() < a.near_p:
             R_start, t_start = near_start(truth, depth, gen, a.near_scale)
-        _, _, losses, _ = model(ref, depth, qry, K, R0=R_start, t0=t_start, truth=truth)
+        anchor = a.anchor_iterations if a.anchor_w > 0 else 0
+        _, _, losses, _ = model(ref, depth, qry, K, R0=R_start, t0=t_start, truth=truth, anchor_iterations=anchor)
         per = torch.stack(losses).sum(0)
+        if anchor:
+            per = per + a.anchor_w * torch.stack(model.anchor_losses).sum(0)
         ok = torch.isfinite(per)
         if ok.any():
             loss = per[ok].mean() * weight
