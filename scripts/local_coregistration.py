@@ -5,8 +5,9 @@ Christchurch's tiles are) disagree, as a whole and window by window.
 Each window of both images is phase-correlated (Hann window, a parabola through the peak for
 the sub-pixel shift); a window whose peak is under --min-q times the correlation surface's
 standard deviation (q: 4-6 for unrelated content, rising slowly with the window; in the
-hundreds for identical content) has no reliable shift and is left out. Prints the whole image's shift, then per window size the share of windows with a
-reliable shift and the distribution of their shifts' lengths in metres. A tracker cannot be held to an
+hundreds for identical content) has no reliable shift and is left out. Prints the whole
+image's shift, then per window size the share of windows with a reliable shift and the
+distribution of their shifts' lengths in metres. A tracker cannot be held to an
 answer closer than what the maps agree on over the ground it sees: the Christchurch tile's
 local shifts (roofs leaning differently in the two surveys) are the size of its 5 px line.
 Needs numpy and PIL (Debian's python3-numpy, python3-pil).
