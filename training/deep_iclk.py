@@ -269,12 +269,10 @@ class DeepICLK(nn.Module):
                 J = torch.stack([jacobian(sobel(f_ref[:, c:c + 1]), X, Kl) * mask for c in range(self.channels)], 1)
             else:
                 J = jacobian(sobel(f_ref), X, Kl) * mask
-            val, inside = warp_sample(f_live, X, R, t, Kl)
+            abs_r = self._abs_residual(f_ref, f_live, X, R, t, Kl, mask)
             if multi:  # the M-estimator sees the residual's RMS over channels and the channel means
-                abs_r = torch.sqrt(((val - f_ref) ** 2).mean(1, keepdim=True) + 1e-12) * mask * inside
                 m_ref, m_live = f_ref.mean(1, keepdim=True), f_live.mean(1, keepdim=True)
             else:
-                abs_r = (val - f_ref).abs() * mask * inside
                 m_ref, m_live = f_ref, f_live
             if w_prev is None:
                 w_prev = torch.ones_like(m_ref)
@@ -292,15 +290,19 @@ class DeepICLK(nn.Module):
             if truth is not None:
                 losses.append(epe(R, t, truth[0], truth[1], X0, dp[0][1]))
             if anchor_iterations > 0 and truth is not None:
-                val, inside = warp_sample(f_live, X, truth[0], truth[1], Kl)
-                if multi:
-                    abs_a = torch.sqrt(((val - f_ref) ** 2).mean(1, keepdim=True) + 1e-12) * mask * inside
-                else:
-                    abs_a = (val - f_ref).abs() * mask * inside
+                abs_a = self._abs_residual(f_ref, f_live, X, truth[0], truth[1], Kl, mask)
                 w_a = self.mest(abs_a, m_ref, m_live, w_level_start)
                 Ra, ta = self._lm(truth[0], truth[1], w_a * mask, Jf, f_ref, f_live, X, Kl, anchor_iterations)
                 self.anchor_losses.append(epe(Ra, ta, truth[0], truth[1], X0, dp[0][1]))
         return R, t, losses, (weights if return_weights else None)
+
+    def _abs_residual(self, f_ref, f_live, X, R, t, Kl, mask):
+        """The M-estimator's residual input at pose (R, t): |r|, or with several channels their RMS;
+        zero where the pixel is masked or leaves the image."""
+        val, inside = warp_sample(f_live, X, R, t, Kl)
+        if self.channels > 1:
+            return torch.sqrt(((val - f_ref) ** 2).mean(1, keepdim=True) + 1e-12) * mask * inside
+        return (val - f_ref).abs() * mask * inside
 
     def _lm(self, R, t, Wm, Jf, f_ref, f_live, X, Kl, iterations, med=None):
         """`iterations` inverse-compositional LM steps from (R, t) at one level; with med (the
