@@ -2,10 +2,9 @@
 """How far two co-registered images of one ground (two years' orthophotos on one grid, as
 Christchurch's tiles are) disagree, as a whole and window by window.
 
-Each window of both images is phase-correlated (Hann window, a parabola through the peak for
-the sub-pixel shift); a window whose peak is under --min-q times the correlation surface's
-standard deviation (q: 4-6 for unrelated content, rising slowly with the window; in the
-hundreds for identical content) has no reliable shift and is left out. Prints the whole
+Each window of both images is phase-correlated (scripts/phase_correlation.py); a window whose
+peak is under --min-q times the correlation surface's standard deviation (q: 4-6 for unrelated
+content, rising slowly with the window) has no reliable shift and is left out. Prints the whole
 image's shift, then per window size the share of windows with a reliable shift and the
 distribution of their shifts' lengths in metres. A tracker cannot be held to an
 answer closer than what the maps agree on over the ground it sees: the Christchurch tile's
@@ -19,19 +18,13 @@ import sys
 import numpy as np
 from PIL import Image
 
+from phase_correlation import phase_correlate
+
 
 def shift(a, b):
-    """(rows, cols) shift of b against a, sub-pixel, and the phase correlation's peak over its spread."""
-    n, m = a.shape
-    w = np.hanning(n)[:, None] * np.hanning(m)[None]
-    R = np.fft.fft2((a - a.mean()) * w) * np.conj(np.fft.fft2((b - b.mean()) * w))
-    r = np.fft.fftshift(np.fft.ifft2(R / (np.abs(R) + 1e-9)).real)
-    i, j = np.unravel_index(r.argmax(), r.shape)
-    di = dj = 0.0
-    if 0 < i < n - 1 and 0 < j < m - 1:
-        di = (r[i - 1, j] - r[i + 1, j]) / (2 * (r[i - 1, j] - 2 * r[i, j] + r[i + 1, j]) - 1e-12)
-        dj = (r[i, j - 1] - r[i, j + 1]) / (2 * (r[i, j - 1] - 2 * r[i, j] + r[i, j + 1]) - 1e-12)
-    return i - n // 2 + di, j - m // 2 + dj, r.max() / r.std()
+    """(rows, cols) shift of b against a and q, each image's mean taken out first."""
+    dx, dy, q = phase_correlate(a - a.mean(), b - b.mean())
+    return dy, dx, q
 
 
 def main():

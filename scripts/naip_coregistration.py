@@ -12,6 +12,7 @@ Needs numpy and PIL (Debian's python3-numpy, python3-pil).
 """
 import sys, glob, os, numpy as np
 from PIL import Image
+from phase_correlation import phase_correlate as pc
 HERE = os.path.dirname(os.path.abspath(__file__))
 files = sorted(glob.glob(os.path.join(HERE, '..', '..', 'shared', 'data', 'naip_nd_2009_2020', 'naip', '*.tif')))
 if not files:
@@ -38,22 +39,6 @@ def grad(g):
     gx[:, 1:-1] = g[:, 2:] - g[:, :-2]; gy[1:-1] = g[2:] - g[:-2]
     m = np.hypot(gx, gy)
     return (m - m.mean()) / (m.std() + 1e-9)
-def pc(a, b):
-    h = np.outer(np.hanning(a.shape[0]), np.hanning(a.shape[1]))
-    F = np.fft.fft2(a * h); G = np.fft.fft2(b * h)
-    R = F * np.conj(G); R /= np.abs(R) + 1e-9
-    r = np.real(np.fft.ifft2(R))
-    i, j = np.unravel_index(np.argmax(r), r.shape)
-    def sub(c, n, axis):
-        cm = r[(i - 1) % r.shape[0], j] if axis == 0 else r[i, (j - 1) % r.shape[1]]
-        cp = r[(i + 1) % r.shape[0], j] if axis == 0 else r[i, (j + 1) % r.shape[1]]
-        c0 = r[i, j]
-        d = 0.5 * (cm - cp) / (cm - 2 * c0 + cp)
-        v = c + d
-        return v - n if v > n / 2 else v
-    dy = sub(i, r.shape[0], 0); dx = sub(j, r.shape[1], 1)
-    peak = r[i, j]
-    return dx, dy, peak / (r.std() + 1e-12)
 imgs = {}
 for f in files:
     y = f.split('_')[-1][:4]

@@ -10,10 +10,9 @@ Each step takes `batch` pairs at random: a training pose, a reference year and a
 `iterations` per level while training (20 at test time). Loss: the 3-D EPE after each level,
 summed, as the paper (with --anchor-w W, plus W x each level's drift from a start at the
 truth: DeepICLK.forward's anchor_iterations); a sample whose EPE is not finite is left out of
-the step. Every
---val-every steps the validation strip's cross-year pairs (a fixed subset) are aligned with
-20 iterations and the init / final EPE mean and median logged to OUT/log.csv; OUT/curves.png
-plots them; OUT/last.pt is the checkpoint, OUT/best.pt the best validation median.
+the step. Every --val-every steps the validation strip's cross-year pairs (a fixed subset)
+are aligned with 20 iterations and the init / final EPE mean and median logged to
+OUT/log.csv; OUT/curves.png plots them; OUT/last.pt is the checkpoint, OUT/best.pt the best validation median.
 """
 import argparse
 import csv
