@@ -6,7 +6,8 @@ from the same start lie in one basin, and their mean often generalises better th
 
 The files must have the same network (their architecture text equal but for its comment
 lines) and the same tensors. The output takes the first file's architecture with a note of
-its parts. Needs numpy only (tlw.py)."""
+its parts, so also its calibrated thresholds (e.g. '# max-disagreement-px'): calibrate them
+again (calibrate_sharpness.py) before shipping a mean. Needs numpy only (tlw.py)."""
 import argparse
 import os
 import sys
