@@ -99,6 +99,7 @@ Status Localizer::render_reference(const geo::Pose& at, LocalizeOutput& out) {
 
 const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageView<const std::uint8_t> live,
                                                                           const geo::Pose& ref_pose,
+                                                                          const geo::Pose& prior,
                                                                           const Eigen::Quaterniond* attitude,
                                                                           bool first) {
   const iclk::Pinhole<float> K{static_cast<float>(work_.fx), static_cast<float>(work_.fy), static_cast<float>(work_.cx),
@@ -106,12 +107,11 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
   // The reference camera is ref_pose's: the world's up seen from it (the tilt prior's axis),
   // and the attitude's rotation of the live camera relative to it, log(R_live^T R_ref), the
   // rotation of T_live_ref that the prior holds (the tracker starts from the identity).
+  // Without an attitude reference the prior's own tilt is held, also in a refinement pass,
+  // whose reference is rendered at the last answer: the prior stays the prior's.
+  const Eigen::AngleAxisd a((attitude ? *attitude : prior.q_W_C).conjugate() * ref_pose.q_W_C);
   const Eigen::Vector3d up = ref_pose.R().transpose() * Eigen::Vector3d::UnitZ();
-  Eigen::Vector3d tilt = Eigen::Vector3d::Zero();
-  if (attitude) {
-    const Eigen::AngleAxisd a(attitude->conjugate() * ref_pose.q_W_C);
-    tilt = a.angle() * a.axis();
-  }
+  const Eigen::Vector3d tilt = a.angle() * a.axis();
   if (!deep_) {
     tracker_->set_up(up, tilt);
     if (first) {
@@ -162,7 +162,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
       if (pass == 0) return st.error();
       break;
     }
-    const auto& r = align_once(live, ref_pose, attitude, pass == 0);
+    const auto& r = align_once(live, ref_pose, prior, attitude, pass == 0);
     out.iterations += r.iterations;
     out.ms_pyramid += r.ms_pyramid;
     out.ms_jacobian += r.ms_jacobian;

@@ -123,7 +123,7 @@ class Localizer {
   Localizer() = default;
   Status render_reference(const geo::Pose& at, LocalizeOutput& out);
   const iclk::TrackResult<iclk::SE3DepthWarp<float>>& align_once(ImageView<const std::uint8_t> live,
-                                                                 const geo::Pose& ref_pose,
+                                                                 const geo::Pose& ref_pose, const geo::Pose& prior,
                                                                  const Eigen::Quaterniond* attitude, bool first);
   int refine_passes_ = 0, refine_levels_ = kRefineLevels;
   double refine_min_deg_ = kRefineMinDeg;
