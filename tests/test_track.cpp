@@ -323,7 +323,7 @@ TEST_CASE("track holds each answer's tilt to an attitude reference's, frame by f
   auto refused = [&](const std::string& opts, const std::string& want) {
     check_refused(track + " " + opts, dir + "/err.txt", want);
   };
-  refused("--tilt-prior 0.5", "--tilt-prior needs --attitude");
+  refused("--tilt-prior 11", "--tilt-prior '11' must be in [0, 10] degrees");
   refused("--attitude " + dir + "/nope.txt", "nope.txt: cannot open the attitude readings");
   std::ofstream(dir + "/short.txt") << truth[0].first << " 1 0 0 0\n";
   refused("--attitude " + dir + "/short.txt", "short.txt: 1 attitude readings for 6 frames");

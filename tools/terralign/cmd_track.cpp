@@ -148,8 +148,6 @@ int run_track(const std::vector<std::string>& argv) {
   if (!topt.ok()) return usage_error("track", topt.error());
   auto refine = parse_refine(args.value());
   if (!refine.ok()) return usage_error("track", refine.error());
-  if (topt->tilt_prior_rad > 0 && !args->has("attitude"))
-    return usage_error("track", Error{"--tilt-prior needs --attitude FILE: the tilt it holds the answer to"});
   std::vector<Eigen::Quaterniond> attitude;
   if (args->has("attitude")) {
     auto a = read_attitude(args->get("attitude"), frames.value());
