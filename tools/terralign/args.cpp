@@ -92,7 +92,7 @@ Result<nn::WeightFile> learned_weights(const Args& args) {
 
 Result<iclk::TrackerOptions> parse_tracker_options(const Args& args) {
   iclk::TrackerOptions opt;
-  auto tilt = args.get_double("tilt-prior", 0.0);
+  auto tilt = args.get_double("tilt-prior", kDefaultTiltPriorDeg);
   if (!tilt.ok() || !(tilt.value() >= 0 && tilt.value() <= 10))
     return Error{"--tilt-prior '" + args.get("tilt-prior") + "' must be in [0, 10] degrees (0: no tilt prior)"};
   opt.tilt_prior_rad = tilt.value() * 3.14159265358979323846 / 180;

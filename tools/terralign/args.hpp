@@ -40,8 +40,9 @@ Result<nn::WeightFile> learned_weights(const Args& args);
 
 // The tracker's options that align, eval and track share, on iclk::TrackerOptions' defaults
 // (a command that does not accept one keeps its default):
-// --tilt-prior DEG: the standard deviation of the prior's tilt (roll and pitch, from an
-//   attitude reference), in [0, 10] degrees; 0 (the default): none (tilt_prior_rad, radians).
+// --tilt-prior DEG: the standard deviation of the prior's tilt (roll and pitch: an attitude
+//   reference's where there is one, else the prior pose's own), in [0, 10] degrees
+//   (tilt_prior_rad, radians); default kDefaultTiltPriorDeg; 0: none.
 // --registration-floor PX: the smallest registration error the covariance admits, in camera
 //   pixels, [0, 100] (registration_floor_px). The default suits a map of the image's own
 //   year; across years of change the error is larger (README, tracking a flight).
@@ -56,6 +57,13 @@ Result<nn::WeightFile> learned_weights(const Args& args);
 //   coarsest-level pixels; 0 (the default): each tracker's own (kClassicCoarseSearchPx,
 //   iclk::DeepAligner::kCoarseSearchPx); -1: none.
 Result<iclk::TrackerOptions> parse_tracker_options(const Args& args);
+// The tilt prior the commands assume when --tilt-prior is not given: a rough pose's roll and
+// pitch are good to 3 degrees (1 sigma per axis). The evaluation protocol turns its priors by
+// U[0, 6] degrees about a random axis, 2 degrees RMS about each horizontal one; across years
+// the learned tracker otherwise trades a tilt error for a shift (2009 -> 2020, seed 11, every
+// answer counted: 63.0 % within 5 px without, 75.0 / 76.5 / 76.5 / 73.5 % with 1.5 / 2 / 3 / 5
+// degrees; docs/history.md, session 33).
+constexpr double kDefaultTiltPriorDeg = 3.0;
 // --refine N: the re-rendered refinement's passes (Localizer::set_refinement), 0..5.
 Result<int> parse_refine(const Args& args);
 
