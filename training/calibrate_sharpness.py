@@ -11,7 +11,8 @@ its threshold into it (read by src/iclk/deep_aligner.cpp):
 
 The threshold keeps `--keep` (97 %) of the right converged answers (2-D EPE < 5 px) of an
 adjacent-year pair on calibration poses (seed 11; the README's tables use seed 7). Runs
-`terralign eval ... --min-sharpness -1 --max-disagreement -1 --json` (both tests off);
+`terralign eval ... --min-sharpness -1 --max-disagreement -1 --json` (both tests off, the
+other options eval's defaults: since session 33 the 3-degree tilt prior);
 Python's standard library only.
 
   training/calibrate_sharpness.py weights/deep_iclk_s16.tlw
