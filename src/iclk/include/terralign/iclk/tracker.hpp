@@ -119,8 +119,9 @@ struct TrackerOptions {
   // Widens the basin for a prior a few coarsest pixels off, which the steps alone can miss.
   int coarse_search_px = 0;
   double coarse_search_yaw_deg = 0;
-  // An attitude reference, as an aircraft's IMU still gives while GPS fails (6-DoF warp):
-  // the answer's tilt, its rotation relative to the initial parameters about the two axes
+  // A tilt prior (6-DoF warp), from an attitude reference, as an aircraft's IMU still gives
+  // while GPS fails, or from the prior pose's own roll and pitch (the command line's default,
+  // 3 degrees): the answer's tilt, its rotation relative to the initial parameters about the two axes
   // orthogonal to the world's up (Tracker::set_up), is held to a Gaussian prior of this
   // standard deviation per axis, in rad (0: none). The heading and the position stay free.
   // Weighed against the image term at its noise (sigma^2 f, TrackResult::covariance, f
