@@ -115,6 +115,16 @@ def se3_exp(xi):
     return R, (V @ v.unsqueeze(-1)).squeeze(-1)
 
 
+def so3_log(R):
+    """R: B x 3 x 3 -> its rotation vector, B x 3 (angles below pi)."""
+    w = 0.5 * torch.stack((R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]), -1)
+    s = w.norm(dim=-1)
+    c = (R.diagonal(dim1=1, dim2=2).sum(-1) - 1) / 2
+    small = s < 1e-6
+    k = torch.where(small, 1 + s * s / 6, torch.atan2(s, c) / torch.where(small, torch.ones_like(s), s))
+    return w * k.unsqueeze(-1)
+
+
 def compose_inverse_exp(R, t, delta):
     """T <- T exp(delta)^-1."""
     Rd, td = se3_exp(delta)
@@ -230,16 +240,21 @@ class DeepICLK(nn.Module):
         self.encoder = Encoder(SIZES[size]["encoder"], channels)
         self.mest = MEstimator(SIZES[size]["mest"])
         self.levels, self.iterations, self.lam = levels, iterations, lam
+        # The tilt prior (rad per axis; 0: none), as the C++ solver's TrackerOptions::
+        # tilt_prior_rad: forward's `up` holds the answer's roll and pitch to the start's.
+        self.tilt_sigma = 0.0
 
     def forward(self, ref_rgb, ref_depth, live_rgb, K, R0=None, t0=None, truth=None, return_weights=False,
-                anchor_iterations=0):
+                anchor_iterations=0, up=None):
         """ref_rgb, live_rgb: B x 3 x H x W (0..255); ref_depth: B x 1 x H x W (NaN: none);
         K: (fx, fy, cx, cy), each a B tensor; R0, t0: initial T_live_ref (identity if None);
         truth: (R_gt, t_gt) for the loss. Returns (R, t, per-level EPE list or None, weights).
         anchor_iterations > 0 (training only, with truth): each level also runs that many LM
         iterations started at the truth, its M-estimator's weights taken there, and
         self.anchor_losses holds each level's 3-D EPE after them: how far the level's learned
-        cost moves a right answer, zero when its minimum is at the truth."""
+        cost moves a right answer, zero when its minimum is at the truth. up: B x 3, the world's
+        up in the reference camera; with self.tilt_sigma > 0 the LM holds the answer's rotation
+        about the two axes orthogonal to it to the start's (the C++ solver's tilt prior)."""
         B = ref_rgb.shape[0]
         dtype = ref_rgb.dtype
         fr = self.encoder(ref_rgb)
@@ -249,6 +264,7 @@ class DeepICLK(nn.Module):
         for _ in range(1, self.levels):
             Ks.append(half(Ks[-1]))
         R = torch.eye(3, dtype=dtype).repeat(B, 1, 1) if R0 is None else R0
+        R_init = R
         t = torch.zeros(B, 3, dtype=dtype) if t0 is None else t0
         X0 = points(dp[0][0], Ks[0])
         losses, weights = [], [None] * self.levels
@@ -286,7 +302,8 @@ class DeepICLK(nn.Module):
             with torch.no_grad():  # the C++ solver's step bound is in units of the median depth
                 med = torch.stack([d[m > 0].median() if (m > 0).any() else d.new_tensor(1.0)
                                    for d, m in zip(depth[:, 0], mask[:, 0])])
-            R, t = self._lm(R, t, w * mask, Jf, f_ref, f_live, X, Kl, self.iterations, med)
+            R, t = self._lm(R, t, w * mask, Jf, f_ref, f_live, X, Kl, self.iterations, med,
+                            up=up if self.tilt_sigma > 0 else None, R_init=R_init)
             if truth is not None:
                 losses.append(epe(R, t, truth[0], truth[1], X0, dp[0][1]))
             if anchor_iterations > 0 and truth is not None:
@@ -304,11 +321,41 @@ class DeepICLK(nn.Module):
             return torch.sqrt(((val - f_ref) ** 2).mean(1, keepdim=True) + 1e-12) * mask * inside
         return (val - f_ref).abs() * mask * inside
 
-    def _lm(self, R, t, Wm, Jf, f_ref, f_live, X, Kl, iterations, med=None):
+    def _image_noise(self, res, wi):
+        """The C++ solver's image noise sigma^2 f at the level's first step (tracker.cpp's
+        image_noise): the weighted mean square residual per channel and pixel, times the
+        inflation ((1 + rho) / (1 - rho))^2 of the horizontal neighbours' correlation rho (clamped
+        to [0, 0.9]) and, with several channels, Kish's 1 + (C - 1) rho_c of their correlation.
+        res: B x C x h x w, wi: B x 1 x h x w. No gradient."""
+        with torch.no_grad():
+            res, wi = res.double(), wi.double()
+            C = res.shape[1]
+            cost = (wi * res * res).sum((1, 2, 3))
+            wsum = C * wi.sum((1, 2, 3))
+            base = cost / torch.clamp(wsum - 6, min=1.0)
+            pair = ((wi[..., :-1] > 0) & (wi[..., 1:] > 0)).double()
+            a, b = res[..., :-1] * pair, res[..., 1:] * pair
+            sab, saa, sbb = (a * b).sum((1, 2, 3)), (a * a).sum((1, 2, 3)), (b * b).sum((1, 2, 3))
+            rho = torch.where((saa > 0) & (sbb > 0), sab / torch.sqrt(saa * sbb + 1e-300), torch.zeros_like(sab))
+            rho = rho.clamp(0.0, 0.9)
+            f = ((1 + rho) / (1 - rho)) ** 2
+            if C > 1:
+                on = (wi > 0).double()
+                r = res * on
+                s = torch.einsum("bchw,bdhw->bcd", r, r)
+                d = torch.sqrt(torch.diagonal(s, dim1=1, dim2=2))
+                corr = s / torch.clamp(d.unsqueeze(-1) * d.unsqueeze(-2), min=1e-300)
+                off = (corr.sum((1, 2)) - torch.diagonal(corr, dim1=1, dim2=2).sum(-1)) / (C * (C - 1))
+                f = f * (1 + (C - 1) * off.clamp(0.0, 1.0))
+            return f * base
+
+    def _lm(self, R, t, Wm, Jf, f_ref, f_live, X, Kl, iterations, med=None, up=None, R_init=None):
         """`iterations` inverse-compositional LM steps from (R, t) at one level; with med (the
-        level's median depth) the largest step is recorded in self.max_step."""
+        level's median depth) the largest step is recorded in self.max_step; with up (B x 3) and
+        self.tilt_sigma > 0, the tilt prior about R_init (forward's)."""
         multi = self.channels > 1
         dtype = R.dtype
+        P = None
         for _ in range(iterations):
             val, inside = warp_sample(f_live, X, R, t, Kl)
             r = (val - f_ref).flatten(2)
@@ -322,6 +369,18 @@ class DeepICLK(nn.Module):
                 g = torch.einsum("bin,bn->bi", Jf * wi, r[:, 0]).double()
             A = H + self.lam * torch.diag_embed(torch.diagonal(H, dim1=1, dim2=2))
             A = A + 1e-12 * torch.eye(6, dtype=A.dtype)  # keeps solve defined when nothing is seen
+            if up is not None:
+                # 1/2 e^T P e on e = log(R_init^T R), P = noise (I - u u^T) / sigma^2; the step
+                # R <- R exp(-delta) gives e - delta, so P joins A and P e joins g (tracker.cpp).
+                if P is None:
+                    u = (up / up.norm(dim=-1, keepdim=True)).double()
+                    info = (torch.eye(3, dtype=torch.float64) - u.unsqueeze(-1) * u.unsqueeze(-2)) / self.tilt_sigma ** 2
+                    P = self._image_noise(val - f_ref, Wm * inside).view(-1, 1, 1) * info
+                e = so3_log(R_init.transpose(1, 2) @ R).double()
+                A = A.clone()
+                A[:, :3, :3] = A[:, :3, :3] + P
+                g = g.clone()
+                g[:, :3] = g[:, :3] + (P @ e.unsqueeze(-1)).squeeze(-1)
             delta = torch.linalg.solve(A, g.unsqueeze(-1)).squeeze(-1).to(dtype)
             R, t = compose_inverse_exp(R, t, delta)
             if med is not None:

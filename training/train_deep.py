@@ -67,6 +67,7 @@ class PairSet:
         self.depth = np.zeros((n, h, w), np.float32)
         self.K = np.zeros((n, 4), np.float64)
         self.T = np.zeros((n, 7), np.float64)
+        self.up = np.zeros((n, 3), np.float64)  # the world's up in the reference (prior) camera
         self.altitude = np.zeros(n)
         t0 = time.time()
         for i, pid in enumerate(self.ids):
@@ -79,6 +80,8 @@ class PairSet:
             self.K[i] = [float(r[k]) for k in ("fx", "fy", "cx", "cy")]
             self.T[i] = [float(r[k]) for k in ("t_x", "t_y", "t_z", "q_w", "q_x", "q_y", "q_z")]
             self.altitude[i] = float(r["altitude"])
+            q = torch.tensor([[float(v) for v in r["prior"].split()[3:7]]], dtype=torch.float64)
+            self.up[i] = D.quat_to_R(q)[0, 2].numpy()  # R_W_C^T (0, 0, 1): R's third row
         print(f"{split}: {n} poses x {L} layers ({', '.join(self.layers)}) of {w}x{h} in {time.time() - t0:.0f} s",
               flush=True)
 
@@ -91,6 +94,9 @@ class PairSet:
         K = tuple(torch.from_numpy(self.K[i][:, k]).to(dtype) for k in range(4))
         T = torch.from_numpy(self.T[i]).to(dtype)
         return ref, depth, qry, K, (D.quat_to_R(T[:, 3:]), T[:, :3])
+
+    def up_of(self, items, dtype=torch.float32):
+        return torch.from_numpy(self.up[[a for a, _, _ in items]]).to(dtype)
 
 
 def augment(x, gen, p=0.8):
@@ -204,12 +210,13 @@ def validate(model, val, items, batch=8):
     with torch.no_grad():
         for s in range(0, len(items), batch):
             ref, depth, qry, K, truth = val.batch(items[s:s + batch])
+            up = val.up_of(items[s:s + batch])
             B = ref.shape[0]
             eye = torch.eye(3).repeat(B, 1, 1)
             X0 = D.points(D.depth_pyramid(depth, 1)[0][0], K)
             valid = torch.isfinite(depth).float()
             init += D.epe(eye, torch.zeros(B, 3), truth[0], truth[1], X0, valid).tolist()
-            R, t, _, _ = model(ref, depth, qry, K)
+            R, t, _, _ = model(ref, depth, qry, K, up=up)
             final += D.epe(R, t, truth[0], truth[1], X0, valid).tolist()
     model.train()
     f = np.array(final)
@@ -293,6 +300,9 @@ def main():
                         "steps started at the truth (DeepICLK.forward's anchor_iterations), summed over levels "
                         "and added to the loss; it pulls each level's learned minimum onto the truth")
     p.add_argument("--anchor-iterations", type=int, default=2)
+    p.add_argument("--tilt-prior", type=float, default=0.0,
+                   help="degrees: the LM holds the answer's roll and pitch to the prior's (the C++ solver's tilt "
+                        "prior, terralign's default 3) in training and validation; 0: none")
     p.add_argument("--init", help="start from this checkpoint's (.pt) or weight file's (.tlw) weights where the shapes match (warm start)")
     a = p.parse_args()
     torch.set_num_threads(a.threads)
@@ -316,6 +326,7 @@ def main():
         extra_weight = float(train.altitude.mean() / extra.altitude.mean())
         print(f"extra set {a.extra}: batches with p = {a.extra_p}, loss x {extra_weight:.2f}", flush=True)
     model = D.DeepICLK(a.size, iterations=a.iterations, channels=a.channels)
+    model.tilt_sigma = a.tilt_prior * np.pi / 180
     opt = torch.optim.Adam(model.parameters(), lr=a.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=a.steps, eta_min=a.lr * 0.05)
     step, best = 0, float("inf")
@@ -352,8 +363,9 @@ def main():
         src, weight = train, 1.0
         if extra is not None and rng.random() < a.extra_p:
             src, weight = extra, extra_weight
-        ref, depth, qry, K, truth = src.batch(sample_items(rng, len(src.ids), len(src.layers), a.batch,
-                                                           gaps=gaps if src is train else None, gap_power=a.gap_power))
+        items = sample_items(rng, len(src.ids), len(src.layers), a.batch, gaps=gaps if src is train else None,
+                             gap_power=a.gap_power)
+        ref, depth, qry, K, truth = src.batch(items)
         if a.augment_survey > 0:
             ref, qry = augment_survey(ref, gen, a.augment_survey), augment_survey(qry, gen, a.augment_survey)
         if a.augment > 0:
@@ -362,7 +374,8 @@ def main():
         if a.near_p > 0 and rng.random() < a.near_p:
             R_start, t_start = near_start(truth, depth, gen, a.near_scale)
         anchor = a.anchor_iterations if a.anchor_w > 0 else 0
-        _, _, losses, _ = model(ref, depth, qry, K, R0=R_start, t0=t_start, truth=truth, anchor_iterations=anchor)
+        _, _, losses, _ = model(ref, depth, qry, K, R0=R_start, t0=t_start, truth=truth, anchor_iterations=anchor,
+                                up=src.up_of(items))
         per = torch.stack(losses).sum(0)
         if anchor:
             per = per + a.anchor_w * torch.stack(model.anchor_losses).sum(0)
