@@ -377,10 +377,8 @@ class DeepICLK(nn.Module):
                     info = (torch.eye(3, dtype=torch.float64) - u.unsqueeze(-1) * u.unsqueeze(-2)) / self.tilt_sigma ** 2
                     P = self._image_noise(val - f_ref, Wm * inside).view(-1, 1, 1) * info
                 e = so3_log(R_init.transpose(1, 2) @ R).double()
-                A = A.clone()
-                A[:, :3, :3] = A[:, :3, :3] + P
-                g = g.clone()
-                g[:, :3] = g[:, :3] + (P @ e.unsqueeze(-1)).squeeze(-1)
+                A = A + F.pad(P, (0, 3, 0, 3))
+                g = g + F.pad((P @ e.unsqueeze(-1)).squeeze(-1), (0, 3))
             delta = torch.linalg.solve(A, g.unsqueeze(-1)).squeeze(-1).to(dtype)
             R, t = compose_inverse_exp(R, t, delta)
             if med is not None:
