@@ -25,10 +25,13 @@ constexpr double kPi = 3.14159265358979323846;
 
 struct Errors {
   double epe_m, angle_deg, trans_m, epe_px;
+  double tilt_deg;  // the part of angle_deg an attitude reference sees: between the two cameras' views of the map's up
   iclk::Vec3<double> shift_C;  // mean of T_est X - T_gt X over the reference points, live camera axes
 };
 
-Errors errors(const iclk::SE3<double>& est, const iclk::SE3<double>& gt, const ImageF& depth, const geo::CameraModel& cam) {
+// est and gt are T_live_ref; up_ref is the map's up in the reference camera's axes.
+Errors errors(const iclk::SE3<double>& est, const iclk::SE3<double>& gt, const iclk::Vec3<double>& up_ref, const ImageF& depth,
+              const geo::CameraModel& cam) {
   const iclk::Pinhole<double> K{cam.fx, cam.fy, cam.cx, cam.cy};
   double s3 = 0, s2 = 0;
   iclk::Vec3<double> shift = iclk::Vec3<double>::Zero();
@@ -54,6 +57,8 @@ Errors errors(const iclk::SE3<double>& est, const iclk::SE3<double>& gt, const I
   e.epe_px = n2 ? s2 / static_cast<double>(n2) : NAN;
   e.shift_C = n3 ? iclk::Vec3<double>(shift / static_cast<double>(n3)) : iclk::Vec3<double>::Constant(NAN);
   e.angle_deg = Eigen::AngleAxisd(dR).angle() * 180 / kPi;
+  const iclk::Vec3<double> up_est = est.R * up_ref, up_gt = gt.R * up_ref;
+  e.tilt_deg = std::atan2(up_est.cross(up_gt).norm(), up_est.dot(up_gt)) * 180 / kPi;
   e.trans_m = (gt.t - dR * est.t).norm();
   return e;
 }
@@ -76,7 +81,7 @@ struct Method {
   std::string name;
   int iterations;  // 0: init
   bool learned = false;
-  std::vector<double> epe_m, angle, trans, epe_px, ms;
+  std::vector<double> epe_m, angle, tilt, trans, epe_px, ms;
   std::vector<Eigen::Vector3d> position_error;  // estimated camera centre - true one, map x y z (east north up)
   std::vector<Eigen::Vector3d> ground_shift;    // mean displacement of the seen ground, estimate - truth, map axes
   std::vector<Eigen::Vector3d> truth_position;  // the true camera centre, map x y z
@@ -290,9 +295,10 @@ int run_eval(const std::vector<std::string>& argv) {
         if (!loc.value()->render_at(s.prior).ok()) break;
         have_ref = true;
       }
-      const Errors e = errors(est, gt, loc.value()->reference_depth(), cam);
+      const Errors e = errors(est, gt, s.prior.R().transpose() * Eigen::Vector3d::UnitZ(), loc.value()->reference_depth(), cam);
       m.epe_m.push_back(e.epe_m);
       m.angle.push_back(e.angle_deg);
+      m.tilt.push_back(e.tilt_deg);
       m.trans.push_back(e.trans_m);
       m.epe_px.push_back(e.epe_px);
       m.ms.push_back(ms);
@@ -343,6 +349,7 @@ int run_eval(const std::vector<std::string>& argv) {
     nlohmann::json mj;
     mj["epe_m"] = stats(m.epe_m);
     mj["angle_deg"] = stats(m.angle);
+    mj["tilt_deg"] = stats(m.tilt);  // of angle_deg, roll and pitch together (the rest is heading)
     mj["trans_m"] = stats(m.trans);
     mj["epe_px"] = stats(m.epe_px);
     mj["success_rate"] = n > 0 ? ok1 / n : 0.0;
@@ -356,7 +363,8 @@ int run_eval(const std::vector<std::string>& argv) {
     // costs behind the decision and the reported uncertainty.
     for (std::size_t k = 0; k < m.epe_px.size(); ++k) {
       const Eigen::Vector3d& dp = m.position_error[k];
-      nlohmann::json sj = {{"epe_px", m.epe_px[k]}, {"epe_m", m.epe_m[k]}, {"converged", m.ok[k] != 0},
+      nlohmann::json sj = {{"epe_px", m.epe_px[k]}, {"epe_m", m.epe_m[k]}, {"angle_deg", m.angle[k]}, {"tilt_deg", m.tilt[k]},
+                           {"converged", m.ok[k] != 0},
                            {"position_error_m", {dp.x(), dp.y(), dp.z()}}};
       const Eigen::Vector3d &g = m.ground_shift[k], &tp = m.truth_position[k];
       if (g.allFinite()) sj["ground_shift_m"] = {g.x(), g.y(), g.z()};
