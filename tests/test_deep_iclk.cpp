@@ -223,7 +223,7 @@ TEST_CASE("learned tracker: the converged tests read their thresholds from the w
   // --test agreement) and, since it replaced it (docs/history.md, session 20), no sharpness threshold.
   auto agree = iclk::DeepAligner::max_disagreement(shipped);
   REQUIRE(agree.ok());
-  CHECK(agree.value() == doctest::Approx(1.20));
+  CHECK(agree.value() == doctest::Approx(1.10));
   auto none = iclk::DeepAligner::min_sharpness(shipped);
   REQUIRE(none.ok());
   CHECK(none.value() == 0.0);
