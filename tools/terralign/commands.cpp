@@ -84,8 +84,10 @@ const std::vector<Command>& commands() {
        "protocol). --prior-scale F: every\n"
        "prior's rotation and move times F, the same draws otherwise (F < 1: priors nearer the\n"
        "truth, as a tracking loop's, to tell a narrow basin from a biased minimum). --json OUT\n"
-       "also holds per pose and method the 2-D and 3-D EPE, the converged flag and the tests'\n"
-       "numbers, the true camera centre and the mean ground shift (estimate - truth, map axes, m).\n"
+       "also holds per pose and method the 2-D and 3-D EPE, the angle error and its tilt part\n"
+       "(roll and pitch: between the true and the estimated view of the map's up), the converged\n"
+       "flag and the tests' numbers, the true camera centre and the mean ground shift (estimate -\n"
+       "truth, map axes, m).\n"
        "--refine N: both trackers' refinement passes, as align's (default 2; the time includes them).\n",
        run_eval},
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
