@@ -198,6 +198,19 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
     }
   }
   check_refused(cmd + "--nn-levels 7", dir + "/err.txt", "--nn-levels '7' must be an integer in [0, 6]");
+  // align takes the same converged tests: the first frame from its true pose converges with
+  // the weight file's threshold, fails "ambiguous" (exit code 3, the prior printed) with 1e-9 px.
+  const std::string align = tl + " align --method nn --map " + map + " --camera " + cam + " --layer 2016 --image " + dir +
+                            "/frames/000000.png --prior \"" + first_truth_pose(dir) + "\" ";
+  for (const char* agree : {"", "--max-disagreement 1e-9"}) {
+    CAPTURE(agree);
+    const int rc = std::system((align + agree + " >" + dir + "/align.json 2>/dev/null").c_str());
+    const nlohmann::json a = nlohmann::json::parse(test::read_text(dir + "/align.json"));
+    CHECK(a["converged"].get<bool>() == (*agree == 0));
+    CHECK((rc == 0) == (*agree == 0));
+    if (*agree) CHECK(a["reason"].get<std::string>().find("ambiguous: a start nearby") != std::string::npos);
+  }
+  check_refused(align + "--max-disagreement -1001", dir + "/err.txt", "--max-disagreement '-1001' must be in [-1000, 1000]");
 }
 
 TEST_CASE("track reports bad frames by name and goes on: a missing image, a wrong size, time going backwards") {

@@ -22,7 +22,8 @@ const std::vector<Command>& commands() {
        "usage: terralign align --map MAP.json --camera CAMERA.json --image IMG --prior \"x y z qw qx qy qz\"\n"
        "                       --layer NAME [--method classic|nn] [--iterations N] [--robust none|huber|tukey]\n"
        "                       [--threads N] [--weights FILE] [--tilt-prior DEG] [--registration-floor PX]\n"
-       "                       [--registration-floor-per-residual PX] [--refine N]\n\n"
+       "                       [--registration-floor-per-residual PX] [--refine N] [--min-sharpness S]\n"
+       "                       [--max-disagreement PX] [--coarse-search PX]\n\n"
        "Renders LAYER at the prior, aligns the image to it (inverse-compositional LM on SE(3),\n"
        "4 levels, N iterations per level, default 20) and prints {\"pose\", \"covariance\",\n"
        "\"converged\", \"reason\", \"iterations\", \"ms\"}. The covariance is 6x6 over\n"
@@ -47,7 +48,9 @@ const std::vector<Command>& commands() {
        "keeps part of its reference's tilt error as a shift; the pass takes it out (same year: a\n"
        "tenth of the error; docs/history.md). Only answers whose final residual is at most 1.0 (a\n"
        "correlation of 0.5: same-year maps) are refined. The answer and its covariance are the last\n"
-       "pass's; a pass that fails leaves the one before. \"iterations\" and \"ms\" count every pass.\n",
+       "pass's; a pass that fails leaves the one before. \"iterations\" and \"ms\" count every pass.\n"
+       "--min-sharpness S, --max-disagreement PX and --coarse-search PX: as eval's (the converged\n"
+       "tests and the search before the coarsest level).\n",
        run_align},
       {"eval", "the paper's evaluation: sampled poses, rendered pairs, error tables per method",
        "usage: terralign eval --map MAP.json --camera CAMERA.json --ref-layer A --query-layer B --count N\n"
@@ -68,7 +71,7 @@ const std::vector<Command>& commands() {
        "N iterations per level; --weights as for align). --area keeps every footprint inside a part\n"
        "of the map (e.g. ground the learned tracker was not trained on). Converged tests report an\n"
        "answer as failed (the prior): --max-disagreement PX, the agreement test of both trackers\n"
-       "(default: 0.95 classic; the weight file's '# max-disagreement-px', 1.20 for the shipped\n"
+       "(default: 0.95 classic; the weight file's '# max-disagreement-px', 1.10 for the shipped\n"
        "weights; negative: none), when a second start 2 working px away in u and v settles more\n"
        "than PX away from it; --min-sharpness S, the learned tracker's sharpness test (default:\n"
        "the weight file's '# min-sharpness', none for the shipped weights; negative: none), when\n"
