@@ -118,6 +118,20 @@ Result<iclk::TrackerOptions> parse_tracker_options(const Args& args) {
   return opt;
 }
 
+Result<Degradation> parse_degradation(const Args& args) {
+  Degradation d;
+  TERRALIGN_TRY_ASSIGN(d.blur, args.get_int("blur", 0, 0, 10));
+  auto noise = args.get_double("noise", 0.0);
+  if (!noise.ok() || !(noise.value() >= 0 && noise.value() <= 100))
+    return Error{"--noise '" + args.get("noise") + "' must be in [0, 100] grey levels"};
+  d.noise = noise.value();
+  auto exposure = args.get_double("exposure", 0.0);
+  if (!exposure.ok() || !(exposure.value() >= 0 && exposure.value() < 1))
+    return Error{"--exposure '" + args.get("exposure") + "' must be in [0, 1)"};
+  d.exposure = exposure.value();
+  return d;
+}
+
 Result<int> parse_refine(const Args& args) {
   auto n = args.get_int("refine", kDefaultRefinePasses, 0, 5);
   if (!n.ok()) return Error{"--refine '" + args.get("refine") + "' must be 0 to 5 re-rendered passes"};

@@ -10,6 +10,8 @@
 #include <terralign/iclk/tracker.hpp>
 #include <terralign/nn/weights.hpp>
 
+#include "sampling.hpp"
+
 namespace terralign::cli {
 
 class Args {
@@ -64,6 +66,9 @@ Result<iclk::TrackerOptions> parse_tracker_options(const Args& args);
 // answer counted: 63.0 % within 5 px without, 75.0 / 76.5 / 76.5 / 73.5 % with 1.5 / 2 / 3 / 5
 // degrees; docs/history.md, session 33).
 constexpr double kDefaultTiltPriorDeg = 3.0;
+// --blur R (px, 0..10), --noise SIGMA (grey levels, [0, 100]), --exposure E ([0, 1)): what a
+// camera does to a rendered frame (Degradation); none by default.
+Result<Degradation> parse_degradation(const Args& args);
 // --refine N: the re-rendered refinement's passes (Localizer::set_refinement), 0..5.
 Result<int> parse_refine(const Args& args);
 

@@ -126,7 +126,7 @@ int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
                                  "min-sharpness", "max-disagreement", "coarse-search", "input-scale", "nn-levels", "imu-tilt", "tilt-prior",
-                                 "prior-scale", "refine"}, {});
+                                 "prior-scale", "refine", "blur", "noise", "exposure"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -159,6 +159,8 @@ int run_eval(const std::vector<std::string>& argv) {
   if (!topt.ok()) return usage_error("eval", topt.error());
   auto refine = parse_refine(args.value());
   if (!refine.ok()) return usage_error("eval", refine.error());
+  auto degradation = parse_degradation(args.value());
+  if (!degradation.ok()) return usage_error("eval", degradation.error());
   // The learned tracker's working size and levels (as the firmware sets them): 0 keeps the
   // weight file's.
   LocalizerSizes sizes;
@@ -244,6 +246,7 @@ int run_eval(const std::vector<std::string>& argv) {
   auto query = query_renderer.value()->make_output({args->get("query-layer")});
   if (!query.ok()) return fail(query.error());
   ImageF ref_grey, query_grey;
+  ImageU8 live;  // the query as the camera gives it (degraded with --blur, --noise, --exposure)
 
   int skipped = 0;
   for (std::size_t i = 0; i < samples->size(); ++i) {
@@ -251,6 +254,12 @@ int run_eval(const std::vector<std::string>& argv) {
     if (auto st = query_renderer.value()->render(s.truth, query.value()); !st.ok()) {
       ++skipped;
       continue;
+    }
+    live = query->rgb[0];
+    if (degradation->any()) {
+      // Each sample's own stream, so that a sample's image does not depend on the others.
+      Rng rng{Rng{(seed ^ 0x243f6a8885a308d3ULL) + i}.next()};
+      degrade(live, degradation.value(), rng);
     }
     const geo::Pose rel = s.truth.inverse() * s.prior;  // T_C1_Cref
     iclk::SE3<double> gt;
@@ -263,7 +272,7 @@ int run_eval(const std::vector<std::string>& argv) {
       if (m.iterations > 0) {
         Localizer& L = m.learned ? *learned : *loc.value();
         L.set_iterations(m.iterations);
-        auto out = L.localize(query->rgb[0].view(), s.prior);
+        auto out = L.localize(live.view(), s.prior);
         if (!out.ok()) {
           std::fprintf(stderr, "terralign eval: sample %zu: %s\n", i, out.error().message.c_str());
           break;
@@ -309,7 +318,7 @@ int run_eval(const std::vector<std::string>& argv) {
       m.truth_position.push_back(s.truth.t_W_C);
       if (!overlays.empty() && i < 20) {
         iclk::rgb_to_grey(loc.value()->reference().rgb[0].view(), ref_grey);
-        iclk::rgb_to_grey(query->rgb[0].view(), query_grey);
+        iclk::rgb_to_grey(live.view(), query_grey);
         const std::string base = overlays + "/" + std::to_string(i) + "_";
         std::string safe = m.name;
         std::replace(safe.begin(), safe.end(), ':', '_');
@@ -333,6 +342,7 @@ int run_eval(const std::vector<std::string>& argv) {
   j["query_layer"] = args->get("query-layer");
   j["altitude"] = {lo, hi};
   j["tilt_deg"] = tilt.value();
+  j["degradation"] = {{"blur_px", degradation->blur}, {"noise", degradation->noise}, {"exposure", degradation->exposure}};
   j["skipped"] = skipped;
   std::printf("%s vs %s, %d poses, seed %llu, altitude %g-%g m, tilt <= %g deg\n\n", args->get("ref-layer").c_str(),
               args->get("query-layer").c_str(), count.value(), seed, lo, hi, tilt.value());

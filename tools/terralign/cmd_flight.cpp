@@ -60,23 +60,6 @@ Result<std::vector<Waypoint>> path_points(const std::string& path, const geo::Ex
   return pts;
 }
 
-void box_blur(ImageU8& img, int r) {
-  if (r <= 0) return;
-  ImageU8 src = img;
-  for (int y = 0; y < img.height(); ++y)
-    for (int x = 0; x < img.width(); ++x)
-      for (int c = 0; c < 3; ++c) {
-        int s = 0, n = 0;
-        for (int dy = -r; dy <= r; ++dy)
-          for (int dx = -r; dx <= r; ++dx) {
-            const int xx = std::clamp(x + dx, 0, img.width() - 1), yy = std::clamp(y + dy, 0, img.height() - 1);
-            s += src.at(xx, yy, c);
-            ++n;
-          }
-        img.at(x, y, c) = static_cast<std::uint8_t>((s + n / 2) / n);
-      }
-}
-
 }  // namespace
 
 int run_flight(const std::vector<std::string>& argv) {
@@ -89,20 +72,18 @@ int run_flight(const std::vector<std::string>& argv) {
   auto rate = args->get_double("rate", 2);
   auto altitude = args->get_double("altitude", 800);
   auto duration = args->get_double("duration", 60);
-  auto noise = args->get_double("noise", 0);
-  auto exposure = args->get_double("exposure", 0);
   auto tilt = args->get_double("tilt", 0);
   auto imu_tilt = args->get_double("imu-tilt", 0);
-  auto blur = args->get_int("blur", 0, 0, 10);
+  auto degradation = parse_degradation(args.value());
   auto seed = args->get_int("seed", 1, 0, 1 << 30);
-  for (auto* r : {&speed, &rate, &altitude, &duration, &noise, &exposure, &tilt, &imu_tilt})
+  for (auto* r : {&speed, &rate, &altitude, &duration, &tilt, &imu_tilt})
     if (!r->ok()) return usage_error("flight", r->error());
-  if (!blur.ok()) return usage_error("flight", blur.error());
+  if (!degradation.ok()) return usage_error("flight", degradation.error());
   if (!seed.ok()) return usage_error("flight", seed.error());
   if (!(speed.value() > 0) || !(rate.value() > 0) || !(altitude.value() > 0) || !(duration.value() > 0) ||
-      noise.value() < 0 || exposure.value() < 0 || exposure.value() >= 1 || tilt.value() < 0 || tilt.value() > 60 ||
+      tilt.value() < 0 || tilt.value() > 60 ||
       !(imu_tilt.value() >= 0 && imu_tilt.value() <= 10))
-    return usage_error("flight", Error{"--speed, --rate, --altitude, --duration must be > 0; --noise >= 0; --exposure in [0, 1); "
+    return usage_error("flight", Error{"--speed, --rate, --altitude, --duration must be > 0; "
                                        "--tilt in [0, 60]; --imu-tilt in [0, 10]"});
   auto map = geo::load_map(args->get("map"));
   if (!map.ok()) return fail(map.error());
@@ -151,10 +132,7 @@ int run_flight(const std::vector<std::string>& argv) {
                                            geo::tilted_mount(tilt.value()));
     if (auto s = renderer.value()->render(T, frame.value()); !s.ok()) return fail(Error{"frame " + std::to_string(i) + ": " + s.error().message});
     ImageU8 img = frame->rgb[0];
-    box_blur(img, blur.value());
-    const double gain = 1.0 + exposure.value() * (2 * rng.uniform() - 1);
-    for (auto& v : img.pixels())
-      v = static_cast<std::uint8_t>(std::clamp(std::lround(v * gain + noise.value() * rng.normal()), 0L, 255L));
+    degrade(img, degradation.value(), rng);
     char name[64];
     std::snprintf(name, sizeof name, "frames/%06d.png", i);
     if (auto s = geo::save_png(out + "/" + name, img.view()); !s.ok()) return fail(s.error());

@@ -59,7 +59,7 @@ const std::vector<Command>& commands() {
        "                      [--threads N] [--weights FILE] [--area MINX,MINY,MAXX,MAXY]\n"
        "                      [--min-sharpness S] [--max-disagreement PX] [--coarse-search PX]\n"
        "                      [--input-scale S] [--nn-levels L] [--imu-tilt DEG] [--tilt-prior DEG]\n"
-       "                      [--prior-scale F] [--refine N]\n\n"
+       "                      [--prior-scale F] [--refine N] [--noise SIGMA] [--blur R] [--exposure F]\n\n"
        "Samples N true poses with the whole footprint on the map (altitude above ground in\n"
        "[LO, HI] m, tilt off nadir up to DEG, any heading), perturbs each for the prior (rotation\n"
        "about a random axis by U[0, 6] deg, translation by U[0, 0.13 x altitude] m in a random\n"
@@ -91,7 +91,10 @@ const std::vector<Command>& commands() {
        "(roll and pitch: between the true and the estimated view of the map's up), the converged\n"
        "flag and the tests' numbers, the true camera centre and the mean ground shift (estimate -\n"
        "truth, map axes, m).\n"
-       "--refine N: both trackers' refinement passes, as align's (default 2; the time includes them).\n",
+       "--refine N: both trackers' refinement passes, as align's (default 2; the time includes them).\n"
+       "--noise, --blur and --exposure degrade each query as flight's frames (a blur of radius R px,\n"
+       "a gain in 1 +- F, then Gaussian noise of SIGMA grey levels; each pose's own draws), so that\n"
+       "the trackers see a camera's image rather than a clean render; none by default.\n",
        run_eval},
       {"flight", "render a synthetic flight (frames, list, true poses) to test tracking",
        "usage: terralign flight --map MAP.json --camera CAMERA.json --layer NAME --path lawnmower|circle|FILE\n"
@@ -100,7 +103,8 @@ const std::vector<Command>& commands() {
        "Flies the path (FILE: one 'x y' waypoint a line) at ALTITUDE m above the terrain (default\n"
        "800), heading along the path, and writes DIR/frames/NNNNNN.png, DIR/list.txt\n"
        "('timestamp path' a line) and DIR/truth.txt ('timestamp x y z qw qx qy qz'). Per frame:\n"
-       "Gaussian noise of SIGMA grey levels, a box blur of radius R, an exposure gain in 1 +- F.\n"
+       "a box blur of radius R px, an exposure gain in 1 +- F, then Gaussian noise of SIGMA grey\n"
+       "levels (SIGMA in [0, 100], R in 0..10, F in [0, 1)).\n"
        "--imu-tilt DEG also writes DIR/attitude.txt ('timestamp qw qx qy qz'): an attitude\n"
        "reference's readings, the true rotation with N(0, DEG^2) about each horizontal world axis\n"
        "(drawn per frame from a second stream; the frames stay the same), for track's --attitude.\n",

@@ -1,5 +1,6 @@
 #include "sampling.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace terralign::cli {
@@ -112,6 +113,34 @@ Eigen::Quaterniond attitude_reading(const Eigen::Quaterniond& q_W_C, Rng& rng, d
 Eigen::Quaterniond with_tilt_of(const Eigen::Quaterniond& q, const Eigen::Quaterniond& attitude) {
   const Eigen::AngleAxisd err(q * attitude.conjugate());  // world axes: attitude -> q
   return (exp_so3({0, 0, err.angle() * err.axis().z()}) * attitude).normalized();
+}
+
+namespace {
+
+void box_blur(ImageU8& img, int r) {
+  if (r <= 0) return;
+  const ImageU8 src = img;
+  for (int y = 0; y < img.height(); ++y)
+    for (int x = 0; x < img.width(); ++x)
+      for (int c = 0; c < img.channels(); ++c) {
+        int s = 0, n = 0;
+        for (int dy = -r; dy <= r; ++dy)
+          for (int dx = -r; dx <= r; ++dx) {
+            const int xx = std::clamp(x + dx, 0, img.width() - 1), yy = std::clamp(y + dy, 0, img.height() - 1);
+            s += src.at(xx, yy, c);
+            ++n;
+          }
+        img.at(x, y, c) = static_cast<std::uint8_t>((s + n / 2) / n);
+      }
+}
+
+}  // namespace
+
+void degrade(ImageU8& img, const Degradation& d, Rng& rng) {
+  box_blur(img, d.blur);
+  const double gain = 1.0 + d.exposure * (2 * rng.uniform() - 1);
+  for (auto& v : img.pixels())
+    v = static_cast<std::uint8_t>(std::clamp(std::lround(v * gain + d.noise * rng.normal()), 0L, 255L));
 }
 
 }  // namespace terralign::cli

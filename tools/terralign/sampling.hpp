@@ -6,12 +6,15 @@
 #include <vector>
 
 #include <terralign/geo/camera.hpp>
+#include <terralign/geo/image.hpp>
 #include <terralign/geo/map.hpp>
 #include <terralign/geo/pose.hpp>
 
 namespace terralign::cli {
 
-// SplitMix64: the same stream on every platform and standard library.
+// SplitMix64: the same stream on every platform and standard library. Seeds one increment
+// (0x9e37...) apart give the same stream shifted by one draw: derive a stream's seed with
+// next() of another.
 struct Rng {
   std::uint64_t s;
   std::uint64_t next();
@@ -49,5 +52,17 @@ Eigen::Quaterniond attitude_reading(const Eigen::Quaterniond& q_W_C, Rng& rng, d
 // `q`'s heading with `attitude`'s tilt: q's rotation error against the attitude, as a
 // rotation vector in world axes, keeps only its vertical part.
 Eigen::Quaterniond with_tilt_of(const Eigen::Quaterniond& q, const Eigen::Quaterniond& attitude);
+
+// What a camera does to a frame that a render does not (flight's and eval's --blur, --noise,
+// --exposure): a box blur of radius `blur` px (edges clamped), then a gain drawn from
+// U[1 - exposure, 1 + exposure] for the frame, then N(0, noise^2) grey levels added to each
+// channel value, rounded and clamped to 0..255. The draws come from `rng`, in that order.
+struct Degradation {
+  int blur = 0;          // px, 0..10
+  double noise = 0;      // grey levels (of 255), >= 0
+  double exposure = 0;   // [0, 1)
+  bool any() const { return blur > 0 || noise > 0 || exposure > 0; }
+};
+void degrade(ImageU8& img, const Degradation& d, Rng& rng);
 
 }  // namespace terralign::cli
