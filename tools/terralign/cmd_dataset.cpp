@@ -23,18 +23,7 @@ void augment(ImageU8& img, Rng& rng) {
   for (double& g : wb) g = exposure * rng.uniform(0.9, 1.1);
   const bool blur = rng.uniform() < 0.3;
   const double sigma = rng.uniform(0, 3);
-  if (blur) {
-    const ImageU8 src = img;
-    for (int y = 0; y < img.height(); ++y)
-      for (int x = 0; x < img.width(); ++x)
-        for (int c = 0; c < 3; ++c) {
-          int s = 0;
-          for (int dy = -1; dy <= 1; ++dy)
-            for (int dx = -1; dx <= 1; ++dx)
-              s += src.at(std::clamp(x + dx, 0, img.width() - 1), std::clamp(y + dy, 0, img.height() - 1), c);
-          img.at(x, y, c) = static_cast<std::uint8_t>((s + 4) / 9);
-        }
-  }
+  if (blur) box_blur(img, 1);
   for (int y = 0; y < img.height(); ++y)
     for (int x = 0; x < img.width(); ++x)
       for (int c = 0; c < 3; ++c) {

@@ -115,8 +115,6 @@ Eigen::Quaterniond with_tilt_of(const Eigen::Quaterniond& q, const Eigen::Quater
   return (exp_so3({0, 0, err.angle() * err.axis().z()}) * attitude).normalized();
 }
 
-namespace {
-
 void box_blur(ImageU8& img, int r) {
   if (r <= 0) return;
   const ImageU8 src = img;
@@ -133,8 +131,6 @@ void box_blur(ImageU8& img, int r) {
         img.at(x, y, c) = static_cast<std::uint8_t>((s + n / 2) / n);
       }
 }
-
-}  // namespace
 
 void degrade(ImageU8& img, const Degradation& d, Rng& rng) {
   box_blur(img, d.blur);

@@ -65,4 +65,8 @@ struct Degradation {
 };
 void degrade(ImageU8& img, const Degradation& d, Rng& rng);
 
+// A box blur of radius r px (the mean of the (2r+1)^2 pixels around, edges clamped, rounded);
+// r <= 0 leaves the image as it is.
+void box_blur(ImageU8& img, int r);
+
 }  // namespace terralign::cli
