@@ -246,7 +246,7 @@ int run_eval(const std::vector<std::string>& argv) {
   auto query = query_renderer.value()->make_output({args->get("query-layer")});
   if (!query.ok()) return fail(query.error());
   ImageF ref_grey, query_grey;
-  ImageU8 live;  // the query as the camera gives it (degraded with --blur, --noise, --exposure)
+  ImageU8 degraded;  // the query as the camera gives it, with --blur, --noise or --exposure
 
   int skipped = 0;
   for (std::size_t i = 0; i < samples->size(); ++i) {
@@ -255,11 +255,13 @@ int run_eval(const std::vector<std::string>& argv) {
       ++skipped;
       continue;
     }
-    live = query->rgb[0];
+    const ImageU8* live = &query->rgb[0];
     if (degradation->any()) {
       // Each sample's own stream, so that a sample's image does not depend on the others.
       Rng rng{Rng{(seed ^ 0x243f6a8885a308d3ULL) + i}.next()};
-      degrade(live, degradation.value(), rng);
+      degraded = query->rgb[0];
+      degrade(degraded, degradation.value(), rng);
+      live = &degraded;
     }
     const geo::Pose rel = s.truth.inverse() * s.prior;  // T_C1_Cref
     iclk::SE3<double> gt;
@@ -272,7 +274,7 @@ int run_eval(const std::vector<std::string>& argv) {
       if (m.iterations > 0) {
         Localizer& L = m.learned ? *learned : *loc.value();
         L.set_iterations(m.iterations);
-        auto out = L.localize(live.view(), s.prior);
+        auto out = L.localize(live->view(), s.prior);
         if (!out.ok()) {
           std::fprintf(stderr, "terralign eval: sample %zu: %s\n", i, out.error().message.c_str());
           break;
@@ -318,7 +320,7 @@ int run_eval(const std::vector<std::string>& argv) {
       m.truth_position.push_back(s.truth.t_W_C);
       if (!overlays.empty() && i < 20) {
         iclk::rgb_to_grey(loc.value()->reference().rgb[0].view(), ref_grey);
-        iclk::rgb_to_grey(live.view(), query_grey);
+        iclk::rgb_to_grey(live->view(), query_grey);
         const std::string base = overlays + "/" + std::to_string(i) + "_";
         std::string safe = m.name;
         std::replace(safe.begin(), safe.end(), ':', '_');
