@@ -315,8 +315,8 @@ def main():
                         "prior, terralign's default 3) in training and validation; 0: none")
     p.add_argument("--loss-scale", type=float, default=0.0,
                    help="metres: each level's 3-D EPE e enters the loss as C log(1 + e / C) (a Chch pair's e "
-                        "first scaled by the sets' altitude ratio), so a pair a few metres off pulls as hard as "
-                        "before and one tens of metres off much less; 0: e itself")
+                        "first scaled by the sets' altitude ratio), whose pull is 1 / (1 + e / C): with C = 10, "
+                        "0.6 at the 5 px line (6 m) and 0.14 at 60 m; 0: e itself")
     p.add_argument("--init", help="start from this checkpoint's (.pt) or weight file's (.tlw) weights where the shapes match (warm start)")
     a = p.parse_args()
     torch.set_num_threads(a.threads)
