@@ -101,6 +101,51 @@ TEST_CASE("refinement: a reference rendered at the answer takes out the tilt the
   }
 }
 
+TEST_CASE("refinement: the learned tracker weighs every pixel alike where the image agrees with the map") {
+  // Same-year answers end at a residual of 0.01-0.08, a year apart at 0.86 or more (400 eval
+  // poses); a pass from an answer at 0.5 or less runs without the M-estimator
+  // (cli::kRefineUniformMaxResidual), and is as precise: the same-year answer must still end
+  // under 0.1 m, as in the first case. Across a year every pass keeps the M-estimator.
+  const Scene s = scene();
+  auto weights = nn::read_weights(test::source_path("weights/deep_iclk_s16.tlw"));
+  REQUIRE(weights.ok());
+  iclk::TrackerOptions opt;
+  auto loc = cli::Localizer::create(s.map, s.cam, "2016", opt, 2, &weights.value());
+  REQUIRE(loc.ok());
+  loc.value()->set_refinement(cli::kDefaultRefinePasses);
+  // Across a year: 2017's render, 7 parts to 3 of 2016's, ends between the bounds (0.72,
+  // measured; 2017 alone ends at 1.3, where no pass runs at all, half and half at 0.35).
+  ImageU8 blend = s.live_2017;
+  for (std::size_t i = 0; i < static_cast<std::size_t>(3 * blend.width() * blend.height()); ++i)
+    blend.data()[i] = static_cast<std::uint8_t>((7 * s.live_2017.data()[i] + 3 * s.live.data()[i] + 5) / 10);
+  for (const bool same_year : {true, false}) {
+    CAPTURE(same_year);
+    auto out = loc.value()->localize((same_year ? s.live : blend).view(), s.prior);
+    REQUIRE(out.ok());
+    REQUIRE(out->converged);
+    const double error_m = (out->T_W_C.t_W_C - s.truth.t_W_C).norm();
+    MESSAGE((same_year ? "2016" : "2017 blend") << ": " << out->refinements << " passes, " << out->uniform_refinements
+                                                << " without the M-estimator, residual " << out->residual_final << ", "
+                                                << error_m << " m");
+    CHECK(out->refinements >= 1);
+    if (same_year) {
+      CHECK(out->uniform_refinements == out->refinements);
+      CHECK(error_m < 0.1);
+    } else {
+      CHECK(out->residual_final > cli::kRefineUniformMaxResidual);
+      CHECK(out->uniform_refinements == 0);
+    }
+  }
+  // The classical tracker has no M-estimator to leave out.
+  auto classic = cli::Localizer::create(s.map, s.cam, "2016", opt, 2, nullptr);
+  REQUIRE(classic.ok());
+  classic.value()->set_refinement(cli::kDefaultRefinePasses);
+  auto out = classic.value()->localize(s.live.view(), s.prior);
+  REQUIRE(out.ok());
+  CHECK(out->refinements >= 1);
+  CHECK(out->uniform_refinements == 0);
+}
+
 TEST_CASE("refinement: without an attitude reference the tilt prior holds the prior's tilt in every pass") {
   // The prior is 1 degree of pitch off. A tilt prior of 0.02 degree, about what the image pins
   // a same-year tilt to, leaves a share of that degree in the first answer. A refinement pass

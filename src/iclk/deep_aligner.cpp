@@ -264,7 +264,8 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align(ImageView<const f
 
 const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::refine(ImageView<const float> ref_rgb,
                                                                 ImageView<const float> ref_depth,
-                                                                const iclk::Pinhole<float>& K, int levels) {
+                                                                const iclk::Pinhole<float>& K, int levels,
+                                                                bool learned_weights) {
   TERRALIGN_ASSERT(ref_rgb.width == width_ && ref_rgb.height == height_ && ref_rgb.channels == 3,
                    "DeepAligner::refine: an image of another size than the aligner was built for");
   const auto t0 = std::chrono::steady_clock::now();
@@ -277,7 +278,9 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::refine(ImageView<const 
         const iclk::TrackerOptions keep = t->options();
         t->set_options(iclk::refinement_options(keep, levels));
         // The live levels are the last align()'s, already in the solver.
-        const auto& r = t->align_levels(ref_v_.data(), ref_depth, nullptr, K, iclk::SE3<float>::identity(), this);
+        // Without the M-estimator every pixel weighs 1 (the options' robust loss is None).
+        const auto& r = t->align_levels(ref_v_.data(), ref_depth, nullptr, K, iclk::SE3<float>::identity(),
+                                        learned_weights ? this : nullptr);
         t->set_options(keep);
         return r;
       },

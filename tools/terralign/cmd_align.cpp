@@ -106,6 +106,10 @@ int run_align(const std::vector<std::string>& argv) {
   j["converged"] = out->converged;
   j["reason"] = out->reason;
   j["iterations"] = out->iterations;
+  // Re-rendered passes after the first (--refine), and of them the learned tracker's without
+  // its M-estimator (an answer whose image already agreed with the map).
+  j["refinements"] = out->refinements;
+  j["uniform_refinements"] = out->uniform_refinements;
   // The converged tests' measures (0 where not measured; where the second start failed, null).
   j["disagreement_px"] = out->disagreement_px;
   j["sharpness"] = out->sharpness;

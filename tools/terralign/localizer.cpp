@@ -101,7 +101,7 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
                                                                           const geo::Pose& ref_pose,
                                                                           const geo::Pose& prior,
                                                                           const Eigen::Quaterniond* attitude,
-                                                                          bool first) {
+                                                                          bool first, bool learned_weights) {
   const iclk::Pinhole<float> K{static_cast<float>(work_.fx), static_cast<float>(work_.fy), static_cast<float>(work_.cx),
                                static_cast<float>(work_.cy)};
   // The reference camera is ref_pose's: the world's up seen from it (the tilt prior's axis),
@@ -125,7 +125,7 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
     return r;
   }
   deep_->set_up(up, tilt);
-  if (!first) return deep_->refine(ref_rgb_.view(), depth_.view(), K, refine_levels_);
+  if (!first) return deep_->refine(ref_rgb_.view(), depth_.view(), K, refine_levels_, learned_weights);
   // The live image box-averaged down to the working size.
   const int f = camera_.width / work_.width;
   const float inv = 1.0f / static_cast<float>(f * f);
@@ -162,7 +162,9 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
       if (pass == 0) return st.error();
       break;
     }
-    const auto& r = align_once(live, ref_pose, prior, attitude, pass == 0);
+    // A refinement pass of an answer whose image agrees with the map weighs every pixel alike.
+    const bool uniform = pass > 0 && out.residual_final <= kRefineUniformMaxResidual;
+    const auto& r = align_once(live, ref_pose, prior, attitude, pass == 0, !uniform);
     out.iterations += r.iterations;
     out.ms_pyramid += r.ms_pyramid;
     out.ms_jacobian += r.ms_jacobian;
@@ -185,6 +187,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     out.residual_correlation = r.residual_correlation;
     out.covariance_inflation = r.covariance_inflation;
     out.refinements = pass;
+    if (uniform && deep_) ++out.uniform_refinements;
     if (!r.converged) return out;  // failure as data: the prior (T_W_C), no covariance
     // T_live_prior = T_live_ref T_ref_prior: the relative pose to the prior's reference.
     const iclk::SE3<double> T_live_ref = r.params.cast<double>();

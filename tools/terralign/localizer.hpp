@@ -37,6 +37,7 @@ struct LocalizeOutput {
   double disagreement_px = 0;                    // iclk::TrackResult
   double residual_correlation = 0, covariance_inflation = 1;  // see iclk::TrackResult
   int refinements = 0;  // re-rendered passes after the first that converged (Localizer::set_refinement)
+  int uniform_refinements = 0;  // of them, the learned tracker's without its M-estimator (kRefineUniformMaxResidual)
   double ms_render = 0, ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
   double ms_encoder = 0, ms_mestimator = 0;  // learned: both encoders; the M-estimator (inside ms_jacobian)
 };
@@ -83,6 +84,16 @@ constexpr int kDefaultRefinePasses = 2;
 constexpr int kRefineLevels = 1;
 constexpr double kRefineMinDeg = 0.05;
 constexpr double kRefineMaxResidual = 1.0;
+// The learned tracker's refinement pass weighs every pixel alike, without the M-estimator,
+// where the answer it refines ended at a residual of at most 0.5: same-year answers end at
+// 0.01-0.08 (0.05-0.27 for 199 of 200 poses with README's poor camera, noise 10 and blur 2),
+// 2016 -> 2017's at 0.86 or more. Where image and map agree the finest level's M-estimator,
+// about 5 of a pass's 14 ms, has little to weigh out (session 37, same year, seeds 7 / 13,
+// median 3-D EPE with it -> without: clean 0.016 / 0.017 -> 0.015 / 0.017 m, the flights'
+// camera 0.033 / 0.035 -> 0.035 / 0.036, the poor camera 0.095 / 0.098 -> 0.101 / 0.103;
+// the same-year lawnmower with an IMU 0.21 -> 0.15 m RMSE, NEES 5.5 -> 3.6). Above the bound
+// it still weighs out what changed between the years: those answers are as before.
+constexpr double kRefineUniformMaxResidual = 0.5;
 
 class Localizer {
  public:
@@ -124,7 +135,8 @@ class Localizer {
   Status render_reference(const geo::Pose& at, LocalizeOutput& out);
   const iclk::TrackResult<iclk::SE3DepthWarp<float>>& align_once(ImageView<const std::uint8_t> live,
                                                                  const geo::Pose& ref_pose, const geo::Pose& prior,
-                                                                 const Eigen::Quaterniond* attitude, bool first);
+                                                                 const Eigen::Quaterniond* attitude, bool first,
+                                                                 bool learned_weights);
   int refine_passes_ = 0, refine_levels_ = kRefineLevels;
   double refine_min_deg_ = kRefineMinDeg;
   geo::CameraModel camera_, work_;

@@ -82,8 +82,11 @@ class DeepAligner : public iclk::LevelWeights {
   // a shift a little (the weakest direction of a nadir view): answers started 0.8 degree of tilt
   // from their reference kept 0.09-0.16 degree of it, and a reference rendered at the answer
   // takes most of that out (docs/history.md, "Session 29").
+  // `learned_weights` false: every pixel weighs the same, and the M-estimator (at the finest
+  // level about a third of a pass's time) does not run; for answers whose image already agrees
+  // with the map, where it has nothing to reject (the localizer's kRefineUniformMaxResidual).
   const iclk::TrackResult<Warp>& refine(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
-                                        const iclk::Pinhole<float>& K, int levels);
+                                        const iclk::Pinhole<float>& K, int levels, bool learned_weights = true);
   void set_iterations(int n);
   // The world's up in the reference camera (iclk::Tracker::set_up), for the tilt prior.
   void set_up(const Eigen::Vector3d& up_in_reference, const Eigen::Vector3d& tilt = Eigen::Vector3d::Zero()) {
