@@ -162,8 +162,9 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
       if (pass == 0) return st.error();
       break;
     }
-    // A refinement pass of an answer whose image agrees with the map weighs every pixel alike.
-    const bool uniform = pass > 0 && out.residual_final <= kRefineUniformMaxResidual;
+    // The learned tracker's refinement pass of an answer whose image agrees with the map
+    // weighs every pixel alike.
+    const bool uniform = deep_ && pass > 0 && out.residual_final <= kRefineUniformMaxResidual;
     const auto& r = align_once(live, ref_pose, prior, attitude, pass == 0, !uniform);
     out.iterations += r.iterations;
     out.ms_pyramid += r.ms_pyramid;
@@ -187,7 +188,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     out.residual_correlation = r.residual_correlation;
     out.covariance_inflation = r.covariance_inflation;
     out.refinements = pass;
-    if (uniform && deep_) ++out.uniform_refinements;
+    if (uniform) ++out.uniform_refinements;
     if (!r.converged) return out;  // failure as data: the prior (T_W_C), no covariance
     // T_live_prior = T_live_ref T_ref_prior: the relative pose to the prior's reference.
     const iclk::SE3<double> T_live_ref = r.params.cast<double>();
