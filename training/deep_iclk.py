@@ -41,6 +41,12 @@ SIZES = {
             "mest": (16, 16, 16)},
     "s32": {"encoder": ((3, 16, 32, 32), (32, 32, 64, 64), (64, 64, 64, 64), (64, 64, 64, 64), (64, 64, 64, 64)),
             "mest": (16, 32, 32)},
+    # s16 with its three coarsest levels wider (session 38): across a decade the coarse levels'
+    # minima lie off the truth (docs/history.md, "Session 26"), and there pixels are cheap.
+    "s16w48": {"encoder": ((3, 16, 16, 16), (16, 16, 32, 32), (32, 48, 48, 48), (48, 48, 48, 48), (48, 48, 48, 48)),
+               "mest": (16, 16, 16)},
+    "s16w64": {"encoder": ((3, 16, 16, 16), (16, 16, 32, 32), (32, 64, 64, 64), (64, 64, 64, 64), (64, 64, 64, 64)),
+               "mest": (16, 16, 16)},
 }
 ENCODER_DILATIONS = (1, 2, 2)
 MEST_DILATIONS = (1, 2, 4, 1)
@@ -74,6 +80,63 @@ class Encoder(nn.Module):
             n, c, h, w = x.shape
             feats.append(x.view(n, self.channels, c // self.channels, h, w).mean(2))
         return feats
+
+
+def widen_state(src, model, gen):
+    """The state dict of `model` that computes what the narrower `src` (a state dict of the same
+    family: the same levels, dilations and M-estimator, each encoder conv's width no larger)
+    computes, a warm start for a wider network (Net2Net's idea, with zeros instead of copies).
+    A conv's old output channels keep their weights; its new ones draw He-initialised weights
+    from `gen`, and every conv reads a new input channel with weight zero, so new channels change
+    nothing until training moves those zeros. The channels of a level's last conv are placed
+    group by group (model.encoder.channels groups of consecutive channels, old then new in each)
+    and their new channels start at zero weights and bias: a group's mean is then the old one
+    times (old width / new width), which the solver's per-channel normalisation and the
+    M-estimator (it sees normalised features) do not see."""
+    own = model.state_dict()
+    K = model.encoder.channels
+    out = {}
+    placement = {}  # conv prefix -> the new index of each old output channel
+
+    def grouped(old, new):
+        if old % K or new % K:
+            raise ValueError(f"widen_state: {K} feature channels do not divide widths {old} -> {new}")
+        go, gn = old // K, new // K
+        return torch.tensor([(c // go) * gn + c % go for c in range(old)])
+
+    prev_place = None  # the input channels' placement (None: the RGB input, unchanged)
+    for level, widths in enumerate(model.encoder.widths):
+        for k in range(len(ENCODER_DILATIONS)):
+            key = f"encoder.levels.{level}.{k}.0"
+            w_old, b_old = src[key + ".weight"], src[key + ".bias"]
+            w_new = torch.empty_like(own[key + ".weight"])
+            o_new, i_new = w_new.shape[:2]
+            o_old, i_old = w_old.shape[:2]
+            if o_old > o_new or i_old > i_new:
+                raise ValueError(f"widen_state: {key} is {o_old} x {i_old} in the source, {o_new} x {i_new} here")
+            last = k == len(ENCODER_DILATIONS) - 1
+            place = grouped(o_old, o_new) if last else torch.arange(o_old)
+            w_new.copy_(torch.randn(w_new.shape, generator=gen, dtype=w_new.dtype) * (2.0 / w_new[0].numel()) ** 0.5)
+            b_new = torch.zeros(o_new, dtype=b_old.dtype)
+            in_place = prev_place if prev_place is not None else torch.arange(i_old)
+            fresh_in = torch.ones(i_new, dtype=torch.bool)
+            fresh_in[in_place] = False
+            w_new[:, fresh_in] = 0
+            fresh_out = torch.ones(o_new, dtype=torch.bool)
+            fresh_out[place] = False
+            if last:
+                w_new[fresh_out] = 0
+            w_new[place[:, None], in_place[None, :]] = w_old
+            b_new[place] = b_old
+            out[key + ".weight"], out[key + ".bias"] = w_new, b_new
+            placement[key] = place
+            prev_place = place
+    for key, v in own.items():
+        if key not in out:
+            if key not in src or src[key].shape != v.shape:
+                raise ValueError(f"widen_state: {key} has no source of shape {tuple(v.shape)}")
+            out[key] = src[key].clone()
+    return out
 
 
 class MEstimator(nn.Module):

@@ -317,6 +317,9 @@ def main():
                    help="metres: each level's 3-D EPE e enters the loss as C log(1 + e / C) (a Chch pair's e "
                         "first scaled by the sets' altitude ratio), whose pull is 1 / (1 + e / C): with C = 10, "
                         "0.6 at the 5 px line (6 m) and 0.14 at 60 m; 0: e itself")
+    p.add_argument("--widen", action="store_true",
+                   help="--init is a narrower network of the same family (s16 for s16w48): start from "
+                        "deep_iclk.widen_state, which computes what it computes, its new channels free to learn")
     p.add_argument("--init", help="start from this checkpoint's (.pt) or weight file's (.tlw) weights where the shapes match (warm start)")
     a = p.parse_args()
     torch.set_num_threads(a.threads)
@@ -365,9 +368,13 @@ def main():
             else:
                 src = torch.load(a.init, map_location="cpu")["model"]
             own = model.state_dict()
-            take = {k: v for k, v in src.items() if k in own and own[k].shape == v.shape}
-            model.load_state_dict(take, strict=False)
-            print(f"warm start from {a.init}: {len(take)} of {len(own)} tensors", flush=True)
+            if a.widen:
+                model.load_state_dict(D.widen_state(src, model, torch.Generator().manual_seed(a.seed)))
+                print(f"warm start from {a.init}, widened to {a.size} (the same function)", flush=True)
+            else:
+                take = {k: v for k, v in src.items() if k in own and own[k].shape == v.shape}
+                model.load_state_dict(take, strict=False)
+                print(f"warm start from {a.init}: {len(take)} of {len(own)} tensors", flush=True)
         with open(log_path, "w") as f:
             f.write("kind,step,loss,init_mean,init_median,final_mean,final_median,seconds\n")
         with open(os.path.join(a.out, "config.txt"), "w") as f:
