@@ -48,7 +48,7 @@ int main(int argc, char** argv) {
     if (std::string(argv[i]) == "--live-layer" && i + 1 < argc) live_layer = argv[++i];
     else files.push_back(argv[i]);
   }
-  if (files.empty()) files.push_back(TERRALIGN_SOURCE_DIR "/weights/deep_iclk_s16.tlw");
+  if (files.empty()) files.push_back(TERRALIGN_DEFAULT_WEIGHTS);
   auto map = geo::load_map(TERRALIGN_SOURCE_DIR "/data/naip_west/map.json");
   auto cam = geo::load_camera(TERRALIGN_SOURCE_DIR "/data/cameras/uav_752x480.json");
   if (!map.ok() || !cam.ok()) {

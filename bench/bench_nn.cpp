@@ -148,7 +148,7 @@ bool tracker_network(const nn::WeightFile& weights, const char* name) {
       if (ms[k].empty()) ms[k].assign(st.size(), 1e9);
       for (std::size_t i = 0; i < st.size(); ++i) ms[k][i] = std::min(ms[k][i], st[i].ms);
     }
-  std::printf("learned tracker's %s (deep_iclk_s16.tlw) at 376x240, 2 threads, %s, fastest of 25 alternated passes:\n\n"
+  std::printf("learned tracker's %s (" TERRALIGN_DEFAULT_WEIGHTS ") at 376x240, 2 threads, %s, fastest of 25 alternated passes:\n\n"
               "| layer | op | direct ms | Winograd ms | direct / Winograd |\n|---|---|---|---|---|\n",
               name, wino.value()->simd_name());
   const auto st = wino.value()->step_times();
@@ -214,13 +214,13 @@ int main(int argc, char** argv) {
   }
   // The shipped learned tracker's two networks at its working size (376 x 240), per layer:
   // Winograd's kernel (the product's) against the direct one, alternated in the same run.
-  auto s16 = nn::read_weights(TERRALIGN_SOURCE_DIR "/weights/deep_iclk_s16.tlw");
-  if (!s16.ok()) {
-    std::fprintf(stderr, "%s\n", s16.error().message.c_str());
+  auto shipped = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
+  if (!shipped.ok()) {
+    std::fprintf(stderr, "%s\n", shipped.error().message.c_str());
     return 1;
   }
   for (const char* name : {"encoder", "mestimator"})
-    if (!tracker_network(s16.value(), name)) return 1;
+    if (!tracker_network(shipped.value(), name)) return 1;
   std::printf("\n");
   one_channel_layer(nn::conv3x3_rows_scalar, 8, "scalar");
 #if defined(TERRALIGN_NN_AVX2)

@@ -22,6 +22,13 @@ nn::WeightFile load(const char* rel) {
   return std::move(w.value());
 }
 
+// The weights `terralign` runs by default (CMake's TERRALIGN_SHIPPED_WEIGHTS).
+nn::WeightFile shipped_weights() {
+  auto w = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
+  REQUIRE_MESSAGE(w.ok(), (w.ok() ? "" : w.error().message));
+  return std::move(w.value());
+}
+
 struct Pair {
   ImageF ref, depth, live;
   iclk::Pinhole<float> K{};
@@ -158,7 +165,7 @@ TEST_CASE("learned tracker: with one and with four feature channels a level the 
 }
 
 TEST_CASE("learned tracker: refuses feature channels it has no solver for, naming them") {
-  const nn::WeightFile shipped = load("weights/deep_iclk_s16.tlw");
+  const nn::WeightFile shipped = shipped_weights();
   auto two = iclk::DeepAligner::create(grouped(shipped, 2), 192, 128, options(), 1);
   REQUIRE_MESSAGE(two.ok(), (two.ok() ? "" : two.error().message));
   CHECK(two.value()->channels() == 2);
@@ -172,7 +179,7 @@ TEST_CASE("learned tracker: refuses feature channels it has no solver for, namin
 }
 
 TEST_CASE("learned tracker: same bytes on 1 and 2 threads, and no heap allocation per pair") {
-  const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
+  const nn::WeightFile weights = shipped_weights();
   const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
   const Pair p = pair_of(vectors, 0);
   auto one = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 1);
@@ -194,7 +201,7 @@ TEST_CASE("learned tracker: same bytes on 1 and 2 threads, and no heap allocatio
 }
 
 TEST_CASE("learned tracker: refuses a size too small for its levels and another network's weights") {
-  const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
+  const nn::WeightFile weights = shipped_weights();
   auto small = iclk::DeepAligner::create(weights, 188, 100, options(), 1);
   REQUIRE_FALSE(small.ok());
   CHECK(small.error().message.find("188 x 100") != std::string::npos);
@@ -218,7 +225,7 @@ nn::WeightFile with_line(nn::WeightFile w, const std::string& line) {
 }  // namespace
 
 TEST_CASE("learned tracker: the converged tests read their thresholds from the weights and fail an answer") {
-  const nn::WeightFile shipped = load("weights/deep_iclk_s16.tlw");
+  const nn::WeightFile shipped = shipped_weights();
   // The shipped weights carry the agreement test's threshold (training/calibrate_sharpness.py
   // --test agreement) and, since it replaced it (docs/history.md, session 20), no sharpness threshold.
   auto agree = iclk::DeepAligner::max_disagreement(shipped);

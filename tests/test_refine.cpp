@@ -74,7 +74,7 @@ Answer localize(cli::Localizer& loc, const Scene& s, int passes) {
 
 TEST_CASE("refinement: a reference rendered at the answer takes out the tilt the first pass traded for a shift") {
   const Scene s = scene();
-  auto weights = nn::read_weights(test::source_path("weights/deep_iclk_s16.tlw"));
+  auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
   REQUIRE(weights.ok());
   iclk::TrackerOptions opt;
   for (const bool learned : {true, false}) {
@@ -107,7 +107,7 @@ TEST_CASE("refinement: the learned tracker weighs every pixel alike where the im
   // (cli::kRefineUniformMaxResidual), and is as precise: the same-year answer must still end
   // under 0.1 m, as in the first case. Across a year every pass keeps the M-estimator.
   const Scene s = scene();
-  auto weights = nn::read_weights(test::source_path("weights/deep_iclk_s16.tlw"));
+  auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
   REQUIRE(weights.ok());
   iclk::TrackerOptions opt;
   auto loc = cli::Localizer::create(s.map, s.cam, "2016", opt, 2, &weights.value());
@@ -156,7 +156,7 @@ TEST_CASE("refinement: without an attitude reference the tilt prior holds the pr
   // its start, which a reference rendered near the answer makes smaller) but keep a part:
   // 0.67 -> 0.37 and 0.48 -> 0.13 degree (measured). A fifth separates the two.
   const Scene s = scene();
-  auto weights = nn::read_weights(test::source_path("weights/deep_iclk_s16.tlw"));
+  auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
   REQUIRE(weights.ok());
   iclk::TrackerOptions opt;
   opt.tilt_prior_rad = 0.02 * kDeg;
@@ -180,7 +180,7 @@ TEST_CASE("refinement: without an attitude reference the tilt prior holds the pr
 
 TEST_CASE("refinement: same bytes on 1 and 2 threads, no heap allocation, and a flat grey image still fails") {
   const Scene s = scene();
-  auto weights = nn::read_weights(test::source_path("weights/deep_iclk_s16.tlw"));
+  auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
   REQUIRE(weights.ok());
   iclk::TrackerOptions opt;
   auto one = cli::Localizer::create(s.map, s.cam, "2016", opt, 1, &weights.value());
@@ -221,7 +221,7 @@ TEST_CASE("refinement: same bytes on 1 and 2 threads, no heap allocation, and a 
 
 TEST_CASE("the registration floor grows with the final residual: a map of another year widens the covariance, its own does not") {
   const Scene s = scene();
-  auto weights = nn::read_weights(test::source_path("weights/deep_iclk_s16.tlw"));
+  auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
   REQUIRE(weights.ok());
   for (const bool same_year : {true, false}) {
     CAPTURE(same_year);

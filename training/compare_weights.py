@@ -7,7 +7,7 @@ how many answers each file gets right that the first file does not (a paired cou
 chance).
 
   training/compare_weights.py weights/deep_iclk_s16.tlw NEW.tlw [--seeds 11,7,13]
-      [--rows 2016-2017,2009-2020,strip,chch121] [--count 200] [--with-test] [--json-dir DIR]
+      [--rows 2016-2017,2009-2020,strip,chch121] [--count 200] [--with-test] [--json-dir DIR [--reuse]]
       [-- EXTRA EVAL OPTIONS, e.g. --imu-tilt 0.5 --tilt-prior 0.5]
 
 The rows: NAIP 2016 -> 2017, 2009 -> 2020 and the held-out strip (2012 -> 2020 north of the
@@ -35,12 +35,18 @@ ROWS = {
 }
 
 
-def run_eval(terralign, weights, row, seed, count, with_test, extra, out):
+def run_eval(terralign, weights, row, seed, count, with_test, extra, out, reuse):
+    if reuse and os.path.isfile(out):
+        return read(out)
     cmd = [terralign, "eval", "--camera", "data/cameras/uav_752x480.json", "--count", str(count), "--seed",
            str(seed), "--methods", "nn:20", "--threads", "2", "--weights", weights, "--json", out] + ROWS[row]
     if not with_test:
         cmd += ["--max-disagreement", "-1"]
     subprocess.run(cmd + extra, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+    return read(out)
+
+
+def read(out):
     samples = json.load(open(out))["methods"]["nn:20"]["samples"]
     # An answer reported failed stands at its prior (eval's JSON holds the prior's error then).
     return [s["epe_px"] < 5 for s in samples], sorted(s["epe_m"] for s in samples)
@@ -65,7 +71,12 @@ def main():
     p.add_argument("--count", type=int, default=200)
     p.add_argument("--with-test", action="store_true", help="keep each file's agreement test (eval's default)")
     p.add_argument("--json-dir", help="keep eval's JSON files here (default: a temporary folder)")
+    p.add_argument("--reuse", action="store_true",
+                   help="take a row from --json-dir where an earlier run left it (the same file name, count, "
+                        "test and options; not checked: clear the folder after changing the build or options)")
     a = p.parse_args(argv)
+    if a.reuse and not a.json_dir:
+        sys.exit("compare_weights: --reuse needs --json-dir")
     seeds = [int(s) for s in a.seeds.split(",")]
     rows = a.rows.split(",")
     for r in rows:
@@ -75,6 +86,8 @@ def main():
         if not os.path.isfile(w):
             sys.exit(f"compare_weights: weight file '{w}' does not exist")
     weights = [os.path.abspath(w) for w in a.weights]
+    if len({os.path.basename(w) for w in weights}) < len(weights):
+        sys.exit("compare_weights: two weight files of one name (their rows' JSON files would collide)")
     tmp = tempfile.TemporaryDirectory()
     folder = a.json_dir or tmp.name
     os.makedirs(folder, exist_ok=True)
@@ -82,8 +95,9 @@ def main():
     for r in rows:
         for s in seeds:
             for i, w in enumerate(weights):
-                out = os.path.join(folder, f"{r}_s{s}_{i}_{os.path.basename(w)}.json")
-                right[r, s, i], epe[r, s, i] = run_eval(a.terralign, w, r, s, a.count, a.with_test, extra, out)
+                out = os.path.join(folder, f"{r}_s{s}_{os.path.basename(w)}.json")
+                right[r, s, i], epe[r, s, i] = run_eval(a.terralign, w, r, s, a.count, a.with_test, extra, out,
+                                                     a.reuse)
                 print(f"{r} seed {s} {os.path.basename(w)}: {100.0 * sum(right[r, s, i]) / a.count:.1f} % within 5 px",
                       file=sys.stderr, flush=True)
     names = [os.path.basename(w) for w in a.weights]
