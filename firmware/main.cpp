@@ -2,14 +2,14 @@
 // 188 x 120 on a Cortex-M7 without an OS, threads, exceptions or RTTI, every allocation
 // served from one caller-provided buffer whose high-water mark is the stated working memory.
 //
-// The map (two NAIP years, 320 x 320 crops at 5 m, a constant DEM) and the shipped weights
-// are linked into flash (blobs.S). For each test pose the "camera" image is a render of the
-// 2016 or the 2017 layer at the true pose (there is no camera under QEMU); the localiser
-// renders the 2016 layer at a prior a few metres and half a degree off (a tracking prior)
-// and aligns. Printed per frame: the position and angle error before and after, converged;
-// then the memory. Exit status 0 only if no frame allocated, none failed with an error, and
-// on the same-year frames both trackers at least halved the median position error (QEMU's
-// instruction counts are not cycle times: no speed is claimed here).
+// The map (two NAIP years, 320 x 320 crops at 5 m, a constant DEM) and the weights (CMake's
+// TERRALIGN_FW_WEIGHTS, s16) are linked into flash (blobs.S). For each test pose the "camera"
+// image is a render of the 2016 or the 2017 layer at the true pose (there is no camera under
+// QEMU); the localiser renders the 2016 layer at a prior a few metres and half a degree off (a
+// tracking prior) and aligns. Printed per frame: the position and angle error before and
+// after, converged; then the memory. Exit status 0 only if no frame allocated, none failed
+// with an error, and on the same-year frames both trackers at least halved the median position
+// error (QEMU's instruction counts are not cycle times: no speed is claimed here).
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -99,7 +99,7 @@ extern "C" int firmware_main() {
   cam.cx = (375.5 + 0.5) / 4 - 0.5;
   cam.cy = (239.5 + 0.5) / 4 - 0.5;
 
-  auto weights = nn::parse_weights(fw_weights, static_cast<std::size_t>(fw_weights_end - fw_weights), "deep_iclk_s16.tlw");
+  auto weights = nn::parse_weights(fw_weights, static_cast<std::size_t>(fw_weights_end - fw_weights), TERRALIGN_FW_WEIGHTS_NAME);
   if (!weights.ok()) {
     fw::print("firmware: %s\n", weights.error().message.c_str());
     return 2;
@@ -136,7 +136,7 @@ extern "C" int firmware_main() {
   }
 
   Run runs[2];
-  runs[0].name = "learned (s16, full size, 4 levels)";
+  runs[0].name = "learned (" TERRALIGN_FW_WEIGHTS_NAME ", full size, 4 levels)";
   runs[1].name = "classical (4 levels)";
   for (int m = 0; m < 2; ++m) {
     Run& run = runs[m];
