@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <utility>
 
 #include <doctest/doctest.h>
 
@@ -108,13 +109,28 @@ iclk::SE3<double> check_parity(const nn::WeightFile& weights, const Pair& p, int
 }  // namespace
 
 TEST_CASE("learned tracker: the C++ pipeline ends where PyTorch ends on the committed validation pairs") {
-  const nn::WeightFile weights = load("weights/deep_iclk_s16.tlw");
+  // Both shipped files: the default (s16w64 since session 38; its poses from make_deep_parity.py
+  // --skip-near-bound, which leaves out a pair where PyTorch steps past the C++ solver's
+  // divergence bound) and s16, the firmware's. Two feature channels a level since session 28;
+  // one and four: the next case.
   const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
   int pairs = 0;
   while (vectors.find("ref_" + std::to_string(pairs))) ++pairs;
-  REQUIRE(pairs >= 2);
-  for (int k = 0; k < pairs; ++k)  // two channels since session 28; one and four: the next case
-    check_parity(weights, pair_of(vectors, k), 2, "pair " + std::to_string(k));
+  REQUIRE(pairs == 3);
+  for (const auto& [file, poses_file] : {std::pair{"weights/deep_iclk_s16w64.tlw", "tests/data/nn/deep_parity_s16w64.tlw"},
+                                         std::pair{"weights/deep_iclk_s16.tlw", "tests/data/nn/deep_parity.tlw"}}) {
+    const nn::WeightFile weights = load(file);
+    const nn::WeightFile poses = load(poses_file);
+    int checked = 0;
+    for (int k = 0; k < pairs; ++k) {
+      if (!poses.find("R_" + std::to_string(k))) continue;
+      Pair p = pair_of(vectors, k);
+      read_pose(poses, k, p);
+      check_parity(weights, p, 2, std::string(file) + ", pair " + std::to_string(k));
+      ++checked;
+    }
+    CHECK(checked >= 2);
+  }
 }
 
 namespace {
@@ -230,7 +246,7 @@ TEST_CASE("learned tracker: the converged tests read their thresholds from the w
   // --test agreement) and, since it replaced it (docs/history.md, session 20), no sharpness threshold.
   auto agree = iclk::DeepAligner::max_disagreement(shipped);
   REQUIRE(agree.ok());
-  CHECK(agree.value() == doctest::Approx(1.10));
+  CHECK(agree.value() == doctest::Approx(1.25));
   auto none = iclk::DeepAligner::min_sharpness(shipped);
   REQUIRE(none.ok());
   CHECK(none.value() == 0.0);

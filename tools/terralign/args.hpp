@@ -36,8 +36,9 @@ std::vector<std::string> split_commas(const std::string& s);
 // in the way.
 Status ensure_dir(const std::string& dir);
 
-// The learned tracker's weights: --weights FILE, else the shipped file
-// (weights/deep_iclk_s16.tlw in the source tree the program was built from).
+// The learned tracker's weights: --weights FILE, else the shipped file (CMake's
+// TERRALIGN_SHIPPED_WEIGHTS, weights/deep_iclk_s16w64.tlw, in the source tree the program was
+// built from).
 Result<nn::WeightFile> learned_weights(const Args& args);
 
 // The tracker's options that align, eval and track share, on iclk::TrackerOptions' defaults
