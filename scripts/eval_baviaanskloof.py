@@ -150,7 +150,9 @@ def main():
                     results.append({"frame": name, "prior": k, "layer": layer, "method": method,
                                     "converged": out['converged'], "reason": out['reason'],
                                     "position_error_m": pos_err, "angle_error_deg": ang_err, "position": te,
-                                    "prior_position_error_m": 50.0, "prior_angle_error_deg": angle_deg(Rp, R)})
+                                    "prior_position_error_m": 50.0, "prior_angle_error_deg": angle_deg(Rp, R),
+                                    "residual_final": out.get('residual_final'), "refinements": out.get('refinements'),
+                                    "uniform_refinements": out.get('uniform_refinements')})
                     print(f'{name} prior {k} {layer:14s} {method:7s} {pos_err:8.2f} m {ang_err:6.2f} deg  '
                           f'{"converged" if out["converged"] else out["reason"]}', flush=True)
     if args.json:

@@ -101,11 +101,12 @@ TEST_CASE("refinement: a reference rendered at the answer takes out the tilt the
   }
 }
 
-TEST_CASE("refinement: the learned tracker weighs every pixel alike where the image agrees with the map") {
+TEST_CASE("refinement: asked to, the learned tracker weighs every pixel alike where the image agrees with the map") {
   // Same-year answers end at a residual of 0.01-0.08, a year apart at 0.86 or more (400 eval
-  // poses); a pass from an answer at 0.5 or less runs without the M-estimator
-  // (cli::kRefineUniformMaxResidual), and is as precise: the same-year answer must still end
-  // under 0.1 m, as in the first case. Across a year every pass keeps the M-estimator.
+  // poses); with set_uniform_refinement(cli::kRefineUniformMaxResidual) (--refine-uniform 0.5)
+  // a pass from an answer at 0.5 or less runs without the M-estimator, and is as precise: the
+  // same-year answer must still end under 0.1 m, as in the first case. Across a year every
+  // pass keeps the M-estimator. By default (since session 38) every pass keeps it.
   const Scene s = scene();
   auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
   REQUIRE(weights.ok());
@@ -113,6 +114,13 @@ TEST_CASE("refinement: the learned tracker weighs every pixel alike where the im
   auto loc = cli::Localizer::create(s.map, s.cam, "2016", opt, 2, &weights.value());
   REQUIRE(loc.ok());
   loc.value()->set_refinement(cli::kDefaultRefinePasses);
+  {
+    auto by_default = loc.value()->localize(s.live.view(), s.prior);
+    REQUIRE(by_default.ok());
+    CHECK(by_default->refinements >= 1);
+    CHECK(by_default->uniform_refinements == 0);
+  }
+  loc.value()->set_uniform_refinement(cli::kRefineUniformMaxResidual);
   // Across a year: 2017's render, 7 parts to 3 of 2016's, ends between the bounds (0.72,
   // measured; 2017 alone ends at 1.3, where no pass runs at all, half and half at 0.35).
   ImageU8 blend = s.live_2017;

@@ -132,10 +132,18 @@ Result<Degradation> parse_degradation(const Args& args) {
   return d;
 }
 
-Result<int> parse_refine(const Args& args) {
+Result<Refinement> parse_refine(const Args& args) {
+  Refinement r;
   auto n = args.get_int("refine", kDefaultRefinePasses, 0, 5);
   if (!n.ok()) return Error{"--refine '" + args.get("refine") + "' must be 0 to 5 re-rendered passes"};
-  return n;
+  r.passes = n.value();
+  if (args.has("refine-uniform")) {
+    auto u = args.get_double("refine-uniform", 0.0);
+    if (!u.ok() || !(u.value() >= 0 && u.value() <= 2))
+      return Error{"--refine-uniform '" + args.get("refine-uniform") + "' must be a final residual in [0, 2]"};
+    r.uniform_max_residual = u.value();
+  }
+  return r;
 }
 
 }  // namespace terralign::cli

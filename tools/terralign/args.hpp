@@ -10,6 +10,7 @@
 #include <terralign/iclk/tracker.hpp>
 #include <terralign/nn/weights.hpp>
 
+#include "localizer.hpp"
 #include "sampling.hpp"
 
 namespace terralign::cli {
@@ -70,7 +71,17 @@ constexpr double kDefaultTiltPriorDeg = 3.0;
 // --blur R (px, 0..10), --noise SIGMA (grey levels, [0, 100]), --exposure E ([0, 1)): what a
 // camera does to a rendered frame (Degradation); none by default.
 Result<Degradation> parse_degradation(const Args& args);
-// --refine N: the re-rendered refinement's passes (Localizer::set_refinement), 0..5.
-Result<int> parse_refine(const Args& args);
+// --refine N: the re-rendered refinement's passes (Localizer::set_refinement), 0..5;
+// --refine-uniform R: the learned tracker's passes without the M-estimator below a final
+// residual of R (Localizer::set_uniform_refinement; 0..2, default off).
+struct Refinement {
+  int passes = kDefaultRefinePasses;
+  double uniform_max_residual = -1.0;
+  void apply(Localizer& loc) const {
+    loc.set_refinement(passes);
+    loc.set_uniform_refinement(uniform_max_residual);
+  }
+};
+Result<Refinement> parse_refine(const Args& args);
 
 }  // namespace terralign::cli

@@ -43,7 +43,7 @@ nlohmann::json pose_json(const geo::Pose& p) {
 
 int run_align(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "image", "prior", "layer", "method", "iterations", "robust", "threads", "weights",
-                                 "tilt-prior", "registration-floor", "registration-floor-per-residual", "refine", "min-sharpness",
+                                 "tilt-prior", "registration-floor", "registration-floor-per-residual", "refine", "refine-uniform", "min-sharpness",
                                  "max-disagreement", "coarse-search"}, {});
   if (!args.ok()) return usage_error("align", args.error());
   for (const char* k : {"map", "camera", "image", "prior", "layer"})
@@ -89,7 +89,7 @@ int run_align(const std::vector<std::string>& argv) {
   auto loc = Localizer::create(map.value(), pinhole_of(cam.value()), args->get("layer"), opt, threads.value(),
                                weights ? &*weights : nullptr);
   if (!loc.ok()) return fail(loc.error());
-  loc.value()->set_refinement(refine.value());
+  refine->apply(*loc.value());
   const double ms_load = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   auto out = loc.value()->localize(live.view(), prior.value());
   if (!out.ok()) return fail(out.error());
@@ -106,6 +106,7 @@ int run_align(const std::vector<std::string>& argv) {
   j["converged"] = out->converged;
   j["reason"] = out->reason;
   j["iterations"] = out->iterations;
+  j["residual_final"] = out->residual_final;  // the last pass's (eval's JSON has it per pose too)
   // Re-rendered passes after the first (--refine), and of them the learned tracker's without
   // its M-estimator (an answer whose image already agreed with the map).
   j["refinements"] = out->refinements;

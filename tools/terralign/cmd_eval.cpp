@@ -126,7 +126,7 @@ int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
                                  "min-sharpness", "max-disagreement", "coarse-search", "input-scale", "nn-levels", "imu-tilt", "tilt-prior",
-                                 "prior-scale", "refine", "blur", "noise", "exposure"}, {});
+                                 "prior-scale", "refine", "refine-uniform", "blur", "noise", "exposure"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -225,7 +225,7 @@ int run_eval(const std::vector<std::string>& argv) {
   opt.levels = levels.value();
   auto loc = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value());
   if (!loc.ok()) return fail(loc.error());
-  loc.value()->set_refinement(refine.value());
+  refine->apply(*loc.value());
   std::unique_ptr<Localizer> learned;
   if (std::any_of(methods.begin(), methods.end(), [](const Method& m) { return m.learned; })) {
     auto w = learned_weights(args.value());
@@ -237,7 +237,7 @@ int run_eval(const std::vector<std::string>& argv) {
     auto l = Localizer::create(map.value(), cam, args->get("ref-layer"), lopt, threads.value(), &w.value(), sizes);
     if (!l.ok()) return fail(l.error());
     learned = std::move(l.value());
-    learned->set_refinement(refine.value());
+    refine->apply(*learned);
   }
   raster::RenderOptions ro;
   ro.threads = threads.value();

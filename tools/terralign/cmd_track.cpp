@@ -113,7 +113,7 @@ int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
                                  "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor",
                                  "registration-floor-per-residual",
-                                 "min-sharpness", "max-disagreement", "coarse-search", "nn-levels", "refine"}, {});
+                                 "min-sharpness", "max-disagreement", "coarse-search", "nn-levels", "refine", "refine-uniform"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
@@ -165,7 +165,7 @@ int run_track(const std::vector<std::string>& argv) {
   auto loc =
       Localizer::create(map.value(), cam, args->get("layer"), opt, threads.value(), weights ? &*weights : nullptr, sizes);
   if (!loc.ok()) return fail(loc.error());
-  loc.value()->set_refinement(refine.value());
+  refine->apply(*loc.value());
   std::vector<geo::Pose> truth;
   if (args->has("truth")) {
     std::ifstream in(args->get("truth"));

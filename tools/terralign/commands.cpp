@@ -22,8 +22,8 @@ const std::vector<Command>& commands() {
        "usage: terralign align --map MAP.json --camera CAMERA.json --image IMG --prior \"x y z qw qx qy qz\"\n"
        "                       --layer NAME [--method classic|nn] [--iterations N] [--robust none|huber|tukey]\n"
        "                       [--threads N] [--weights FILE] [--tilt-prior DEG] [--registration-floor PX]\n"
-       "                       [--registration-floor-per-residual PX] [--refine N] [--min-sharpness S]\n"
-       "                       [--max-disagreement PX] [--coarse-search PX]\n\n"
+       "                       [--registration-floor-per-residual PX] [--refine N] [--refine-uniform R]\n"
+       "                       [--min-sharpness S] [--max-disagreement PX] [--coarse-search PX]\n\n"
        "Renders LAYER at the prior, aligns the image to it (inverse-compositional LM on SE(3),\n"
        "4 levels, N iterations per level, default 20) and prints {\"pose\", \"covariance\",\n"
        "\"converged\", \"reason\", \"iterations\", \"ms\"}. The covariance is 6x6 over\n"
@@ -50,6 +50,10 @@ const std::vector<Command>& commands() {
        "tenth of the error; docs/history.md). Only answers whose final residual is at most 1.0 (a\n"
        "correlation of 0.5: same-year maps) are refined. The answer and its covariance are the last\n"
        "pass's; a pass that fails leaves the one before. \"iterations\" and \"ms\" count every pass.\n"
+       "--refine-uniform R: the learned tracker's passes weigh every pixel alike, without the\n"
+       "M-estimator, where the answer refined ended at a final residual of at most R (session 37's\n"
+       "rule, 0.5: same-year renders come out as precise and a pass takes about 6 ms less; real\n"
+       "frames against their own survey's ortho ended 1-2 m further off; default off).\n"
        "--min-sharpness S, --max-disagreement PX and --coarse-search PX: as eval's (the converged\n"
        "tests and the search before the coarsest level).\n",
        run_align},
@@ -60,7 +64,8 @@ const std::vector<Command>& commands() {
        "                      [--threads N] [--weights FILE] [--area MINX,MINY,MAXX,MAXY]\n"
        "                      [--min-sharpness S] [--max-disagreement PX] [--coarse-search PX]\n"
        "                      [--input-scale S] [--nn-levels L] [--imu-tilt DEG] [--tilt-prior DEG]\n"
-       "                      [--prior-scale F] [--refine N] [--noise SIGMA] [--blur R] [--exposure F]\n\n"
+       "                      [--prior-scale F] [--refine N] [--refine-uniform R] [--noise SIGMA]\n"
+       "                      [--blur R] [--exposure F]\n\n"
        "Samples N true poses with the whole footprint on the map (altitude above ground in\n"
        "[LO, HI] m, tilt off nadir up to DEG, any heading), perturbs each for the prior (rotation\n"
        "about a random axis by U[0, 6] deg, translation by U[0, 0.13 x altitude] m in a random\n"
@@ -92,7 +97,8 @@ const std::vector<Command>& commands() {
        "(roll and pitch: between the true and the estimated view of the map's up), the converged\n"
        "flag and the tests' numbers, the true camera centre and the mean ground shift (estimate -\n"
        "truth, map axes, m).\n"
-       "--refine N: both trackers' refinement passes, as align's (default 2; the time includes them).\n"
+       "--refine N: both trackers' refinement passes, as align's (default 2; the time includes them);\n"
+       "--refine-uniform R: as align's.\n"
        "--noise, --blur and --exposure degrade each query as flight's frames (a blur of radius R px,\n"
        "a gain in 1 +- F, then Gaussian noise of SIGMA grey levels; each pose's own draws), so that\n"
        "the trackers see a camera's image rather than a clean render; none by default.\n",
@@ -118,7 +124,7 @@ const std::vector<Command>& commands() {
        "                       [--init-velocity \"vx vy vz\"] [--registration-floor PX]\n"
        "                       [--registration-floor-per-residual PX]\n"
        "                       [--min-sharpness S] [--max-disagreement PX] [--coarse-search PX]\n"
-       "                       [--nn-levels L] [--refine N]\n\n"
+       "                       [--nn-levels L] [--refine N] [--refine-uniform R]\n\n"
        "LIST has 'timestamp image-path' lines; --init is the pose at the first frame's time. Each\n"
        "frame's prior is the last converged estimate, moved by the velocity of the last two; a frame that fails (not converged, an unreadable or\n"
        "wrongly sized image, a timestamp going backwards) keeps the prediction, says why on stderr,\n"
@@ -143,7 +149,8 @@ const std::vector<Command>& commands() {
        "eval's; 0: all).\n"
        "--refine N: as align's (default 2): a frame whose answer turned by more than 0.05 degree\n"
        "from its prediction is aligned again from a reference rendered at it, as the first frames\n"
-       "of a track started from an IMU's tilt are; the frames after them are not.\n",
+       "of a track started from an IMU's tilt are; the frames after them are not. --refine-uniform R:\n"
+       "as align's.\n",
        run_track},
       {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
        "usage: terralign dataset --map MAP.json --camera CAMERA.json --count N --seed S --out DIR\n"

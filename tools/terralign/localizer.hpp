@@ -37,7 +37,7 @@ struct LocalizeOutput {
   double disagreement_px = 0;                    // iclk::TrackResult
   double residual_correlation = 0, covariance_inflation = 1;  // see iclk::TrackResult
   int refinements = 0;  // re-rendered passes after the first that converged (Localizer::set_refinement)
-  int uniform_refinements = 0;  // of them, the learned tracker's without its M-estimator (kRefineUniformMaxResidual)
+  int uniform_refinements = 0;  // of them, the learned tracker's without its M-estimator (set_uniform_refinement)
   double ms_render = 0, ms_pyramid = 0, ms_jacobian = 0, ms_iterations = 0;
   double ms_encoder = 0, ms_mestimator = 0;  // learned: both encoders; the M-estimator (inside ms_jacobian)
 };
@@ -84,15 +84,21 @@ constexpr int kDefaultRefinePasses = 2;
 constexpr int kRefineLevels = 1;
 constexpr double kRefineMinDeg = 0.05;
 constexpr double kRefineMaxResidual = 1.0;
-// The learned tracker's refinement pass weighs every pixel alike, without the M-estimator,
-// where the answer it refines ended at a residual of at most 0.5: same-year answers end at
+// Localizer::set_uniform_refinement's bound, opt-in since session 38 (the command line's
+// --refine-uniform 0.5; off by default): the learned tracker's refinement pass weighs every
+// pixel alike, without the M-estimator, where the answer it refines ended at a residual of at
+// most 0.5: same-year answers end at
 // 0.01-0.08 (0.05-0.27 for 199 of 200 poses with README's poor camera, noise 10 and blur 2),
 // 2016 -> 2017's at 0.86 or more. Where image and map agree the finest level's M-estimator,
 // about 5 of a pass's 14 ms, has little to weigh out (session 37, same year, seeds 7 / 13,
 // median 3-D EPE with it -> without: clean 0.016 / 0.017 -> 0.015 / 0.017 m, the flights'
 // camera 0.033 / 0.035 -> 0.035 / 0.036, the poor camera 0.095 / 0.098 -> 0.101 / 0.103;
 // the same-year lawnmower with an IMU 0.21 -> 0.15 m RMSE, NEES 5.5 -> 3.6). Above the bound
-// it still weighs out what changed between the years: those answers are as before.
+// it still weighs out what changed between the years: those answers are as before. Real
+// frames against their own survey's ortho end below the bound too (the Baviaanskloof frames at
+// 0.06-0.39) and there the M-estimator's answers lie 0.6-1.6 m nearer the aero-triangulated
+// pose (session 38, README "Real frames"): what a real camera and a 24 m DEM disagree on, a
+// render does not show. Hence off by default.
 constexpr double kRefineUniformMaxResidual = 0.5;
 
 class Localizer {
@@ -118,6 +124,10 @@ class Localizer {
   // converged flag are the last converged pass's (a pass that fails leaves the one before it). Default:
   // none.
   void set_refinement(int passes, int levels = kRefineLevels, double min_deg = kRefineMinDeg);
+  // The learned tracker's refinement passes without the M-estimator where the answer refined
+  // ended at a final residual of at most `max_residual` (kRefineUniformMaxResidual: session
+  // 37's rule); negative (the default): every pass with it.
+  void set_uniform_refinement(double max_residual) { refine_uniform_max_residual_ = max_residual; }
   // Renders the reference at `at` without aligning (the metrics' and figures' reference).
   Status render_at(const geo::Pose& at) {
     LocalizeOutput unused;
@@ -139,6 +149,7 @@ class Localizer {
                                                                  bool learned_weights);
   int refine_passes_ = 0, refine_levels_ = kRefineLevels;
   double refine_min_deg_ = kRefineMinDeg;
+  double refine_uniform_max_residual_ = -1.0;
   geo::CameraModel camera_, work_;
   std::unique_ptr<iclk::DeepAligner> deep_;
   ImageF ref_rgb_, live_rgb_;  // learned: float RGB at the working size
