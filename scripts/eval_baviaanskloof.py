@@ -11,6 +11,7 @@ R_W_C(ours) = R_PATB diag(1, -1, -1) (geo::pose_from_opk does the same).
 
 usage: scripts/eval_baviaanskloof.py [--terralign BIN] [--shared DIR] [--priors N] [--seed S]
                                       [--weights FILE] [--json OUT] [--refine N]
+                                      [--refine-uniform R]
 Python standard library only."""
 import argparse
 import json
@@ -90,6 +91,8 @@ def main():
     ap.add_argument('--json', help='write every result here')
     ap.add_argument('--weights', help="the learned tracker's weight file (default: the shipped one)")
     ap.add_argument('--refine', type=int, help="align's refinement passes (default: align's)")
+    ap.add_argument('--refine-uniform', type=float,
+                    help="align's --refine-uniform: passes without the M-estimator below this final residual")
     args = ap.parse_args()
     S = os.path.join(args.shared, 'ngi_baviaanskloof_2015')
     if not os.path.isdir(S):
@@ -138,6 +141,8 @@ def main():
                         cmd += ['--weights', args.weights]
                     if args.refine is not None:
                         cmd += ['--refine', str(args.refine)]
+                    if args.refine_uniform is not None:
+                        cmd += ['--refine-uniform', str(args.refine_uniform)]
                     p = subprocess.run(cmd, capture_output=True, text=True)
                     if p.returncode not in (0, 3):
                         sys.exit(f'eval_baviaanskloof: {" ".join(cmd)}: exit {p.returncode}: {p.stderr.strip()}')
