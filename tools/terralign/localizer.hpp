@@ -95,10 +95,10 @@ constexpr double kRefineMaxResidual = 1.0;
 // camera 0.033 / 0.035 -> 0.035 / 0.036, the poor camera 0.095 / 0.098 -> 0.101 / 0.103;
 // the same-year lawnmower with an IMU 0.21 -> 0.15 m RMSE, NEES 5.5 -> 3.6). Above the bound
 // it still weighs out what changed between the years: those answers are as before. Real
-// frames against their own survey's ortho end below the bound too (the Baviaanskloof frames at
-// 0.06-0.39) and there the M-estimator's answers lie 0.6-1.6 m nearer the aero-triangulated
-// pose (session 38, README "Real frames"): what a real camera and a 24 m DEM disagree on, a
-// render does not show. Hence off by default.
+// frames end below the bound too (the Baviaanskloof frames at 0.06 against their own flight's
+// ortho, 0.38-0.56 against Sentinel-2) and wherever a pass ran without it the M-estimator's
+// answers lie 0.6-1.6 m nearer the aero-triangulated pose (session 38, README "Real frames"):
+// what a real camera and a 24 m DEM disagree on, a render does not show. Hence off by default.
 constexpr double kRefineUniformMaxResidual = 0.5;
 
 class Localizer {
