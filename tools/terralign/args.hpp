@@ -76,7 +76,7 @@ Result<Degradation> parse_degradation(const Args& args);
 // residual of R (Localizer::set_uniform_refinement; 0..2, default off).
 struct Refinement {
   int passes = kDefaultRefinePasses;
-  double uniform_max_residual = -1.0;
+  double uniform_max_residual = kRefineUniformOff;
   void apply(Localizer& loc) const {
     loc.set_refinement(passes);
     loc.set_uniform_refinement(uniform_max_residual);

@@ -52,8 +52,8 @@ const std::vector<Command>& commands() {
        "pass's; a pass that fails leaves the one before. \"iterations\" and \"ms\" count every pass.\n"
        "--refine-uniform R: the learned tracker's passes weigh every pixel alike, without the\n"
        "M-estimator, where the answer refined ended at a final residual of at most R (session 37's\n"
-       "rule, 0.5: same-year renders come out as precise and a pass takes about 6 ms less; real\n"
-       "frames against their own survey's ortho ended 1-2 m further off; default off).\n"
+       "rule, 0.5: same-year renders come out as precise and a refined alignment takes 2-6 ms\n"
+       "less; real frames ended 0.6-1.6 m further from their surveyed pose; default off).\n"
        "--min-sharpness S, --max-disagreement PX and --coarse-search PX: as eval's (the converged\n"
        "tests and the search before the coarsest level).\n",
        run_align},

@@ -162,8 +162,8 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
       if (pass == 0) return st.error();
       break;
     }
-    // The learned tracker's refinement pass of an answer whose image agrees with the map
-    // weighs every pixel alike.
+    // Where asked (set_uniform_refinement), the learned tracker's refinement pass of an answer
+    // whose image agrees with the map weighs every pixel alike.
     const bool uniform = deep_ && pass > 0 && out.residual_final <= refine_uniform_max_residual_;
     const auto& r = align_once(live, ref_pose, prior, attitude, pass == 0, !uniform);
     out.iterations += r.iterations;

@@ -100,6 +100,7 @@ constexpr double kRefineMaxResidual = 1.0;
 // answers lie 0.6-1.6 m nearer the aero-triangulated pose (session 38, README "Real frames"):
 // what a real camera and a 24 m DEM disagree on, a render does not show. Hence off by default.
 constexpr double kRefineUniformMaxResidual = 0.5;
+constexpr double kRefineUniformOff = -1.0;  // no residual is below it: every pass keeps the M-estimator
 
 class Localizer {
  public:
@@ -126,7 +127,7 @@ class Localizer {
   void set_refinement(int passes, int levels = kRefineLevels, double min_deg = kRefineMinDeg);
   // The learned tracker's refinement passes without the M-estimator where the answer refined
   // ended at a final residual of at most `max_residual` (kRefineUniformMaxResidual: session
-  // 37's rule); negative (the default): every pass with it.
+  // 37's rule); kRefineUniformOff (the default): every pass with it.
   void set_uniform_refinement(double max_residual) { refine_uniform_max_residual_ = max_residual; }
   // Renders the reference at `at` without aligning (the metrics' and figures' reference).
   Status render_at(const geo::Pose& at) {
@@ -149,7 +150,7 @@ class Localizer {
                                                                  bool learned_weights);
   int refine_passes_ = 0, refine_levels_ = kRefineLevels;
   double refine_min_deg_ = kRefineMinDeg;
-  double refine_uniform_max_residual_ = -1.0;
+  double refine_uniform_max_residual_ = kRefineUniformOff;
   geo::CameraModel camera_, work_;
   std::unique_ptr<iclk::DeepAligner> deep_;
   ImageF ref_rgb_, live_rgb_;  // learned: float RGB at the working size
