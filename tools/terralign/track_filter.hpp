@@ -1,0 +1,94 @@
+// The tracking filter of `terralign track`: an error-state Kalman filter on the camera's pose,
+// its velocity and its turn rate, which the aligner's answers update.
+//
+// Each frame the aligner starts from the filter's prediction and its answer, with the
+// aligner's covariance, is a measurement of the pose. The filter weighs it against the
+// prediction and gates it: an answer farther from the prediction than both their covariances
+// allow (a chi-square test on the innovation) is refused and the track coasts on the motion
+// model, as it does through a frame that did not converge. The estimate is then the fused
+// pose and its covariance the filter's, which also covers the frames in between.
+//
+// State: R_W_C, p (camera centre, map frame), v (m/s) and w (rad/s about the map's axes),
+// constant velocity and constant turn rate between frames, white acceleration and angular
+// acceleration as the process noise. The error state is [dtheta; dp; dv; dw], dtheta about
+// the map's axes (R_true = Exp(dtheta) R), the order of the aligner's covariance
+// (Localizer::covariance_in_world) and of track's NEES.
+#pragma once
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <terralign/geo/pose.hpp>
+
+namespace terralign::cli {
+
+struct TrackFilterOptions {
+  // Process noise, continuous white acceleration: the velocity's random walk, m/s per
+  // square root of a second (1: it drifts by 1 m/s in a second, 3 m/s in nine), and the turn
+  // rate's, degrees/s per square root of a second.
+  double accel_sigma = 1.0;
+  double angular_accel_sigma_deg = 5.0;
+  // The gate on the innovation's squared Mahalanobis distance: the chi-square quantile of 6
+  // degrees of freedom at p = 0.999 (22.46): one right answer in a thousand refused where
+  // both covariances are honest. Negative: no gate.
+  double gate = 22.46;
+  // The answer that would be the N-th refused in a row is taken as a new start instead
+  // (reset()): a gate refuses the right answers of a track whose prediction took wrong ones,
+  // and they agree with each other, not with it. 0: never.
+  int reset_after_refusals = 2;
+  // The start's uncertainty, per axis: a failing GPS's last fix (position, m), a rough
+  // attitude (degrees), the horizontal and the vertical velocity (m/s; a given velocity has
+  // `given_velocity_sigma`) and the turn rate (degrees/s).
+  double init_position_sigma = 50.0;
+  double init_rotation_sigma_deg = 5.0;
+  double init_velocity_sigma = 30.0;
+  double init_climb_sigma = 5.0;  // the vertical velocity: an aircraft's climb rate
+  double given_velocity_sigma = 2.0;
+  double init_rate_sigma_deg = 5.0;
+};
+
+class TrackFilter {
+ public:
+  using Mat6 = Eigen::Matrix<double, 6, 6>;
+  using Mat12 = Eigen::Matrix<double, 12, 12>;
+
+  // At `init` at time t0, with a velocity where one is known (else zero and
+  // init_velocity_sigma).
+  TrackFilter(const geo::Pose& init, double t0, const Eigen::Vector3d* velocity, const TrackFilterOptions& options);
+
+  // Moves the state and covariance on to time t (nothing if t is not later than now).
+  void predict(double t);
+
+  struct Update {
+    bool accepted = false;
+    bool reset = false;  // taken as a new start (TrackFilterOptions::reset_after_refusals)
+    double d2 = 0;  // the innovation's squared Mahalanobis distance
+    const char* why = "";  // why refused
+  };
+  // Fuses a measured pose with its covariance ([dtheta; dp] in the map's axes) at the current
+  // time, unless its covariance is not positive definite or the gate refuses it (or, the
+  // N-th refused in a row, starts again at it).
+  Update update(const geo::Pose& measured, const Mat6& covariance);
+
+  // Starts again at a measured pose with its covariance, the velocity and turn rate kept
+  // with the start's uncertainty: where the prediction, not the answers, went wrong.
+  void reset(const geo::Pose& measured, const Mat6& covariance);
+
+  geo::Pose pose() const;
+  Mat6 pose_covariance() const { return P_.topLeftCorner<6, 6>(); }
+  const Eigen::Vector3d& velocity() const { return v_; }
+  const Mat12& covariance() const { return P_; }
+  int updates() const { return updates_; }
+  double time() const { return t_; }
+
+ private:
+  TrackFilterOptions opt_;
+  Eigen::Quaterniond q_;  // R_W_C
+  Eigen::Vector3d p_, v_, w_;
+  Mat12 P_;
+  double t_;
+  int updates_ = 0;
+  int refused_in_row_ = 0;
+};
+
+}  // namespace terralign::cli
