@@ -99,7 +99,7 @@ TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged an
   REQUIRE(geo::save_png(dir + "/frames/000006.png", noise.view()).ok());
   const std::string init = first_truth_pose(dir);
   REQUIRE(run(tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir + "/list.txt --init \"" + init +
-              "\" --truth " + dir + "/truth.txt --out " + dir + "/poses.csv --json " + dir + "/summary.json") == 0);
+              "\" --truth " + dir + "/truth.txt --out " + dir + "/poses.csv --json " + dir + "/summary.json --filter kalman") == 0);
   std::ifstream js(dir + "/summary.json");
   const nlohmann::json j = nlohmann::json::parse(js);
   CHECK(j["frames"].get<int>() == 12);
@@ -121,25 +121,40 @@ TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged an
   const auto rows = csv_rows(dir + "/poses.csv");
   REQUIRE(rows.size() == 12);
   for (std::size_t i = 0; i < rows.size(); ++i) {
-    REQUIRE(rows[i].size() == 51);  // 15 columns and the 36 of the covariance
+    // 15 columns, the 36 of the covariance, the answer's 7 and the gate's distance (a CSV
+    // line ending in an empty field has one cell fewer here).
     CAPTURE(i);
+    CHECK(rows[i].size() >= 58);
+    CHECK(rows[i].size() <= 59);
     CHECK(rows[i][8] == (i == 6 ? "0" : "1"));
+    // Frame 6 reports the filter's prediction with its covariance; no answer, no gate test.
+    if (i == 6) {
+      CHECK(std::stod(rows[i][15 + 3 * 6 + 3]) > 0);
+      CHECK(rows[i][51].empty());
+    } else {
+      CHECK(rows[i][51] == rows[i][1]);  // the frame reports the answer itself
+      CHECK(std::stod(rows[i][58]) >= 0);
+    }
   }
   // --registration-floor 1 (camera pixels, ten times the default): the same poses, and every
   // converged frame's position variance east and north larger (the floor's shifts move the
-  // camera sideways); a floor that is not a number in [0, 100] is refused, naming it.
-  const std::string floor_cmd = tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
-                                "/list.txt --init \"" + init + "\" --out " + dir + "/floor.csv --registration-floor ";
+  // camera sideways); a floor that is not a number in [0, 100] is refused, naming it. Without
+  // the filter, whose gains the covariance would change and with them the next priors.
+  const std::string plain = tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
+                            "/list.txt --init \"" + init + "\" --filter none --out ";
+  REQUIRE(run(plain + dir + "/plain.csv") == 0);
+  const std::string floor_cmd = plain + dir + "/floor.csv --registration-floor ";
   REQUIRE(run(floor_cmd + "1") == 0);
+  const auto narrow = csv_rows(dir + "/plain.csv");
   const auto wide = csv_rows(dir + "/floor.csv");
   REQUIRE(wide.size() == rows.size());
   for (std::size_t i = 0; i < rows.size(); ++i) {
     CAPTURE(i);
-    for (int c = 1; c <= 7; ++c) CHECK(wide[i][static_cast<std::size_t>(c)] == rows[i][static_cast<std::size_t>(c)]);
+    for (int c = 1; c <= 7; ++c) CHECK(wide[i][static_cast<std::size_t>(c)] == narrow[i][static_cast<std::size_t>(c)]);
     if (i == 6) continue;
     for (int c : {15 + 3 * 6 + 3, 15 + 4 * 6 + 4}) {  // cov33, cov44
       CAPTURE(c);
-      CHECK(std::stod(wide[i][static_cast<std::size_t>(c)]) > 2 * std::stod(rows[i][static_cast<std::size_t>(c)]));
+      CHECK(std::stod(wide[i][static_cast<std::size_t>(c)]) > 2 * std::stod(narrow[i][static_cast<std::size_t>(c)]));
     }
   }
   for (const char* bad : {"-1", "101", "nan", "wide"})

@@ -17,6 +17,7 @@
 #include "common.hpp"
 #include "localizer.hpp"
 #include "sampling.hpp"
+#include "track_filter.hpp"
 
 namespace terralign::cli {
 
@@ -113,7 +114,7 @@ int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
                                  "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor",
                                  "registration-floor-per-residual",
-                                 "min-sharpness", "max-disagreement", "coarse-search", "nn-levels", "refine", "refine-uniform"}, {});
+                                 "filter", "accel-sigma", "gate", "init-sigma", "min-sharpness", "max-disagreement", "coarse-search", "nn-levels", "refine", "refine-uniform"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
@@ -125,6 +126,33 @@ int run_track(const std::vector<std::string>& argv) {
   if (nn_levels.value() > 0 && method != "nn")
     return usage_error("track", Error{"--nn-levels sets the learned tracker's levels: it needs --method nn"});
   sizes.levels = nn_levels.value();
+  // --filter auto (the default): the filter where an attitude reference comes with the
+  // frames. It trusts the answers' covariances; without an IMU, across many years, they claim
+  // a precision they do not have (NEES 46-50) and the filter's velocity follows their drift
+  // (12 random flights, 11 years: 4 lost against 2 without it); with one they are honest
+  // (NEES 6.5-7) and it holds tracks that extrapolation loses (0 of 12 lost against 2; the
+  // lawnmower 478 -> 50 m). README "Tracking a flight", session 39.
+  std::string filter_mode = args->get("filter", "auto");
+  if (filter_mode != "auto" && filter_mode != "kalman" && filter_mode != "none")
+    return usage_error("track", Error{"--filter '" + filter_mode + "' must be auto, kalman or none"});
+  if (filter_mode == "auto") filter_mode = args->has("attitude") ? "kalman" : "none";
+  TrackFilterOptions fopt;
+  auto accel = args->get_double("accel-sigma", fopt.accel_sigma);
+  if (!accel.ok()) return usage_error("track", accel.error());
+  if (!(accel.value() > 0 && accel.value() <= 100))
+    return usage_error("track", Error{"--accel-sigma " + args->get("accel-sigma") + " must be in (0, 100] m/s per root second"});
+  fopt.accel_sigma = accel.value();
+  auto gate = args->get_double("gate", fopt.gate);
+  if (!gate.ok()) return usage_error("track", gate.error());
+  if (!(gate.value() <= 1e6)) return usage_error("track", Error{"--gate " + args->get("gate") + " must be at most 1e6 (negative: none)"});
+  fopt.gate = gate.value();
+  auto init_sigma = args->get_double("init-sigma", fopt.init_position_sigma);
+  if (!init_sigma.ok()) return usage_error("track", init_sigma.error());
+  if (!(init_sigma.value() > 0 && init_sigma.value() <= 1e5))
+    return usage_error("track", Error{"--init-sigma " + args->get("init-sigma") + " must be in (0, 1e5] m"});
+  fopt.init_position_sigma = init_sigma.value();
+  if (filter_mode == "none" && (args->has("accel-sigma") || args->has("gate") || args->has("init-sigma")))
+    return usage_error("track", Error{"--accel-sigma, --gate and --init-sigma set the filter: they need --filter kalman (or auto with --attitude)"});
   auto iters = args->get_int("iterations", 20, 1, 1000);
   auto threads = args->get_int("threads", 2, 1, 64);
   if (!iters.ok()) return usage_error("track", iters.error());
@@ -187,10 +215,12 @@ int run_track(const std::vector<std::string>& argv) {
   std::string csv = "timestamp,x,y,z,qw,qx,qy,qz,converged,reason,iterations,ms,lat,lon,height";
   for (int r = 0; r < 6; ++r)
     for (int c = 0; c < 6; ++c) csv += ",cov" + std::to_string(r) + std::to_string(c);
-  csv += "\n";
-  // The last two converged estimates (`known` of them so far, at most 2): the velocity. With
-  // --init-velocity (a GPS's last fix has one) the start is the newest, at the first frame's
-  // time, and a point one second before it on that velocity the other.
+  // The aligner's own answer (empty where it did not converge) and, with the filter, the
+  // squared Mahalanobis distance of its innovation that the gate tested.
+  csv += ",answer_x,answer_y,answer_z,answer_qw,answer_qx,answer_qy,answer_qz,gate_d2\n";
+  // Without the filter, the last two converged estimates (`known` of them so far, at most 2):
+  // the velocity. With --init-velocity (a GPS's last fix has one) the start is the newest, at
+  // the first frame's time, and a point one second before it on that velocity the other.
   geo::Pose last = init.value(), prev = init.value();
   double t_last = frames->front().t, t_prev = t_last;
   int known = 0, converged = 0;
@@ -199,25 +229,39 @@ int run_track(const std::vector<std::string>& argv) {
     t_prev = t_last - 1;
     known = 2;
   }
+  // The filter (--filter kalman; auto's with --attitude) predicts each frame's prior from the
+  // start and every answer it took; without it (--filter none) the prior extrapolates the
+  // last two.
+  std::optional<TrackFilter> filter;
+  if (filter_mode == "kalman")
+    filter.emplace(init.value(), frames->front().t, init_velocity ? &*init_velocity : nullptr, fopt);
+  int refused = 0, resets = 0;
   std::vector<double> pos_err, ang_err, nees, ms_all;
   double last_t = -INFINITY;
   const auto t_start = std::chrono::steady_clock::now();
   for (std::size_t i = 0; i < frames->size(); ++i) {
     const Frame& f = frames.value()[i];
-    geo::Pose prior = known == 2 ? predict(prev, t_prev, last, t_last, f.t) : last;
+    const bool in_order = f.t > last_t;
+    if (filter && in_order) filter->predict(f.t);
+    geo::Pose prior = filter ? filter->pose() : known == 2 ? predict(prev, t_prev, last, t_last, f.t) : last;
     // With an attitude reference the start keeps the prediction's tilt when two converged
     // frames made it (starting from the IMU's instead: same-year RMSE 0.16 -> 0.31 m, across
     // a year 7.5 -> 8.1 m, docs/history.md, session 29), else takes the IMU's; the tilt prior holds the answer to
     // the IMU's either way.
-    if (!attitude.empty() && known < 2) prior.q_W_C = with_tilt_of(prior.q_W_C, attitude[i]);
+    if (!attitude.empty() && (filter ? filter->updates() : known) < 2) prior.q_W_C = with_tilt_of(prior.q_W_C, attitude[i]);
+    // A frame whose answer is not taken reports the prediction, with the filter's covariance
+    // (without the filter, none).
     geo::Pose estimate = prior;
+    Eigen::Matrix<double, 6, 6> cov =
+        filter ? filter->pose_covariance() : Eigen::Matrix<double, 6, 6>::Zero().eval();
+    std::optional<geo::Pose> answer;  // the aligner's, where it converged
+    double gate_d2 = NAN;
     bool ok = false;
     std::string reason;
     int iterations = 0;
     double ms = 0;
-    Eigen::Matrix<double, 6, 6> cov = Eigen::Matrix<double, 6, 6>::Zero();
     const auto t0 = std::chrono::steady_clock::now();
-    if (!(f.t > last_t)) {
+    if (!in_order) {
       reason = "timestamp " + std::to_string(f.t) + " does not follow " + std::to_string(last_t);
     } else {
       auto img = load_rgb(f.path);
@@ -235,6 +279,27 @@ int run_track(const std::vector<std::string>& argv) {
           ok = out->converged;
           reason = out->reason;
           iterations = out->iterations;
+          if (ok) answer = out->T_W_C;
+          // The filter takes an answer its gate accepts. The frame reports the answer as it is,
+          // not the fused pose: consecutive frames see nearly the same ground, so their errors
+          // across years are one error, not independent ones (lag-one correlation 0.84-0.98
+          // without an IMU, README "Tracking a flight"), and fused as independent they claimed
+          // twice the precision they have (NEES 8.1 -> 15.5 across a year).
+          if (ok && filter) {
+            const TrackFilter::Update u = filter->update(out->T_W_C, out->covariance);
+            gate_d2 = u.d2;
+            if (u.reset) {
+              ++resets;
+              reason = "converged; the track starts again here: " + std::to_string(fopt.reset_after_refusals) +
+                       " answers in a row too far from the prediction";
+            } else if (!u.accepted) {
+              ok = false;
+              ++refused;
+              char d2[96];
+              std::snprintf(d2, sizeof d2, " (squared Mahalanobis distance %.4g; the gate %.4g)", u.d2, fopt.gate);
+              reason = std::string(u.why) + d2;
+            }
+          }
           if (ok) {
             estimate = out->T_W_C;
             cov = out->covariance;
@@ -246,13 +311,14 @@ int run_track(const std::vector<std::string>& argv) {
     ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     ms_all.push_back(ms);
     if (!ok) std::fprintf(stderr, "terralign track: frame %zu (t %.3f): not converged: %s\n", i, f.t, reason.c_str());
-    // A converged estimate becomes the newest of the two the next prediction extrapolates
-    // from. A failed frame changes neither: the track coasts at the last velocity (dead
-    // reckoning) until a frame converges again, instead of waiting where the aircraft was.
+    // Without the filter, a converged estimate becomes the newest of the two the next
+    // prediction extrapolates from. A failed frame changes neither: the track coasts at the
+    // last velocity (dead reckoning) until a frame converges again, instead of waiting where
+    // the aircraft was.
     // An estimate at the newest one's time (the first frame's, over a start given with
     // --init-velocity) replaces it instead of making a velocity over no time with it.
-    if (ok) {
-      ++converged;
+    if (ok) ++converged;
+    if (ok && !filter) {
       if (known > 0 && f.t > t_last) {
         prev = last;
         t_prev = t_last;
@@ -269,7 +335,7 @@ int run_track(const std::vector<std::string>& argv) {
       const Eigen::AngleAxisd dr(T.q_W_C * estimate.q_W_C.conjugate());  // world-frame rotation error
       pos_err.push_back(dp.norm());
       ang_err.push_back(dr.angle() * 180 / kPi);
-      if (ok) {
+      if (ok || filter) {  // every estimate that has a covariance
         Eigen::Matrix<double, 6, 1> e;
         e << dr.angle() * dr.axis(), dp;
         const auto ldlt = cov.ldlt();
@@ -292,6 +358,19 @@ int run_track(const std::vector<std::string>& argv) {
         std::snprintf(v, sizeof v, ",%.6g", cov(r, c));
         csv += v;
       }
+    if (answer) {
+      std::snprintf(row, sizeof row, ",%.4f,%.4f,%.4f,%.9f,%.9f,%.9f,%.9f", answer->t_W_C.x(), answer->t_W_C.y(),
+                    answer->t_W_C.z(), answer->q_W_C.w(), answer->q_W_C.x(), answer->q_W_C.y(), answer->q_W_C.z());
+      csv += row;
+    } else {
+      csv += ",,,,,,,";
+    }
+    if (std::isfinite(gate_d2)) {
+      std::snprintf(row, sizeof row, ",%.6g", gate_d2);
+      csv += row;
+    } else {
+      csv += ",";
+    }
     csv += "\n";
   }
   const double total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
@@ -304,6 +383,11 @@ int run_track(const std::vector<std::string>& argv) {
   nlohmann::json j;
   j["frames"] = frames->size();
   j["converged_fraction"] = converged / n;
+  j["filter"] = filter_mode;
+  if (filter) {
+    j["refused"] = refused;
+    j["resets"] = resets;
+  }
   j["fps"] = n / total_s;
   std::vector<double> sorted_ms = ms_all;
   std::sort(sorted_ms.begin(), sorted_ms.end());
