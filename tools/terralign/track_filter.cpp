@@ -1,6 +1,5 @@
 #include "track_filter.hpp"
 
-#include <algorithm>
 #include <cmath>
 
 #include <Eigen/Cholesky>
@@ -28,11 +27,20 @@ TrackFilter::TrackFilter(const geo::Pose& init, double t0, const Eigen::Vector3d
     : opt_(options), q_(init.q_W_C.normalized()), p_(init.t_W_C), t_(t0) {
   v_ = velocity ? *velocity : Eigen::Vector3d::Zero();
   w_.setZero();
+  Mat6 pose = Mat6::Zero();
+  pose.diagonal().head<3>().setConstant(std::pow(opt_.init_rotation_sigma_deg * kDeg, 2));
+  pose.diagonal().tail<3>().setConstant(std::pow(opt_.init_position_sigma, 2));
+  start_at(pose, velocity != nullptr);
+}
+
+void TrackFilter::start_at(const Mat6& pose_covariance, bool velocity_given) {
   P_.setZero();
-  const double sv = velocity ? opt_.given_velocity_sigma : opt_.init_velocity_sigma;
-  const double sigma[4] = {opt_.init_rotation_sigma_deg * kDeg, opt_.init_position_sigma, sv, opt_.init_rate_sigma_deg * kDeg};
-  for (int b = 0; b < 4; ++b) P_.block<3, 3>(3 * b, 3 * b) = Eigen::Matrix3d::Identity() * sigma[b] * sigma[b];
-  if (!velocity) P_(8, 8) = opt_.init_climb_sigma * opt_.init_climb_sigma;
+  P_.topLeftCorner<6, 6>() = 0.5 * (pose_covariance + pose_covariance.transpose());
+  const double sv = velocity_given ? opt_.given_velocity_sigma : opt_.init_velocity_sigma;
+  P_.block<3, 3>(6, 6) = Eigen::Matrix3d::Identity() * sv * sv;
+  if (!velocity_given) P_(8, 8) = opt_.init_climb_sigma * opt_.init_climb_sigma;
+  P_.block<3, 3>(9, 9) = Eigen::Matrix3d::Identity() * std::pow(opt_.init_rate_sigma_deg * kDeg, 2);
+  refused_in_row_ = 0;
 }
 
 void TrackFilter::predict(double t) {
@@ -77,6 +85,10 @@ TrackFilter::Update TrackFilter::update(const geo::Pose& measured, const Mat6& c
   Eigen::Matrix<double, 6, 1> y;
   y.head<3>() = log_so3(measured.q_W_C * q_.conjugate());
   y.tail<3>() = measured.t_W_C - p_;
+  if (const Eigen::LDLT<Mat6> r(covariance); r.info() != Eigen::Success || !r.isPositive()) {
+    u.why = "the answer's covariance is not positive semi-definite";
+    return u;
+  }
   const Mat6 S = P_.topLeftCorner<6, 6>() + covariance;
   const Eigen::LDLT<Mat6> ldlt(S);
   if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || !(ldlt.vectorD().minCoeff() > 0)) {
@@ -117,13 +129,7 @@ TrackFilter::Update TrackFilter::update(const geo::Pose& measured, const Mat6& c
 void TrackFilter::reset(const geo::Pose& measured, const Mat6& covariance) {
   q_ = measured.q_W_C.normalized();
   p_ = measured.t_W_C;
-  P_.setZero();
-  P_.topLeftCorner<6, 6>() = 0.5 * (covariance + covariance.transpose());
-  const double sv = opt_.init_velocity_sigma, sw = opt_.init_rate_sigma_deg * kDeg;
-  P_.block<3, 3>(6, 6) = Eigen::Matrix3d::Identity() * sv * sv;
-  P_(8, 8) = opt_.init_climb_sigma * opt_.init_climb_sigma;
-  P_.block<3, 3>(9, 9) = Eigen::Matrix3d::Identity() * sw * sw;
-  refused_in_row_ = 0;
+  start_at(covariance, false);
   ++updates_;
 }
 

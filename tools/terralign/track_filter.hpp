@@ -82,6 +82,9 @@ class TrackFilter {
   double time() const { return t_; }
 
  private:
+  // P: the pose's covariance, the velocity's and turn rate's of the start (TrackFilterOptions).
+  void start_at(const Mat6& pose_covariance, bool velocity_given);
+
   TrackFilterOptions opt_;
   Eigen::Quaterniond q_;  // R_W_C
   Eigen::Vector3d p_, v_, w_;
