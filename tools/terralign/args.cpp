@@ -132,6 +132,25 @@ Result<Degradation> parse_degradation(const Args& args) {
   return d;
 }
 
+Result<TrackFilterOptions> parse_track_filter(const Args& args) {
+  TrackFilterOptions opt;
+  auto accel = args.get_double("accel-sigma", opt.accel_sigma);
+  if (!accel.ok()) return accel.error();
+  if (!(accel.value() > 0 && accel.value() <= 100))
+    return Error{"--accel-sigma " + args.get("accel-sigma") + " must be in (0, 100] m/s per root second"};
+  opt.accel_sigma = accel.value();
+  auto gate = args.get_double("gate", opt.gate);
+  if (!gate.ok()) return gate.error();
+  if (!(gate.value() <= 1e6)) return Error{"--gate " + args.get("gate") + " must be at most 1e6 (negative: none)"};
+  opt.gate = gate.value();
+  auto init_sigma = args.get_double("init-sigma", opt.init_position_sigma);
+  if (!init_sigma.ok()) return init_sigma.error();
+  if (!(init_sigma.value() > 0 && init_sigma.value() <= 1e5))
+    return Error{"--init-sigma " + args.get("init-sigma") + " must be in (0, 1e5] m"};
+  opt.init_position_sigma = init_sigma.value();
+  return opt;
+}
+
 Result<Refinement> parse_refine(const Args& args) {
   Refinement r;
   auto n = args.get_int("refine", kDefaultRefinePasses, 0, 5);

@@ -12,6 +12,7 @@
 
 #include "localizer.hpp"
 #include "sampling.hpp"
+#include "track_filter.hpp"
 
 namespace terralign::cli {
 
@@ -83,5 +84,10 @@ struct Refinement {
   }
 };
 Result<Refinement> parse_refine(const Args& args);
+
+// The tracking filter's options (track): --accel-sigma A, the velocity's random walk in m/s per
+// root second, (0, 100]; --gate D2, at most 1e6 (negative: none); --init-sigma M, the position
+// sigma of --init, (0, 1e5] m; TrackFilterOptions' defaults otherwise.
+Result<TrackFilterOptions> parse_track_filter(const Args& args);
 
 }  // namespace terralign::cli

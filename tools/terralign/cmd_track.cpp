@@ -17,7 +17,6 @@
 #include "common.hpp"
 #include "localizer.hpp"
 #include "sampling.hpp"
-#include "track_filter.hpp"
 
 namespace terralign::cli {
 
@@ -108,6 +107,14 @@ geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, d
   return p;
 }
 
+// ",x,y,z,qw,qx,qy,qz" of a pose: 0.1 mm and 1e-9 of the quaternion.
+void append_pose_cells(std::string& csv, const geo::Pose& T) {
+  char cells[160];
+  std::snprintf(cells, sizeof cells, ",%.4f,%.4f,%.4f,%.9f,%.9f,%.9f,%.9f", T.t_W_C.x(), T.t_W_C.y(), T.t_W_C.z(),
+                T.q_W_C.w(), T.q_W_C.x(), T.q_W_C.y(), T.q_W_C.z());
+  csv += cells;
+}
+
 }  // namespace
 
 int run_track(const std::vector<std::string>& argv) {
@@ -137,21 +144,9 @@ int run_track(const std::vector<std::string>& argv) {
   if (filter_mode != "auto" && filter_mode != "kalman" && filter_mode != "none")
     return usage_error("track", Error{"--filter '" + filter_mode + "' must be auto, kalman or none"});
   if (filter_mode == "auto") filter_mode = args->has("attitude") ? "kalman" : "none";
-  TrackFilterOptions fopt;
-  auto accel = args->get_double("accel-sigma", fopt.accel_sigma);
-  if (!accel.ok()) return usage_error("track", accel.error());
-  if (!(accel.value() > 0 && accel.value() <= 100))
-    return usage_error("track", Error{"--accel-sigma " + args->get("accel-sigma") + " must be in (0, 100] m/s per root second"});
-  fopt.accel_sigma = accel.value();
-  auto gate = args->get_double("gate", fopt.gate);
-  if (!gate.ok()) return usage_error("track", gate.error());
-  if (!(gate.value() <= 1e6)) return usage_error("track", Error{"--gate " + args->get("gate") + " must be at most 1e6 (negative: none)"});
-  fopt.gate = gate.value();
-  auto init_sigma = args->get_double("init-sigma", fopt.init_position_sigma);
-  if (!init_sigma.ok()) return usage_error("track", init_sigma.error());
-  if (!(init_sigma.value() > 0 && init_sigma.value() <= 1e5))
-    return usage_error("track", Error{"--init-sigma " + args->get("init-sigma") + " must be in (0, 1e5] m"});
-  fopt.init_position_sigma = init_sigma.value();
+  auto filter_options = parse_track_filter(args.value());
+  if (!filter_options.ok()) return usage_error("track", filter_options.error());
+  const TrackFilterOptions& fopt = filter_options.value();
   if (filter_mode == "none" && (args->has("accel-sigma") || args->has("gate") || args->has("init-sigma")))
     return usage_error("track", Error{"--accel-sigma, --gate and --init-sigma set the filter: they need --filter kalman (or auto with --attitude)"});
   auto iters = args->get_int("iterations", 20, 1, 1000);
@@ -344,9 +339,10 @@ int run_track(const std::vector<std::string>& argv) {
       }
     }
     char row[512];
-    std::snprintf(row, sizeof row, "%.6f,%.4f,%.4f,%.4f,%.9f,%.9f,%.9f,%.9f,%d,\"%s\",%d,%.2f", f.t, estimate.t_W_C.x(),
-                  estimate.t_W_C.y(), estimate.t_W_C.z(), estimate.q_W_C.w(), estimate.q_W_C.x(), estimate.q_W_C.y(),
-                  estimate.q_W_C.z(), ok ? 1 : 0, reason.substr(0, 200).c_str(), iterations, ms);
+    std::snprintf(row, sizeof row, "%.6f", f.t);
+    csv += row;
+    append_pose_cells(csv, estimate);
+    std::snprintf(row, sizeof row, ",%d,\"%s\",%d,%.2f", ok ? 1 : 0, reason.substr(0, 200).c_str(), iterations, ms);
     csv += row;
     auto g = map->crs.to_geodetic(estimate.t_W_C.x(), estimate.t_W_C.y(), estimate.t_W_C.z());
     char geo_txt[128];
@@ -359,13 +355,8 @@ int run_track(const std::vector<std::string>& argv) {
         std::snprintf(v, sizeof v, ",%.6g", cov(r, c));
         csv += v;
       }
-    if (answer) {
-      std::snprintf(row, sizeof row, ",%.4f,%.4f,%.4f,%.9f,%.9f,%.9f,%.9f", answer->t_W_C.x(), answer->t_W_C.y(),
-                    answer->t_W_C.z(), answer->q_W_C.w(), answer->q_W_C.x(), answer->q_W_C.y(), answer->q_W_C.z());
-      csv += row;
-    } else {
-      csv += ",,,,,,,";
-    }
+    if (answer) append_pose_cells(csv, *answer);
+    else csv += ",,,,,,,";
     if (std::isfinite(gate_d2)) {
       std::snprintf(row, sizeof row, ",%.6g", gate_d2);
       csv += row;
