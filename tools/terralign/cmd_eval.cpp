@@ -88,6 +88,9 @@ struct Method {
   std::vector<char> ok;  // reported converged
   std::vector<double> cost_init, cost_final, residual_init, residual_final, sharpness, disagreement;
   std::vector<double> sigma_position, sigma_angle, residual_correlation;  // the covariance's (m, deg: root of its trace)
+  // The answer's 6-DoF error against its covariance, e^T P^-1 e (track's NEES: world-axis
+  // rotation and position error); NaN where no covariance (not converged).
+  std::vector<double> nees;
   std::vector<int> iterations_used;  // LM iterations over all levels
   std::vector<const char*> reason;
   int converged = 0;
@@ -295,6 +298,7 @@ int run_eval(const std::vector<std::string>& argv) {
         // (no covariance where not converged: NaN, left out of the JSON)
         m.sigma_angle.push_back(out->converged ? std::sqrt(out->covariance.topLeftCorner<3, 3>().trace()) * 180.0 / kPi : NAN);
         m.sigma_position.push_back(out->converged ? std::sqrt(out->covariance.bottomRightCorner<3, 3>().trace()) : NAN);
+        m.nees.push_back(out->converged ? nees_of(out->T_W_C, s.truth, out->covariance) : NAN);
         m.residual_correlation.push_back(out->residual_correlation);
         m.iterations_used.push_back(out->iterations);
         m.reason.push_back(out->reason);
@@ -369,6 +373,11 @@ int run_eval(const std::vector<std::string>& argv) {
     mj["converged_fraction"] = n > 0 ? m.converged / n : 0.0;
     // How far "converged" can be trusted: the fraction of converged answers within 5 px.
     mj["converged_within_5px"] = m.converged > 0 ? conv5 / static_cast<double>(m.converged) : 0.0;
+    // How far the converged answers' covariances can be trusted: NEES, 6 expected.
+    std::vector<double> nees;
+    for (double v : m.nees)
+      if (std::isfinite(v)) nees.push_back(v);
+    mj["nees"] = stats(nees);
     const auto t = stats(m.ms);
     mj["ms"] = t.is_null() ? nlohmann::json(nullptr) : nlohmann::json{{"mean", t["mean"]}, {"median", t["median"]}};
     // Per pose, for analysis: 2-D EPE, converged, the camera centre's error (map axes), the
@@ -392,6 +401,7 @@ int run_eval(const std::vector<std::string>& argv) {
           sj["sigma_position_m"] = m.sigma_position[k];
           sj["sigma_angle_deg"] = m.sigma_angle[k];
         }
+        if (std::isfinite(m.nees[k])) sj["nees"] = m.nees[k];
         sj["residual_correlation"] = m.residual_correlation[k];
         sj["iterations"] = m.iterations_used[k];
         sj["reason"] = m.reason[k];

@@ -332,10 +332,8 @@ int run_track(const std::vector<std::string>& argv) {
       pos_err.push_back(dp.norm());
       ang_err.push_back(dr.angle() * 180 / kPi);
       if (ok || filter) {  // every estimate that has a covariance
-        Eigen::Matrix<double, 6, 1> e;
-        e << dr.angle() * dr.axis(), dp;
-        const auto ldlt = cov.ldlt();
-        if (ldlt.info() == Eigen::Success && ldlt.isPositive()) nees.push_back(e.dot(ldlt.solve(e)));
+        const double v = nees_of(estimate, T, cov);
+        if (std::isfinite(v)) nees.push_back(v);
       }
     }
     char row[512];

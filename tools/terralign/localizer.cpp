@@ -76,6 +76,14 @@ Eigen::Matrix<double, 6, 6> covariance_in_world(const Eigen::Matrix<double, 6, 6
   return J * cov_ref * J.transpose();
 }
 
+double nees_of(const geo::Pose& estimate, const geo::Pose& truth, const Eigen::Matrix<double, 6, 6>& P) {
+  const Eigen::AngleAxisd dr(truth.q_W_C * estimate.q_W_C.conjugate());
+  Eigen::Matrix<double, 6, 1> e;
+  e << dr.angle() * dr.axis(), truth.t_W_C - estimate.t_W_C;
+  const auto ldlt = P.ldlt();
+  return ldlt.info() == Eigen::Success && ldlt.isPositive() ? e.dot(ldlt.solve(e)) : NAN;
+}
+
 void Localizer::set_refinement(int passes, int levels, double min_deg) {
   refine_passes_ = std::max(passes, 0);
   refine_levels_ = std::max(levels, 1);
