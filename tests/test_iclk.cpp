@@ -368,6 +368,57 @@ TEST_CASE("the tilt prior holds the answer's roll and pitch to the prior's and l
   CHECK(b.dot(cov_rot * b) <= s2 * (1 + 1e-9));
 }
 
+TEST_CASE("the registration floor's keystones: a tilt traded for a shift, which a tilt prior narrows") {
+  // A same-year pair, 800 m above flat ground, the floor made to dominate the covariance (1e4
+  // px per unit of the final residual, the fixed floor off): its keystone modes admit a tilt
+  // of the camera whose image shift a move of the camera takes back, the direction in which
+  // maps of distant years mislead the learned tracker (README, "Why the tilt prior").
+  auto naip = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(naip.ok());
+  const geo::CameraModel cam = test::paper_camera();
+  const geo::Pose truth = geo::pose_from_ypr({487450, 5207437, 570 + 800}, 30, 2, -3);
+  const geo::Pose prior = geo::pose_from_ypr({487450 + 6, 5207437 - 4, 570 + 803}, 30.5, 2, -3);  // the truth's tilt
+  const Pair p = render_pair(naip.value(), cam, prior, truth, "2016", "2016");
+  constexpr double kDeg = 3.14159265358979323846 / 180;
+  TrackerOptions opt;
+  opt.iterations = 50;
+  opt.registration_floor_px = 0;
+  const Vec3<double> u = prior.R().transpose() * Vec3<double>::UnitZ();  // the world's up, reference camera
+  const Vec3<double> a = u.unitOrthogonal(), b = u.cross(a);              // two horizontal axes
+  struct Sigmas {
+    double tilt_deg, horizontal_m, residual;
+  };
+  auto sigmas = [&](double per_residual, double tilt_prior_deg) {
+    opt.registration_floor_per_residual_px = per_residual;
+    opt.tilt_prior_rad = tilt_prior_deg * kDeg;
+    Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, opt);
+    tracker.set_up(u);
+    const auto& res = tracker.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), p.K, SE3<double>::identity());
+    REQUIRE(res.converged);
+    CHECK(epe_px(p, res.params) < 0.1);
+    const Eigen::Matrix3d R = res.covariance.topLeftCorner<3, 3>(), T = res.covariance.bottomRightCorner<3, 3>();
+    return Sigmas{std::sqrt(a.dot(R * a) + b.dot(R * b)) / kDeg, std::sqrt(a.dot(T * a) + b.dot(T * b)), res.residual_final};
+  };
+  const Sigmas none = sigmas(0, 0), floor = sigmas(1e4, 0), held = sigmas(1e4, 0.01);
+  const double keystone_px = 1e4 * floor.residual;
+  MESSAGE("keystones of " << keystone_px << " px: tilt sigma " << none.tilt_deg << " -> " << floor.tilt_deg
+                          << " deg, horizontal position " << none.horizontal_m << " -> " << floor.horizontal_m
+                          << " m; with a 0.01 deg tilt prior " << held.tilt_deg << " deg, " << held.horizontal_m << " m");
+  REQUIRE(keystone_px > 0.5);  // large enough to dominate the image term's few hundredths of a degree
+  // A keystone of k px RMS is the perspective change of a tilt of about k / (f rms(x^2)) rad
+  // (x the normalised image coordinate: rms 0.2-0.3 over this 60-degree view), a degree or
+  // more a pixel: the floor's tilt sigma must reach at least half a degree per pixel of it.
+  CHECK(floor.tilt_deg > 0.5 * keystone_px);
+  // ... and the camera moves with it: 800 m x the tilt keeps the image in place, so the
+  // horizontal position's sigma follows the tilt's (within 30 %: the shift and rotation modes
+  // add their own).
+  CHECK(floor.horizontal_m == doctest::Approx(800 * floor.tilt_deg * kDeg).epsilon(0.3));
+  // A tilt prior (an attitude reference) is combined with the image term, floor included:
+  // the tilt is held to it, and with the tilt the shift the keystones traded for it.
+  CHECK(held.tilt_deg < 0.02);
+  CHECK(held.horizontal_m < 0.2 * floor.horizontal_m);
+}
+
 TEST_CASE("the agreement test: a second start nearby returns to a basin and settles elsewhere on a lattice") {
   // Two textures seen from the truth itself (reference and live the same view, so every
   // level starts and stays at the answer): a smooth one, whose only minimum near the answer is

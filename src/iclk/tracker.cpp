@@ -246,11 +246,11 @@ int Tracker<S, Warp, C>::select_pixels(int level, const Pinhole<S>& K) {
   if (level == 0) {
     motion0_.setZero();
     floor0_.setZero();
-    radius2_sum_ = 0;
+    moments0_.fill(0);
     for (const auto& B : bands_) {
       motion0_ += B.motion;
       floor0_ += B.floor;
-      radius2_sum_ += B.radius2;
+      for (std::size_t k = 0; k < moments0_.size(); ++k) moments0_[k] += B.moments[k];
     }
   }
   return n;
@@ -336,14 +336,14 @@ void Tracker<S, Warp, C>::write_band(int level, const Pinhole<S>& K, Band& band)
   };
   band.motion.setZero();
   band.floor.setZero();
-  band.radius2 = 0;
+  band.moments.fill(0);
   // Finest level: motion0_'s share (dW^T dW, lower half) and floor0_'s (dW^T modes, the modes
   // of the registration floor), summed in S over lanes (the band's k-th pixel in lane k mod
   // kLanes, 8 pixels' dW gathered first so the sums vectorise), then in double in lane order.
   // In float each lane sums an eighth of a band's pixels (about 700 at 376 x 240): about
   // 1e-5 relative, far inside what rms_motion_px() and the floor are used for.
   constexpr int kLanes = 8, kPairs = DoF * (DoF + 1) / 2;
-  S motion[kPairs][kLanes] = {}, floor_sum[DoF][4][kLanes] = {};
+  S motion[kPairs][kLanes] = {}, floor_sum[DoF][kFloorModes][kLanes] = {};
   S wu[DoF][kLanes] = {}, wv[DoF][kLanes] = {}, mu[kLanes] = {}, mv[kLanes] = {};
   int lanes = 0;
   auto add_lanes = [&]() {
@@ -357,11 +357,14 @@ void Tracker<S, Warp, C>::write_band(int level, const Pinhole<S>& K, Band& band)
         for (int l = 0; l < kLanes; ++l) motion[e][l] += wu[a][l] * wu[b][l] + wv[a][l] * wv[b][l];
     for (int a = 0; a < DoF; ++a)
       for (int l = 0; l < kLanes; ++l) {
-        // modes: u {1, 0, -dv, du}, v {0, 1, du, dv}
+        // modes: u {1, 0, -dv, du, du^2, du dv}, v {0, 1, du, dv, du dv, dv^2}
+        const S radial = wu[a][l] * mu[l] + wv[a][l] * mv[l];
         floor_sum[a][0][l] += wu[a][l];
         floor_sum[a][1][l] += wv[a][l];
         floor_sum[a][2][l] += wv[a][l] * mu[l] - wu[a][l] * mv[l];
-        floor_sum[a][3][l] += wu[a][l] * mu[l] + wv[a][l] * mv[l];
+        floor_sum[a][3][l] += radial;
+        floor_sum[a][4][l] += radial * mu[l];
+        floor_sum[a][5][l] += radial * mv[l];
       }
     lanes = 0;
   };
@@ -384,7 +387,12 @@ void Tracker<S, Warp, C>::write_band(int level, const Pinhole<S>& K, Band& band)
       mv[lanes] = v - K.cy;
       if (++lanes == kLanes) add_lanes();
       const double du = static_cast<double>(u - K.cx), dv = static_cast<double>(v - K.cy);
-      band.radius2 += du * du + dv * dv;
+      const double r2 = du * du + dv * dv;
+      band.moments[0] += du * du;
+      band.moments[1] += dv * dv;
+      band.moments[2] += du * dv;
+      band.moments[3] += du * du * r2;
+      band.moments[4] += dv * dv * r2;
     }
     for (int c = 0; c < C; ++c) {
       S gx, gy;
@@ -405,7 +413,7 @@ void Tracker<S, Warp, C>::write_band(int level, const Pinhole<S>& K, Band& band)
     for (int a = 0; a < DoF; ++a) {
       for (int b = 0; b <= a; ++b, ++e)
         for (int l = 0; l < kLanes; ++l) band.motion(a, b) += static_cast<double>(motion[e][l]);
-      for (int m = 0; m < 4; ++m)
+      for (int m = 0; m < kFloorModes; ++m)
         for (int l = 0; l < kLanes; ++l) band.floor(a, m) += static_cast<double>(floor_sum[a][m][l]);
     }
   }
@@ -957,19 +965,39 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       const double sigma2 = cost / std::max(wsum - DoF, 1.0);
       R.residual_correlation = residual_correlation(n);
       R.covariance_inflation = inflation_of(R.residual_correlation) * channel_factor(n);
-      Eigen::Matrix<double, DoF, DoF> Hp = Hv;  // with the tilt prior's information
-      if (tilt) Hp.template topLeftCorner<3, 3>() += R.covariance_inflation * sigma2 * tilt_info;
-      R.covariance = R.covariance_inflation * sigma2 * Hp.inverse();
+      // The registration floor (TrackerOptions::registration_floor_px): the whole-image
+      // motions at floor_px, the keystones at the residual's share alone.
       const double floor_px =
           std::max(opt_.registration_floor_px, opt_.registration_floor_per_residual_px * R.residual_final);
-      if (floor_px > 0) {
+      const double keystone_px = opt_.registration_floor_per_residual_px * R.residual_final;
+      Eigen::Matrix<double, DoF, DoF> P = R.covariance_inflation * sigma2 * Hv.inverse();
+      if (floor_px > 0 || keystone_px > 0) {
         const Eigen::Matrix<double, DoF, DoF> M = motion0_.template selfadjointView<Eigen::Lower>();
         const Eigen::Matrix<double, DoF, DoF> Mi = M.inverse();
-        Eigen::Matrix<double, DoF, 4> B = floor0_;
-        const double r_rms = std::sqrt(radius2_sum_ / std::max(n, 1));  // rotation and scale: RMS 1 px
-        if (r_rms > 0) B.template rightCols<2>() /= r_rms;
-        R.covariance += floor_px * floor_px * Mi * B * B.transpose() * Mi;
+        // Each mode's b_m = sum dW^T d_m for d_m of RMS 1 px over the used pixels, times its size.
+        Eigen::Matrix<double, DoF, kFloorModes> B = floor0_;
+        const double inv_n = 1.0 / std::max(n, 1);
+        const double uu = moments0_[0] * inv_n, vv = moments0_[1] * inv_n, uv = moments0_[2] * inv_n;
+        const double r_rms = std::sqrt(uu + vv);  // rotation and scale
+        if (r_rms > 0) B.template middleCols<2>(2) /= r_rms;
+        // The keystones less their means (which are a shift).
+        B.col(4) -= uu * floor0_.col(0) + uv * floor0_.col(1);
+        B.col(5) -= uv * floor0_.col(0) + vv * floor0_.col(1);
+        const double k4 = std::sqrt(std::max(moments0_[3] * inv_n - uu * uu - uv * uv, 0.0));
+        const double k5 = std::sqrt(std::max(moments0_[4] * inv_n - uv * uv - vv * vv, 0.0));
+        B.col(4) *= k4 > 0 ? keystone_px / k4 : 0.0;
+        B.col(5) *= k5 > 0 ? keystone_px / k5 : 0.0;
+        B.template leftCols<4>() *= floor_px;
+        P += Mi * B * B.transpose() * Mi;
       }
+      // With the tilt prior's information: the image term's covariance (the floor included)
+      // narrowed where an attitude reference knows the tilt better.
+      if (tilt) {
+        Eigen::Matrix<double, DoF, DoF> info = P.inverse();
+        info.template topLeftCorner<3, 3>() += tilt_info;
+        P = info.inverse();
+      }
+      R.covariance = P;
       if (Warp::kNeedsDepth && opt_.probe_px > 0) {
         double least = INFINITY;
         for (int k = 0; k < 4; ++k) {

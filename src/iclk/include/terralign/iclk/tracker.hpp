@@ -86,9 +86,9 @@ struct TrackerOptions {
   // The smallest registration error the covariance admits, in finest-level pixels: what no
   // pixel-noise model sees (a rendered reference resamples the map's texture at another
   // phase than the camera saw it; maps of different years disagree by a fraction of a
-  // pixel). Added as the covariance of the pose change that whole-image motions cause: a
-  // shift in u, one in v, a rotation and a scale change about the principal point, each of
-  // RMS size sigma_floor px over the used pixels and independent:
+  // pixel). Added to the image term's covariance as that of the pose change that whole-image
+  // motions cause: a shift in u, one in v, a rotation and a scale change about the principal
+  // point, each of RMS size sigma_floor px over the used pixels and independent:
   // sigma_floor^2 M^-1 (sum_m b_m b_m^T) M^-1, M = sum dW^T dW, b_m = sum dW^T d_m.
   // 0.1 px: about the position RMSE of same-year rendered flights (README, tracking).
   double registration_floor_px = 0.1;
@@ -98,6 +98,14 @@ struct TrackerOptions {
   // (the fixed floor stays), a year apart at 0.8-1.5. 1 px took the learned tracker's NEES
   // across a year from 27.1 / 21.7 to 9.7 / 6.0 (the 40-frame lawnmower without / with an
   // IMU, where it was chosen) and from 12.7 / 11.4 to 5.5 / 3.7 on a circle (README).
+  // At this size alone (no fixed part) the floor also has two keystones, (du^2, du dv) and
+  // (du dv, dv^2) less their means: the perspective change of a tilt whose image shift a move
+  // of the camera takes back, which maps of distant years leave the learned tracker free to
+  // trade (README, "Why the tilt prior"; session 40). Without them its converged answers
+  // across 1-9 years of the training map claimed 2-5 times the precision they had (NEES mean
+  // 16-36 over six pairs, 8.7-13.6 with an IMU's tilt); with them 2.8-5.7 and 3.4-5.9. The
+  // tilt prior is combined with the image term and its floor, so an attitude reference
+  // narrows what the keystones admit.
   // 0: the fixed floor alone.
   double registration_floor_per_residual_px = 1.0;
   // The sharpness test (TrackResult::sharpness): the nudge in finest-level pixels (0: not
@@ -195,7 +203,8 @@ struct TrackResult {
   // horizontally adjacent used pixels at the end, clamped to [0, 0.9]; with C channels f is
   // also multiplied by 1 + (C - 1) rho_c, rho_c the channels' residuals' mean correlation in
   // [0, 1] (four copies of one channel: the one channel's covariance). To that the
-  // registration floor (TrackerOptions::registration_floor_px) is added.
+  // registration floor (TrackerOptions::registration_floor_px) is added, and the sum is
+  // combined with the tilt prior's information where there is one.
   Eigen::Matrix<double, DoF, DoF> covariance = Eigen::Matrix<double, DoF, DoF>::Zero();
   double residual_correlation = 0;   // rho
   double covariance_inflation = 1;   // f (with the channels' factor)
@@ -293,14 +302,21 @@ class Tracker {
   // Runs on the pool in fixed bands of block rows, so the result does not depend on the
   // thread count: each band picks its pixels, then writes them after the earlier bands'.
   int select_pixels(int level, const Pinhole<S>& K);
+  // The registration floor's image motions (TrackerOptions::registration_floor_px): shift in
+  // u, in v, rotation and scale about the principal point, and the two keystones (du^2, du dv)
+  // and (du dv, dv^2), du and dv from the principal point.
+  static constexpr int kFloorModes = 6;
+  // Sums over the used finest-level pixels of du^2, dv^2, du dv, du^2 (du^2 + dv^2) and
+  // dv^2 (du^2 + dv^2): the modes' sizes and means.
+  using Moments = std::array<double, 5>;
   // Bands and chunks are written by the thread that takes them, a line of their own each
   // (kUnsharedAlign).
   struct alignas(kUnsharedAlign) Band {
     int row0 = 0, row1 = 0;  // block rows [row0, row1)
     int count = 0, offset = 0;
-    Eigen::Matrix<double, DoF, DoF> motion;  // the band's shares of motion0_, floor0_, radius2_sum_
-    Eigen::Matrix<double, DoF, 4> floor;
-    double radius2 = 0;
+    Eigen::Matrix<double, DoF, DoF> motion;  // the band's shares of motion0_, floor0_, moments0_
+    Eigen::Matrix<double, DoF, kFloorModes> floor;
+    Moments moments;
   };
   static constexpr int kBands = 16;
   void pick_band(int level, Band& b);
@@ -332,10 +348,10 @@ class Tracker {
   std::vector<unsigned char> ok_;           // landed inside the live image
   std::vector<S> abs_;                      // scratch: absolute residuals
   Eigen::Matrix<double, DoF, DoF> motion0_;  // sum over used finest-level pixels of dW^T dW
-  // Per finest-level pixel dW^T d for the image motions of the registration floor (shift in
-  // u, in v, rotation and scale about the principal point), summed; and the sum of r^2.
-  Eigen::Matrix<double, DoF, 4> floor0_;
-  double radius2_sum_ = 0;
+  // Per finest-level pixel dW^T d for the image motions of the registration floor
+  // (kFloorModes), summed; and the pixels' Moments.
+  Eigen::Matrix<double, DoF, kFloorModes> floor0_;
+  Moments moments0_{};
   const Level* cur_level_ = nullptr;
   Eigen::Vector3d up_ = Eigen::Vector3d::Zero(), tilt_ = Eigen::Vector3d::Zero();
   // Per chunk of kChunk pixels: partial sums, combined in chunk order.
