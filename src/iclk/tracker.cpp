@@ -966,10 +966,12 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       R.residual_correlation = residual_correlation(n);
       R.covariance_inflation = inflation_of(R.residual_correlation) * channel_factor(n);
       // The registration floor (TrackerOptions::registration_floor_px): the whole-image
-      // motions at floor_px, the keystones at the residual's share alone.
+      // motions at floor_px, the keystones at the share of the residual past what a camera's
+      // noise leaves (TrackerOptions::keystone_free_residual).
       const double floor_px =
           std::max(opt_.registration_floor_px, opt_.registration_floor_per_residual_px * R.residual_final);
-      const double keystone_px = opt_.registration_floor_per_residual_px * R.residual_final;
+      const double keystone_px =
+          opt_.registration_floor_per_residual_px * std::max(R.residual_final - opt_.keystone_free_residual, 0.0);
       Eigen::Matrix<double, DoF, DoF> P = R.covariance_inflation * sigma2 * Hv.inverse();
       if (floor_px > 0 || keystone_px > 0) {
         const Eigen::Matrix<double, DoF, DoF> M = motion0_.template selfadjointView<Eigen::Lower>();

@@ -98,16 +98,20 @@ struct TrackerOptions {
   // (the fixed floor stays), a year apart at 0.8-1.5. 1 px took the learned tracker's NEES
   // across a year from 27.1 / 21.7 to 9.7 / 6.0 (the 40-frame lawnmower without / with an
   // IMU, where it was chosen) and from 12.7 / 11.4 to 5.5 / 3.7 on a circle (README).
-  // At this size alone (no fixed part) the floor also has two keystones, (du^2, du dv) and
-  // (du dv, dv^2) less their means: the perspective change of a tilt whose image shift a move
-  // of the camera takes back, which maps of distant years leave the learned tracker free to
-  // trade (README, "Why the tilt prior"; session 40). Without them its converged answers
-  // across 1-9 years of the training map claimed 2-5 times the precision they had (NEES mean
-  // 16-36 over six pairs, 8.7-13.6 with an IMU's tilt); with them 2.8-5.7 and 3.4-5.9. The
-  // tilt prior is combined with the image term and its floor, so an attitude reference
-  // narrows what the keystones admit.
   // 0: the fixed floor alone.
   double registration_floor_per_residual_px = 1.0;
+  // The floor's two keystones, (du^2, du dv) and (du dv, dv^2) less their means, each of RMS
+  // registration_floor_per_residual_px px per unit of the final residual past this one: the
+  // perspective change of a tilt whose image shift a move of the camera takes back, which maps
+  // of other years leave the learned tracker free to trade (README, "Why the tilt prior";
+  // session 40). A camera's own noise is the image term's (sigma^2) and leaves same-year
+  // answers at 0.01-0.08, 0.05-0.27 with README's poor camera (noise 10, blur 2): past 0.3 the
+  // residual is what the map and the image disagree on (a year apart 0.8-1.5). Without the
+  // keystones the learned tracker's converged answers across 1-9 years of the training map
+  // claimed 2-5 times the precision they had (eval NEES mean 16-36 over six pairs, 8.7-13.6
+  // with an IMU's tilt); with them 3.3-6.6 and 3.6-6.1. The tilt prior is combined with the
+  // image term and its floor, so an attitude reference narrows what the keystones admit.
+  double keystone_free_residual = 0.3;
   // The sharpness test (TrackResult::sharpness): the nudge in finest-level pixels (0: not
   // measured) and the least sharpness a converged answer must have. Off for the classical
   // tracker; the learned one sets them (DeepAligner).
