@@ -134,12 +134,11 @@ int run_track(const std::vector<std::string>& argv) {
     return usage_error("track", Error{"--nn-levels sets the learned tracker's levels: it needs --method nn"});
   sizes.levels = nn_levels.value();
   // --filter auto (the default): the filter where an attitude reference comes with the
-  // frames. It trusts the answers' covariances; without an IMU, across many years, they claim
-  // a precision they do not have (NEES 15-83) and the filter's velocity follows their drift;
-  // with one they are about honest (NEES 4-7) and it holds tracks that extrapolation loses.
-  // 24 random flights across 4 and 11 years: with the IMU 1 track lost against 6, without it
-  // 6 against 4; the 11-year lawnmower with the IMU 20 m RMSE against 478 (README "Tracking a
-  // flight", session 39).
+  // frames. Without an IMU, across many years, the answers drift together over frames and the
+  // filter's velocity follows them; with one it holds tracks that extrapolation loses. 24
+  // random flights across 4 and 11 years: with the IMU 1 track lost against 6, without it 6
+  // against 4 (session 39; with session 40's conservative covariances 1 and 5); the 11-year
+  // lawnmower with the IMU 20 m RMSE against 478 (README "Tracking a flight").
   std::string filter_mode = args->get("filter", "auto");
   if (filter_mode != "auto" && filter_mode != "kalman" && filter_mode != "none")
     return usage_error("track", Error{"--filter '" + filter_mode + "' must be auto, kalman or none"});
