@@ -352,8 +352,8 @@ int run_eval(const std::vector<std::string>& argv) {
   j["skipped"] = skipped;
   std::printf("%s vs %s, %d poses, seed %llu, altitude %g-%g m, tilt <= %g deg\n\n", args->get("ref-layer").c_str(),
               args->get("query-layer").c_str(), count.value(), seed, lo, hi, tilt.value());
-  std::printf("| method | 3-D EPE m (mean / median) | angle deg (mean / median) | trans m (mean / median) | 2-D EPE px (mean / median) | < 1 px | < 5 px | converged | converged and < 5 px | ms (mean / median) |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|\n");
+  std::printf("| method | 3-D EPE m (mean / median) | angle deg (mean / median) | trans m (mean / median) | 2-D EPE px (mean / median) | < 1 px | < 5 px | converged | converged and < 5 px | ms (mean / median) | NEES (mean / median) |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
   for (const auto& m : methods) {
     const double n = static_cast<double>(m.epe_px.size());
     int ok1 = 0, ok5 = 0, conv5 = 0;
@@ -415,10 +415,14 @@ int run_eval(const std::vector<std::string>& argv) {
       std::snprintf(buf, sizeof buf, "%.3f / %.3f", mj[key]["mean"].get<double>(), mj[key]["median"].get<double>());
       return std::string(buf);
     };
-    std::printf("| %s | %s | %s | %s | %s | %.1f %% | %.1f %% | %.1f %% | %.1f %% | %.1f / %.1f |\n", m.name.c_str(),
+    char nees_cell[64] = "-";  // the init method, or no converged answer
+    if (!mj["nees"].is_null())
+      std::snprintf(nees_cell, sizeof nees_cell, "%.1f / %.1f", mj["nees"]["mean"].get<double>(),
+                    mj["nees"]["median"].get<double>());
+    std::printf("| %s | %s | %s | %s | %s | %.1f %% | %.1f %% | %.1f %% | %.1f %% | %.1f / %.1f | %s |\n", m.name.c_str(),
                 mm("epe_m").c_str(), mm("angle_deg").c_str(), mm("trans_m").c_str(), mm("epe_px").c_str(), 100.0 * ok1 / n,
                 100.0 * ok5 / n, 100.0 * m.converged / n, m.iterations ? 100.0 * conv5 / std::max(m.converged, 1) : 0.0,
-                t["mean"].get<double>(), t["median"].get<double>());
+                t["mean"].get<double>(), t["median"].get<double>(), nees_cell);
   }
   if (args->has("json")) {
     const std::string text = j.dump(2) + "\n";
