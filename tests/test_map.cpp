@@ -75,6 +75,19 @@ TEST_CASE("layers given as PNG with a transform array in the manifest") {
   CHECK(m->crs.is_local());
 }
 
+TEST_CASE("a layer's registration sigma and the DEM's vertical sigma: read where stated, 0 where not") {
+  auto m = manifest(R"({"dem": {"constant": 10, "vertical_sigma_m": 2.5},
+                        "layers": [{"name": "a", "file": "rgba.tif", "registration_sigma_m": 0.7},
+                                   {"name": "b", "file": "rgba.tif"}]})");
+  REQUIRE(m.ok());
+  CHECK(m->dem.vertical_sigma_m == 2.5);
+  CHECK(m->find_layer("a")->registration_sigma_m == 0.7);
+  CHECK(m->find_layer("b")->registration_sigma_m == 0);
+  auto plain = manifest(R"({"dem": {"file": "dem_int16.tif"}, "layers": [{"name": "a", "file": "rgba.tif"}]})");
+  REQUIRE(plain.ok());
+  CHECK(plain->dem.vertical_sigma_m == 0);
+}
+
 TEST_CASE("bad manifests: each refused with the file and the value") {
   SUBCASE("missing manifest") {
     auto r = load_map("/nonexistent/map.json");
@@ -153,6 +166,14 @@ TEST_CASE("bad manifests: each refused with the file and the value") {
     opt.limits.max_side = 20;
     auto r = parse_map(R"({"dem": {"constant": 1}, "layers": [{"name": "a", "file": "rgba.tif"}]})", "m.json", kTiff, opt);
     CHECK(error_of(r).find("exceeds the limit of 20") != std::string::npos);
+  }
+  SUBCASE("a registration sigma that is negative, too large or not a number") {
+    auto neg = manifest(R"({"dem": {"constant": 1}, "layers": [{"name": "a", "file": "rgba.tif", "registration_sigma_m": -1}]})");
+    CHECK(error_of(neg).find("layers[0]: 'registration_sigma_m' -1 m must lie in [0, 1000]") != std::string::npos);
+    auto big = manifest(R"({"dem": {"constant": 1, "vertical_sigma_m": 1200.5}, "layers": [{"name": "a", "file": "rgba.tif"}]})");
+    CHECK(error_of(big).find("dem: 'vertical_sigma_m' 1200.5 m must lie in [0, 1000]") != std::string::npos);
+    auto text = manifest(R"({"dem": {"constant": 1}, "layers": [{"name": "a", "file": "rgba.tif", "registration_sigma_m": "1 m"}]})");
+    CHECK(error_of(text).find("'registration_sigma_m' must be a number, found \"1 m\"") != std::string::npos);
   }
   SUBCASE("layers that do not overlap") {
     auto r = manifest(R"({"dem": {"constant": 1}, "layers": [{"name": "a", "file": "no_georef.png", "transform": [0, 1, 0, 0, 0, -1]},

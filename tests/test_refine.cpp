@@ -266,3 +266,40 @@ TEST_CASE("the registration floor grows with the final residual: a map of anothe
     }
   }
 }
+
+TEST_CASE("the map's own error: a layer's registration sigma and the DEM's vertical sigma widen the answer's position covariance by their squares, and nothing else") {
+  Scene s = scene();
+  iclk::TrackerOptions opt;
+  auto plain = cli::Localizer::create(s.map, s.cam, "2016", opt, 2);
+  REQUIRE(plain.ok());
+  auto a = plain.value()->localize(s.live.view(), s.prior);
+  REQUIRE(a.ok());
+  REQUIRE(a->converged);
+  CHECK(a->map_covariance == Eigen::Matrix<double, 6, 6>::Zero());  // the sample manifest states none
+
+  s.map.layers[static_cast<std::size_t>(s.map.find_layer("2016") - s.map.layers.data())].registration_sigma_m = 0.7;
+  s.map.layers[static_cast<std::size_t>(s.map.find_layer("2017") - s.map.layers.data())].registration_sigma_m = 0.5;
+  s.map.dem.vertical_sigma_m = 2.0;
+  auto stated = cli::Localizer::create(s.map, s.cam, "2016", opt, 2);
+  REQUIRE(stated.ok());
+  auto b = stated.value()->localize(s.live.view(), s.prior);
+  REQUIRE(b.ok());
+  REQUIRE(b->converged);
+  // The answer is the image's alone; only its covariance gains the map's part.
+  CHECK(b->T_W_C.t_W_C == a->T_W_C.t_W_C);
+  CHECK(b->T_W_C.q_W_C.coeffs() == a->T_W_C.q_W_C.coeffs());
+  Eigen::Matrix<double, 6, 6> expected = Eigen::Matrix<double, 6, 6>::Zero();
+  expected(3, 3) = expected(4, 4) = 0.49;
+  expected(5, 5) = 4.0;
+  CHECK(b->map_covariance.isApprox(expected, 1e-15));
+  // The sum of two doubles: exact to their rounding (1e-12 of the largest entry).
+  CHECK(((b->covariance - a->covariance) - expected).cwiseAbs().maxCoeff() < 1e-12 * a->covariance.cwiseAbs().maxCoeff() + 1e-15);
+
+  // eval's truth is rendered from a layer of the same map over the same DEM: what the two
+  // layers disagree on counts, the DEM does not, and a layer agrees with itself.
+  const Eigen::Matrix<double, 6, 6> d = cli::layer_disagreement_covariance(s.map, "2016", "2017");
+  Eigen::Matrix<double, 6, 6> sum = Eigen::Matrix<double, 6, 6>::Zero();
+  sum(3, 3) = sum(4, 4) = 0.49 + 0.25;
+  CHECK(d.isApprox(sum, 1e-15));
+  CHECK(cli::layer_disagreement_covariance(s.map, "2016", "2016") == Eigen::Matrix<double, 6, 6>::Zero());
+}

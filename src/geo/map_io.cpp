@@ -160,6 +160,15 @@ Result<Dem> make_dem(const std::string& path, LoadedRaster&& lr) {
   return d;
 }
 
+// A raster's stated error in metres: absent 0 (not known), else finite in [0, 1000].
+Result<double> optional_sigma(const nlohmann::json& spec, const char* key, const std::string& where) {
+  if (!spec.contains(key)) return 0.0;
+  TERRALIGN_TRY_ASSIGN(const double s, json_number(spec, key, where));
+  if (!(s >= 0 && s <= 1000))
+    return Error{where + ": '" + key + "' " + format_double(s) + " m must lie in [0, 1000]"};
+  return s;
+}
+
 }  // namespace
 
 Result<Map> parse_map(const std::string& text, const std::string& name, const std::string& base_dir,
@@ -196,7 +205,7 @@ Result<Map> parse_map(const std::string& text, const std::string& name, const st
   if (!j.contains("dem")) return Error{name + ": missing 'dem' ({\"file\": ...} or {\"constant\": height})"};
   const auto& dem = j["dem"];
   const std::string dem_where = name + ": dem";
-  TERRALIGN_TRY(check_keys(dem, {"file", "constant", "transform"}, dem_where));
+  TERRALIGN_TRY(check_keys(dem, {"file", "constant", "transform", "vertical_sigma_m"}, dem_where));
   if (dem.contains("constant")) {
     if (dem.contains("file")) return Error{dem_where + ": give either 'file' or 'constant', not both"};
     TERRALIGN_TRY_ASSIGN(map.dem.constant_height, json_number(dem, "constant", dem_where));
@@ -211,6 +220,7 @@ Result<Map> parse_map(const std::string& text, const std::string& name, const st
     TERRALIGN_TRY(agree(lr.raster.crs, "DEM " + path));
     TERRALIGN_TRY_ASSIGN(map.dem, make_dem(path, std::move(lr)));
   }
+  TERRALIGN_TRY_ASSIGN(map.dem.vertical_sigma_m, optional_sigma(dem, "vertical_sigma_m", dem_where));
 
   if (!j.contains("layers")) return Error{name + ": missing 'layers'"};
   const auto& layers = j["layers"];
@@ -218,7 +228,7 @@ Result<Map> parse_map(const std::string& text, const std::string& name, const st
     return Error{name + ": 'layers' must be a non-empty array of {\"name\", \"file\"}"};
   for (std::size_t i = 0; i < layers.size(); ++i) {
     const std::string where = name + ": layers[" + std::to_string(i) + "]";
-    TERRALIGN_TRY(check_keys(layers[i], {"name", "file", "transform"}, where));
+    TERRALIGN_TRY(check_keys(layers[i], {"name", "file", "transform", "registration_sigma_m"}, where));
     TERRALIGN_TRY_ASSIGN(const std::string lname, json_string(layers[i], "name", where));
     if (lname.empty() || lname.find_first_of("/\\,") != std::string::npos)
       return Error{where + ": layer name '" + lname + "' must be non-empty without '/', '\\' or ','"};
@@ -227,6 +237,7 @@ Result<Map> parse_map(const std::string& text, const std::string& name, const st
     const std::string path = resolve_path(base_dir, layers[i]["file"].get<std::string>());
     TERRALIGN_TRY(agree(lr.raster.crs, "layer '" + lname + "' (" + path + ")"));
     TERRALIGN_TRY_ASSIGN(Layer L, make_layer(lname, path, std::move(lr)));
+    TERRALIGN_TRY_ASSIGN(L.registration_sigma_m, optional_sigma(layers[i], "registration_sigma_m", where));
     map.layers.push_back(std::move(L));
   }
   if (map.common_extent().empty())

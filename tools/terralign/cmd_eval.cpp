@@ -87,8 +87,11 @@ struct Method {
   std::vector<Eigen::Vector3d> truth_position;  // the true camera centre, map x y z
   std::vector<char> ok;  // reported converged
   std::vector<double> cost_init, cost_final, residual_init, residual_final, sharpness, disagreement;
-  std::vector<double> sigma_position, sigma_angle, residual_correlation;  // the covariance's (m, deg: root of its trace)
-  // The answer's 6-DoF error against its covariance, e^T P^-1 e (track's NEES: world-axis
+  // The covariance's (m, deg: root of its trace) against this truth: the image's part and what
+  // the two layers disagree on (layer_disagreement_covariance), not the map's own error
+  // against the ground (the query is rendered from the same map).
+  std::vector<double> sigma_position, sigma_angle, residual_correlation;
+  // The answer's 6-DoF error against that covariance, e^T P^-1 e (track's NEES: world-axis
   // rotation and position error); NaN where no covariance (not converged).
   std::vector<double> nees;
   std::vector<int> iterations_used;  // LM iterations over all levels
@@ -248,6 +251,8 @@ int run_eval(const std::vector<std::string>& argv) {
   if (!query_renderer.ok()) return fail(query_renderer.error());
   auto query = query_renderer.value()->make_output({args->get("query-layer")});
   if (!query.ok()) return fail(query.error());
+  const Eigen::Matrix<double, 6, 6> disagreement =
+      layer_disagreement_covariance(map.value(), args->get("ref-layer"), args->get("query-layer"));
   ImageF ref_grey, query_grey;
   ImageU8 degraded;  // the query as the camera gives it, with --blur, --noise or --exposure
 
@@ -296,9 +301,10 @@ int run_eval(const std::vector<std::string>& argv) {
         m.sharpness.push_back(out->sharpness);
         m.disagreement.push_back(out->disagreement_px);
         // (no covariance where not converged: NaN, left out of the JSON)
-        m.sigma_angle.push_back(out->converged ? std::sqrt(out->covariance.topLeftCorner<3, 3>().trace()) * 180.0 / kPi : NAN);
-        m.sigma_position.push_back(out->converged ? std::sqrt(out->covariance.bottomRightCorner<3, 3>().trace()) : NAN);
-        m.nees.push_back(out->converged ? nees_of(out->T_W_C, s.truth, out->covariance) : NAN);
+        const Eigen::Matrix<double, 6, 6> P = out->covariance - out->map_covariance + disagreement;
+        m.sigma_angle.push_back(out->converged ? std::sqrt(P.topLeftCorner<3, 3>().trace()) * 180.0 / kPi : NAN);
+        m.sigma_position.push_back(out->converged ? std::sqrt(P.bottomRightCorner<3, 3>().trace()) : NAN);
+        m.nees.push_back(out->converged ? nees_of(out->T_W_C, s.truth, P) : NAN);
         m.residual_correlation.push_back(out->residual_correlation);
         m.iterations_used.push_back(out->iterations);
         m.reason.push_back(out->reason);

@@ -38,6 +38,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   if (sizes.max_triangles > 0) ro.max_triangles = sizes.max_triangles;
   TERRALIGN_TRY_ASSIGN(L->renderer_, raster::Renderer::create(map, L->work_, ro));
   TERRALIGN_TRY_ASSIGN(L->ref_, L->renderer_->make_output({layer}));
+  L->map_covariance_ = map_covariance(map, layer);
   L->depth_.resize(L->work_.width, L->work_.height, 1);
   if (L->deep_) return L;
   L->ref_grey_.resize(camera.width, camera.height, 1);
@@ -206,7 +207,8 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     rel.q_W_C = Eigen::Quaterniond(T_ref_live.R).normalized();
     rel.t_W_C = T_ref_live.t;
     out.T_W_C = ref_pose * rel;
-    out.covariance = covariance_in_world(r.covariance, ref_pose, T_ref_live);
+    out.covariance = covariance_in_world(r.covariance, ref_pose, T_ref_live) + map_covariance_;
+    out.map_covariance = map_covariance_;
     // Again while the answer turned by more than min_deg from where the reference was
     // rendered, where the image agrees with the map (kRefineMaxResidual).
     if (!(Eigen::AngleAxisd(T_live_ref.R).angle() * (180.0 / 3.14159265358979323846) > refine_min_deg_)) break;
@@ -215,6 +217,24 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     T_ref_prior = out.T_live_ref;
   }
   return out;
+}
+
+Eigen::Matrix<double, 6, 6> map_covariance(const geo::Map& map, const std::string& layer) {
+  Eigen::Matrix<double, 6, 6> P = Eigen::Matrix<double, 6, 6>::Zero();
+  const geo::Layer* L = map.find_layer(layer);
+  const double h = L ? L->registration_sigma_m : 0;
+  P(3, 3) = P(4, 4) = h * h;
+  P(5, 5) = map.dem.vertical_sigma_m * map.dem.vertical_sigma_m;
+  return P;
+}
+
+Eigen::Matrix<double, 6, 6> layer_disagreement_covariance(const geo::Map& map, const std::string& a,
+                                                          const std::string& b) {
+  Eigen::Matrix<double, 6, 6> P = Eigen::Matrix<double, 6, 6>::Zero();
+  if (a == b) return P;
+  const Eigen::Matrix<double, 6, 6> A = map_covariance(map, a), B = map_covariance(map, b);
+  P.block<2, 2>(3, 3) = A.block<2, 2>(3, 3) + B.block<2, 2>(3, 3);
+  return P;
 }
 
 geo::CameraModel pinhole_of(const geo::CameraModel& camera) {

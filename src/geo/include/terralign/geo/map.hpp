@@ -9,6 +9,10 @@
 //
 // Paths are relative to the manifest (or absolute). A PNG / JPEG raster takes its
 // geotransform from a "transform" array (GDAL order) or a world file beside it.
+// How well a raster sits on the ground, where it is known: a layer's "registration_sigma_m"
+// (one sigma per horizontal axis of where it places the ground over a camera's view, against
+// where the ground is) and the DEM's "vertical_sigma_m". A pose found against the map is off
+// by as much (Localizer adds them to its covariance); absent: 0, not known.
 #pragma once
 
 #include <string>
@@ -29,6 +33,7 @@ struct Layer {
   GeoTransform transform;
   Extent extent;
   std::int64_t valid_pixels = 0;
+  double registration_sigma_m = 0;  // per horizontal axis; 0: not stated
 };
 
 struct Dem {
@@ -39,6 +44,7 @@ struct Dem {
   GeoTransform transform;
   Extent extent;               // infinite for a constant DEM
   double min_height = 0, max_height = 0;
+  double vertical_sigma_m = 0;  // one sigma of its heights; 0: not stated
 
   // Bilinear height at map (x, y); NaN outside the DEM or next to a no-data post.
   double height_at(double x, double y) const;
