@@ -11,6 +11,8 @@ answer closer than what the maps agree on over the ground it sees: the Christchu
 local shifts (roofs leaning differently in the two surveys) are the size of its 5 px line.
 Needs numpy and PIL (Debian's python3-numpy, python3-pil).
   /usr/bin/python3 scripts/local_coregistration.py A.png B.png [--pixel-m 0.2] [--windows 64,128]
+The RMS per axis over windows about a view's size is what data/christchurch's manifests state
+as the two layers' registration_sigma_m (half its square each).
 """
 import argparse
 import sys
@@ -55,9 +57,12 @@ def main():
             print(f"{n} px windows ({n * o.pixel_m:.1f} m): none of {len(S)} has q >= {o.min_q:g}")
             continue
         d = np.hypot(S[good, 0], S[good, 1]) * o.pixel_m
+        # The RMS per axis (the root of half the mean squared length): the one sigma per horizontal
+        # axis of what the two images disagree on, as a map's registration_sigma_m pair sums it.
+        rms = np.sqrt(np.mean(d ** 2) / 2)
         print(f"{n} px windows ({n * o.pixel_m:.1f} m), half-overlapping: {good.sum()} of {len(S)} with q >= {o.min_q:g}; shift "
               f"median {np.median(d):.2f} m, 75th percentile {np.percentile(d, 75):.2f}, 90th {np.percentile(d, 90):.2f}; "
-              f"mean ({S[good, 1].mean() * o.pixel_m:.2f}, {S[good, 0].mean() * o.pixel_m:.2f}) m")
+              f"mean ({S[good, 1].mean() * o.pixel_m:.2f}, {S[good, 0].mean() * o.pixel_m:.2f}) m; RMS per axis {rms:.2f} m")
 
 
 if __name__ == "__main__":

@@ -50,6 +50,9 @@ TEST_CASE("the Christchurch maps: PNG layers placed by their world files in a lo
   CHECK(m->layers[0].transform.pixel_size_x() == doctest::Approx(0.2));
   CHECK(m->layers[0].extent.max_y == doctest::Approx(204.8));
   CHECK(!m->crs.to_geodetic(10, 10, 0).ok());
+  // What the two surveys disagree on, split between them (the manifest's description).
+  CHECK(m->layers[0].registration_sigma_m == 0.7);
+  CHECK(m->layers[1].registration_sigma_m == 0.7);
 }
 
 TEST_CASE("DEM heights are bilinear between posts, NaN on no-data and outside") {

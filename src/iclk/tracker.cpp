@@ -966,10 +966,12 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       R.residual_correlation = residual_correlation(n);
       R.covariance_inflation = inflation_of(R.residual_correlation) * channel_factor(n);
       // The registration floor (TrackerOptions::registration_floor_px): the whole-image
-      // motions at floor_px, the keystones at the share of the residual past what a camera's
+      // motions at floor_px, with the map's own error on the ground (ground_floor_m) seen at
+      // the median depth, the keystones at the share of the residual past what a camera's
       // noise leaves (TrackerOptions::keystone_free_residual).
-      const double floor_px =
-          std::max(opt_.registration_floor_px, opt_.registration_floor_per_residual_px * R.residual_final);
+      const double ground_px = Warp::kNeedsDepth ? opt_.ground_floor_m * static_cast<double>(K[0].fx) / depth_scale : 0.0;
+      const double floor_px = std::hypot(
+          std::max(opt_.registration_floor_px, opt_.registration_floor_per_residual_px * R.residual_final), ground_px);
       const double keystone_px =
           opt_.registration_floor_per_residual_px * std::max(R.residual_final - opt_.keystone_free_residual, 0.0);
       Eigen::Matrix<double, DoF, DoF> P = R.covariance_inflation * sigma2 * Hv.inverse();

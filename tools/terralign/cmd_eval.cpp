@@ -87,13 +87,12 @@ struct Method {
   std::vector<Eigen::Vector3d> truth_position;  // the true camera centre, map x y z
   std::vector<char> ok;  // reported converged
   std::vector<double> cost_init, cost_final, residual_init, residual_final, sharpness, disagreement;
-  // The covariance's (m, deg: root of its trace) against this truth: the image's part and what
-  // the two layers disagree on (layer_disagreement_covariance), not the map's own error
-  // against the ground (the query is rendered from the same map).
-  std::vector<double> sigma_position, sigma_angle, residual_correlation;
+  std::vector<double> sigma_position, sigma_angle, residual_correlation;  // the covariance's (m, deg: root of its trace)
   // The answer's 6-DoF error against that covariance, e^T P^-1 e (track's NEES: world-axis
   // rotation and position error); NaN where no covariance (not converged).
   std::vector<double> nees;
+  std::vector<Eigen::Matrix<double, 6, 6>> covariance;  // that covariance (--json: converged answers)
+  std::vector<Eigen::Vector3d> rotation_error;          // world-axis rotation, estimate -> truth (rad, angle x axis)
   std::vector<int> iterations_used;  // LM iterations over all levels
   std::vector<const char*> reason;
   int converged = 0;
@@ -211,6 +210,15 @@ int run_eval(const std::vector<std::string>& argv) {
   for (const char* k : {"ref-layer", "query-layer"})
     if (!map->find_layer(args->get(k)))
       return fail(Error{"--" + std::string(k) + ": no layer named '" + args->get(k) + "' (layers: " + map->layer_names() + ")"});
+  {
+    // The truth is the query layer's, over the same DEM: the answers are off it by what the
+    // reference layer's registration and the query's disagree on (none where they are one
+    // layer), and not by the DEM's error. The covariance counts that.
+    geo::Layer& ref = *map->find_layer(args->get("ref-layer"));
+    const geo::Layer& query = *map->find_layer(args->get("query-layer"));
+    ref.registration_sigma_m = &ref == &query ? 0.0 : std::hypot(ref.registration_sigma_m, query.registration_sigma_m);
+    map->dem.vertical_sigma_m = 0;
+  }
   const std::string overlays = args->get("overlays");
   if (!overlays.empty())
     if (auto st = ensure_dir(overlays); !st.ok()) return fail(st.error());
@@ -251,8 +259,6 @@ int run_eval(const std::vector<std::string>& argv) {
   if (!query_renderer.ok()) return fail(query_renderer.error());
   auto query = query_renderer.value()->make_output({args->get("query-layer")});
   if (!query.ok()) return fail(query.error());
-  const Eigen::Matrix<double, 6, 6> disagreement =
-      layer_disagreement_covariance(map.value(), args->get("ref-layer"), args->get("query-layer"));
   ImageF ref_grey, query_grey;
   ImageU8 degraded;  // the query as the camera gives it, with --blur, --noise or --exposure
 
@@ -301,10 +307,13 @@ int run_eval(const std::vector<std::string>& argv) {
         m.sharpness.push_back(out->sharpness);
         m.disagreement.push_back(out->disagreement_px);
         // (no covariance where not converged: NaN, left out of the JSON)
-        const Eigen::Matrix<double, 6, 6> P = out->covariance - out->map_covariance + disagreement;
+        const Eigen::Matrix<double, 6, 6>& P = out->covariance;
         m.sigma_angle.push_back(out->converged ? std::sqrt(P.topLeftCorner<3, 3>().trace()) * 180.0 / kPi : NAN);
         m.sigma_position.push_back(out->converged ? std::sqrt(P.bottomRightCorner<3, 3>().trace()) : NAN);
         m.nees.push_back(out->converged ? nees_of(out->T_W_C, s.truth, P) : NAN);
+        m.covariance.push_back(P);
+        const Eigen::AngleAxisd dr(s.truth.q_W_C * out->T_W_C.q_W_C.conjugate());
+        m.rotation_error.push_back(dr.angle() * dr.axis());
         m.residual_correlation.push_back(out->residual_correlation);
         m.iterations_used.push_back(out->iterations);
         m.reason.push_back(out->reason);
@@ -407,7 +416,15 @@ int run_eval(const std::vector<std::string>& argv) {
           sj["sigma_position_m"] = m.sigma_position[k];
           sj["sigma_angle_deg"] = m.sigma_angle[k];
         }
-        if (std::isfinite(m.nees[k])) sj["nees"] = m.nees[k];
+        if (std::isfinite(m.nees[k])) {  // and what it is made of, for analysis
+          sj["nees"] = m.nees[k];
+          const Eigen::Matrix<double, 6, 6>& P = m.covariance[k];
+          nlohmann::json rows = nlohmann::json::array();
+          for (int r = 0; r < 6; ++r) rows.push_back({P(r, 0), P(r, 1), P(r, 2), P(r, 3), P(r, 4), P(r, 5)});
+          sj["covariance"] = rows;
+          const Eigen::Vector3d& dr = m.rotation_error[k];
+          sj["rotation_error_rad"] = {dr.x(), dr.y(), dr.z()};
+        }
         sj["residual_correlation"] = m.residual_correlation[k];
         sj["iterations"] = m.iterations_used[k];
         sj["reason"] = m.reason[k];

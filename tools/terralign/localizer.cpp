@@ -15,6 +15,11 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   std::unique_ptr<Localizer> L(new Localizer);
   L->camera_ = camera;
   L->work_ = camera;
+  // The reference layer's own error on the ground joins any the caller's options count.
+  const geo::Layer* ref_layer = map.find_layer(layer);
+  iclk::TrackerOptions with_map = options;
+  with_map.ground_floor_m = std::hypot(options.ground_floor_m, ref_layer ? ref_layer->registration_sigma_m : 0.0);
+  L->dem_covariance_ = dem_covariance(map);
   if (weights) {
     // The learned tracker renders and aligns at the size its network was trained at.
     TERRALIGN_TRY_ASSIGN(double s, iclk::DeepAligner::input_scale(*weights));
@@ -25,7 +30,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
       return Error{weights->name + ": input scale " + std::to_string(s) + " is not 1/n of the camera's " +
                    std::to_string(camera.width) + " x " + std::to_string(camera.height)};
     L->work_ = camera.scaled(s, w, h);
-    iclk::TrackerOptions dopt = options;
+    iclk::TrackerOptions dopt = with_map;
     dopt.registration_floor_px *= s;  // camera pixels -> working pixels
     dopt.registration_floor_per_residual_px *= s;
     TERRALIGN_TRY_ASSIGN(L->deep_, iclk::DeepAligner::create(*weights, w, h, dopt, threads, sizes.levels));
@@ -38,7 +43,6 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   if (sizes.max_triangles > 0) ro.max_triangles = sizes.max_triangles;
   TERRALIGN_TRY_ASSIGN(L->renderer_, raster::Renderer::create(map, L->work_, ro));
   TERRALIGN_TRY_ASSIGN(L->ref_, L->renderer_->make_output({layer}));
-  L->map_covariance_ = map_covariance(map, layer);
   L->depth_.resize(L->work_.width, L->work_.height, 1);
   if (L->deep_) return L;
   L->ref_grey_.resize(camera.width, camera.height, 1);
@@ -46,7 +50,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   // The renderer takes the threads; the sparse classical alignment stays on one (measured:
   // 22.5 ms on one thread, 30 ms on two: its work per iteration is too small to repay the
   // hand-off; bench_align).
-  iclk::TrackerOptions topt = options;
+  iclk::TrackerOptions topt = with_map;
   topt.threads = 1;
   if (topt.coarse_search_px == 0) topt.coarse_search_px = kClassicCoarseSearchPx;
   if (topt.coarse_search_px < 0) topt.coarse_search_px = 0;
@@ -207,8 +211,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     rel.q_W_C = Eigen::Quaterniond(T_ref_live.R).normalized();
     rel.t_W_C = T_ref_live.t;
     out.T_W_C = ref_pose * rel;
-    out.covariance = covariance_in_world(r.covariance, ref_pose, T_ref_live) + map_covariance_;
-    out.map_covariance = map_covariance_;
+    out.covariance = covariance_in_world(r.covariance, ref_pose, T_ref_live) + dem_covariance_;
     // Again while the answer turned by more than min_deg from where the reference was
     // rendered, where the image agrees with the map (kRefineMaxResidual).
     if (!(Eigen::AngleAxisd(T_live_ref.R).angle() * (180.0 / 3.14159265358979323846) > refine_min_deg_)) break;
@@ -219,21 +222,9 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   return out;
 }
 
-Eigen::Matrix<double, 6, 6> map_covariance(const geo::Map& map, const std::string& layer) {
+Eigen::Matrix<double, 6, 6> dem_covariance(const geo::Map& map) {
   Eigen::Matrix<double, 6, 6> P = Eigen::Matrix<double, 6, 6>::Zero();
-  const geo::Layer* L = map.find_layer(layer);
-  const double h = L ? L->registration_sigma_m : 0;
-  P(3, 3) = P(4, 4) = h * h;
   P(5, 5) = map.dem.vertical_sigma_m * map.dem.vertical_sigma_m;
-  return P;
-}
-
-Eigen::Matrix<double, 6, 6> layer_disagreement_covariance(const geo::Map& map, const std::string& a,
-                                                          const std::string& b) {
-  Eigen::Matrix<double, 6, 6> P = Eigen::Matrix<double, 6, 6>::Zero();
-  if (a == b) return P;
-  const Eigen::Matrix<double, 6, 6> A = map_covariance(map, a), B = map_covariance(map, b);
-  P.block<2, 2>(3, 3) = A.block<2, 2>(3, 3) + B.block<2, 2>(3, 3);
   return P;
 }
 

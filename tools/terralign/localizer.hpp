@@ -27,11 +27,9 @@ struct LocalizeOutput {
   iclk::SE3<double> T_live_ref;         // the relative pose found, to the prior (identity when not converged)
   // Covariance of [dtheta; dp]: a rotation about the world axes applied on the left of
   // R_W_C (rad) and a shift of the camera centre (m, world axes), in that order.
-  // The image's part and the map's (map_covariance, included here).
+  // The image's part, with the reference layer's registration_sigma_m in its floor
+  // (iclk::TrackerOptions::ground_floor_m), and the DEM's heights' (dem_covariance).
   Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
-  // Of `covariance`, what the map says of its own error: map_covariance() of the reference
-  // layer (zero where the manifest does not say; zero where not converged).
-  Eigen::Matrix<double, 6, 6> map_covariance = Eigen::Matrix<double, 6, 6>::Zero();
   bool converged = false;
   const char* reason = "not run";  // the tracker's (a static string: no allocation per frame)
   int iterations = 0;
@@ -110,7 +108,9 @@ class Localizer {
  public:
   // `camera` must be a pinhole (undistort the live image first); `layer` is the reference.
   // With `weights` the learned tracker aligns (its size must halve exactly three times at
-  // the weights' input scale), else the classical one.
+  // the weights' input scale), else the classical one. The answers' covariance counts what
+  // the manifest says of the map's own error: the layer's registration_sigma_m and the DEM's
+  // vertical_sigma_m (geo/map.hpp).
   static Result<std::unique_ptr<Localizer>> create(const geo::Map& map, const geo::CameraModel& camera,
                                                    const std::string& layer, const iclk::TrackerOptions& options,
                                                    int threads, const nn::WeightFile* weights = nullptr,
@@ -152,7 +152,7 @@ class Localizer {
                                                                  const geo::Pose& ref_pose, const geo::Pose& prior,
                                                                  const Eigen::Quaterniond* attitude, bool first,
                                                                  bool learned_weights);
-  Eigen::Matrix<double, 6, 6> map_covariance_ = Eigen::Matrix<double, 6, 6>::Zero();  // map_covariance(map, layer)
+  Eigen::Matrix<double, 6, 6> dem_covariance_ = Eigen::Matrix<double, 6, 6>::Zero();  // dem_covariance(map)
   int refine_passes_ = 0, refine_levels_ = kRefineLevels;
   double refine_min_deg_ = kRefineMinDeg;
   double refine_uniform_max_residual_ = kRefineUniformOff;
@@ -170,16 +170,10 @@ class Localizer {
 // to the world-frame [dtheta; dp] of LocalizeOutput::covariance.
 Eigen::Matrix<double, 6, 6> covariance_in_world(const Eigen::Matrix<double, 6, 6>& cov_ref,
                                                 const geo::Pose& T_W_ref, const iclk::SE3<double>& T_ref_live);
-// The map's own error as a pose covariance ([dtheta; dp], LocalizeOutput::covariance's order):
-// the layer's registration_sigma_m squared on east and north (where it places the ground,
-// the answer is found: a layer shifted by d moves the answer by d) and the DEM's
-// vertical_sigma_m squared on the height; zero where the manifest does not say.
-Eigen::Matrix<double, 6, 6> map_covariance(const geo::Map& map, const std::string& layer);
-// What two layers of one map disagree on, for an image rendered from layer b and aligned to
-// layer a (eval): their registration variances summed on east and north, none where a == b,
-// and none in height (one DEM under both).
-Eigen::Matrix<double, 6, 6> layer_disagreement_covariance(const geo::Map& map, const std::string& a,
-                                                          const std::string& b);
+// The DEM's own error as a pose covariance ([dtheta; dp], LocalizeOutput::covariance's order):
+// its vertical_sigma_m squared on the height (a DEM too high by d puts the camera d higher);
+// zero where the manifest does not say.
+Eigen::Matrix<double, 6, 6> dem_covariance(const geo::Map& map);
 // The normalised estimation error squared of a pose against the truth, e^T P^-1 e with e = (the
 // world-axis rotation error as angle x axis, the position error truth - estimate) and P the
 // estimate's covariance in that order (covariance_in_world's); NaN where P is not positive

@@ -57,6 +57,9 @@ struct Map {
   std::vector<Layer> layers;
 
   const Layer* find_layer(const std::string& name) const;
+  Layer* find_layer(const std::string& name) {
+    return const_cast<Layer*>(static_cast<const Map*>(this)->find_layer(name));
+  }
   // Where every layer (and a gridded DEM) has coverage: the intersection of their extents.
   Extent common_extent() const;
   // Names of the layers, comma-separated, for messages.

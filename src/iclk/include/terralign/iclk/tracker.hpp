@@ -112,6 +112,12 @@ struct TrackerOptions {
   // with an IMU's tilt); with them 3.3-6.6 and 3.6-6.1. The tilt prior is combined with the
   // image term and its floor, so an attitude reference narrows what the keystones admit.
   double keystone_free_residual = 0.3;
+  // What the map's placement of the ground is off by, metres per horizontal axis (a layer's
+  // registration, geo::Layer::registration_sigma_m; 6-DoF warp only): the whole-image motions
+  // of the floor gain (ground_floor_m f / median depth) px in variance. It is the image's
+  // frame the map is off in, so the camera's answer is off as a whole motion of the image
+  // would place it, tilt prior included (Christchurch's two surveys: session 41). 0: none.
+  double ground_floor_m = 0;
   // The sharpness test (TrackResult::sharpness): the nudge in finest-level pixels (0: not
   // measured) and the least sharpness a converged answer must have. Off for the classical
   // tracker; the learned one sets them (DeepAligner).
