@@ -40,6 +40,7 @@ int run_info(const std::vector<std::string>& argv) {
                 {"max_height", m.dem.max_height},
                 {"extent", extent_json(m.dem.extent)}};
   }
+  j["dem"]["vertical_sigma_m"] = m.dem.vertical_sigma_m;  // 0: not stated
   for (const auto& L : m.layers) {
     const double total = static_cast<double>(L.rgba.width()) * L.rgba.height();
     j["layers"].push_back({{"name", L.name},
@@ -49,7 +50,8 @@ int run_info(const std::vector<std::string>& argv) {
                            {"resolution_m", {L.transform.pixel_size_x(), L.transform.pixel_size_y()}},
                            {"geotransform", L.transform.gdal()},
                            {"extent", extent_json(L.extent)},
-                           {"valid_fraction", static_cast<double>(L.valid_pixels) / total}});
+                           {"valid_fraction", static_cast<double>(L.valid_pixels) / total},
+                           {"registration_sigma_m", L.registration_sigma_m}});
   }
   const geo::Extent common = m.common_extent();
   j["common_extent"] = extent_json(common);
@@ -71,6 +73,7 @@ int run_info(const std::vector<std::string>& argv) {
     std::printf("dem      %s: %d x %d posts at %.3f m, heights %.2f .. %.2f m\n", m.dem.path.c_str(),
                 m.dem.heights.width(), m.dem.heights.height(), m.dem.transform.pixel_size_x(),
                 m.dem.min_height, m.dem.max_height);
+  if (m.dem.vertical_sigma_m > 0) std::printf("         heights good to %.2f m (1 sigma)\n", m.dem.vertical_sigma_m);
   std::printf("layers   %zu\n", m.layers.size());
   for (const auto& L : m.layers) {
     const double total = static_cast<double>(L.rgba.width()) * L.rgba.height();
@@ -78,6 +81,8 @@ int run_info(const std::vector<std::string>& argv) {
                 L.name.c_str(), L.rgba.width(), L.rgba.height(), L.transform.pixel_size_x(),
                 L.extent.min_x, L.extent.max_x, L.extent.min_y, L.extent.max_y,
                 100.0 * static_cast<double>(L.valid_pixels) / total, L.path.c_str());
+    if (L.registration_sigma_m > 0)
+      std::printf("             placed on the ground to %.2f m per axis (1 sigma)\n", L.registration_sigma_m);
   }
   std::printf("covered by every layer%s: x %.2f .. %.2f, y %.2f .. %.2f (%.1f x %.1f m)\n",
               m.dem.constant ? "" : " and the DEM", common.min_x, common.max_x, common.min_y,
