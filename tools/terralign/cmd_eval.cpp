@@ -395,10 +395,9 @@ int run_eval(const std::vector<std::string>& argv) {
     mj["nees"] = stats(nees);
     // ... and how often an answer lies inside its own 95 % ellipsoid (NEES under chi-square's
     // 95th percentile for 6 degrees of freedom, 12.592): 95 % where the covariance is honest.
+    const auto inside = std::count_if(nees.begin(), nees.end(), [](double v) { return v < 12.592; });
     mj["nees_within_95"] = nees.empty() ? nlohmann::json(nullptr)
-                                        : nlohmann::json(static_cast<double>(std::count_if(nees.begin(), nees.end(), [](double v) {
-                                                           return v < 12.592;
-                                                         })) / static_cast<double>(nees.size()));
+                                        : nlohmann::json(static_cast<double>(inside) / static_cast<double>(nees.size()));
     const auto t = stats(m.ms);
     mj["ms"] = t.is_null() ? nlohmann::json(nullptr) : nlohmann::json{{"mean", t["mean"]}, {"median", t["median"]}};
     // Per pose, for analysis: 2-D EPE, converged, the camera centre's error (map axes), the

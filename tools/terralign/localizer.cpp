@@ -19,7 +19,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   const geo::Layer* ref_layer = map.find_layer(layer);
   iclk::TrackerOptions with_map = options;
   with_map.ground_floor_m = std::hypot(options.ground_floor_m, ref_layer ? ref_layer->registration_sigma_m : 0.0);
-  L->dem_covariance_ = dem_covariance(map);
+  L->dem_variance_ = map.dem.vertical_sigma_m * map.dem.vertical_sigma_m;
   if (weights) {
     // The learned tracker renders and aligns at the size its network was trained at.
     TERRALIGN_TRY_ASSIGN(double s, iclk::DeepAligner::input_scale(*weights));
@@ -211,7 +211,8 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     rel.q_W_C = Eigen::Quaterniond(T_ref_live.R).normalized();
     rel.t_W_C = T_ref_live.t;
     out.T_W_C = ref_pose * rel;
-    out.covariance = covariance_in_world(r.covariance, ref_pose, T_ref_live) + dem_covariance_;
+    out.covariance = covariance_in_world(r.covariance, ref_pose, T_ref_live);
+    out.covariance(5, 5) += dem_variance_;
     // Again while the answer turned by more than min_deg from where the reference was
     // rendered, where the image agrees with the map (kRefineMaxResidual).
     if (!(Eigen::AngleAxisd(T_live_ref.R).angle() * (180.0 / 3.14159265358979323846) > refine_min_deg_)) break;
@@ -220,12 +221,6 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     T_ref_prior = out.T_live_ref;
   }
   return out;
-}
-
-Eigen::Matrix<double, 6, 6> dem_covariance(const geo::Map& map) {
-  Eigen::Matrix<double, 6, 6> P = Eigen::Matrix<double, 6, 6>::Zero();
-  P(5, 5) = map.dem.vertical_sigma_m * map.dem.vertical_sigma_m;
-  return P;
 }
 
 geo::CameraModel pinhole_of(const geo::CameraModel& camera) {

@@ -28,7 +28,8 @@ struct LocalizeOutput {
   // Covariance of [dtheta; dp]: a rotation about the world axes applied on the left of
   // R_W_C (rad) and a shift of the camera centre (m, world axes), in that order.
   // The image's part, with the reference layer's registration_sigma_m in its floor
-  // (iclk::TrackerOptions::ground_floor_m), and the DEM's heights' (dem_covariance).
+  // (iclk::TrackerOptions::ground_floor_m), and the DEM's vertical_sigma_m squared on the
+  // height (a DEM too high by d puts the camera d higher).
   Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
   bool converged = false;
   const char* reason = "not run";  // the tracker's (a static string: no allocation per frame)
@@ -152,7 +153,7 @@ class Localizer {
                                                                  const geo::Pose& ref_pose, const geo::Pose& prior,
                                                                  const Eigen::Quaterniond* attitude, bool first,
                                                                  bool learned_weights);
-  Eigen::Matrix<double, 6, 6> dem_covariance_ = Eigen::Matrix<double, 6, 6>::Zero();  // dem_covariance(map)
+  double dem_variance_ = 0;  // the DEM's vertical_sigma_m squared (m^2)
   int refine_passes_ = 0, refine_levels_ = kRefineLevels;
   double refine_min_deg_ = kRefineMinDeg;
   double refine_uniform_max_residual_ = kRefineUniformOff;
@@ -170,10 +171,6 @@ class Localizer {
 // to the world-frame [dtheta; dp] of LocalizeOutput::covariance.
 Eigen::Matrix<double, 6, 6> covariance_in_world(const Eigen::Matrix<double, 6, 6>& cov_ref,
                                                 const geo::Pose& T_W_ref, const iclk::SE3<double>& T_ref_live);
-// The DEM's own error as a pose covariance ([dtheta; dp], LocalizeOutput::covariance's order):
-// its vertical_sigma_m squared on the height (a DEM too high by d puts the camera d higher);
-// zero where the manifest does not say.
-Eigen::Matrix<double, 6, 6> dem_covariance(const geo::Map& map);
 // The normalised estimation error squared of a pose against the truth, e^T P^-1 e with e = (the
 // world-axis rotation error as angle x axis, the position error truth - estimate) and P the
 // estimate's covariance in that order (covariance_in_world's); NaN where P is not positive

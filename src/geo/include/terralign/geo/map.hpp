@@ -12,7 +12,7 @@
 // How well a raster sits on the ground, where it is known: a layer's "registration_sigma_m"
 // (one sigma per horizontal axis of where it places the ground over a camera's view, against
 // where the ground is) and the DEM's "vertical_sigma_m". A pose found against the map is off
-// by as much (Localizer adds them to its covariance); absent: 0, not known.
+// by as much (the localizer's covariance counts them); absent: 0, not known.
 #pragma once
 
 #include <string>
