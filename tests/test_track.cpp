@@ -544,8 +544,9 @@ TEST_CASE("eval on Christchurch: the manifest's registration sigma makes the con
   // The answers are the same with and without the layers' 0.7 m (the covariance alone
   // changes); their errors are where the two surveys disagree on the ground, 1-4 m at 120 m.
   // Measured: NEES median 4.6 with it, 24.2 without (mean 11.0 and 45.2; 20 poses 7.3 and
-  // 28.7); seed 7's 200 converged answers 5.2 and 28.2. An honest covariance gives a chi-square of 6 degrees of freedom, median 5.35:
-  // asked, within a factor 2 of it with the sigma, and at least 3 times it without.
+  // 28.7); seed 7's 200 converged answers 5.2 and 28.2. An honest covariance gives a
+  // chi-square of 6 degrees of freedom, median 5.35: asked, within a factor 2 of it with the
+  // sigma, and at least 3 times it without.
   const std::string tl = TERRALIGN_CLI;
   const std::string dir = test::source_path("data/christchurch");
   const std::string bare = test::temp_dir() + "/chch_no_sigma.json";
@@ -555,7 +556,7 @@ TEST_CASE("eval on Christchurch: the manifest's registration sigma makes the con
   std::vector<nlohmann::json> runs;
   for (const std::string& map : {dir + "/000121.json", bare}) {
     const std::string out = test::temp_dir() + "/eval_chch_sigma" + std::to_string(runs.size()) + ".json";
-    REQUIRE(run(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2012 --query-layer 2016 --count 20 --seed 3 " +
+    REQUIRE(run(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2012 --query-layer 2016 --count 10 --seed 3 " +
                 "--altitude 100:140 --tilt 5 --methods nn:20 --max-disagreement -1 --threads 2 --json " + out) == 0);
     runs.push_back(nlohmann::json::parse(test::read_text(out))["methods"]["nn:20"]);
   }
