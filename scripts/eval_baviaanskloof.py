@@ -3,7 +3,9 @@
 read in place from ../shared/data, never copied) to renders of the 5 m orthophoto of the
 same flight and of the 10 m Sentinel-2 image, both over the 24 m DEM, from priors 50 m and 3
 degrees off the aero-triangulated pose, with the classical and the learned tracker; print
-position and orientation errors against that pose.
+position and orientation errors against that pose, and for the converged answers their own
+position sigma (root of the covariance's position trace) and NEES against that pose (6 where
+the covariance is honest).
 
 The exterior orientation (camera/ngi_xyz_opk.csv) is PATB: R_W_C = Rx(omega) Ry(phi)
 Rz(kappa) for camera axes x right, y up, z back; ours look along +z with y down, so
@@ -69,6 +71,34 @@ def angle_deg(Ra, Rb):
     M = mul(transpose(Ra), Rb)
     c = max(-1.0, min(1.0, (M[0][0] + M[1][1] + M[2][2] - 1) / 2))
     return math.degrees(math.acos(c))
+
+
+def rotation_vector(M):
+    """angle x axis (rad) of a rotation matrix."""
+    c = max(-1.0, min(1.0, (M[0][0] + M[1][1] + M[2][2] - 1) / 2))
+    a = math.acos(c)
+    v = [M[2][1] - M[1][2], M[0][2] - M[2][0], M[1][0] - M[0][1]]
+    s = math.sqrt(sum(x * x for x in v))
+    return [0.0, 0.0, 0.0] if s == 0 else [a * x / s for x in v]
+
+
+def nees(cov, truth_t, truth_R, est_t, est_R):
+    """e^T P^-1 e for e = (world-axis rotation truth * est^-1, truth - estimate), P the answer's
+    covariance (align's order); None where P is singular."""
+    e = rotation_vector(mul(truth_R, transpose(est_R))) + [truth_t[i] - est_t[i] for i in range(3)]
+    A = [list(cov[r]) + [e[r]] for r in range(6)]  # solve P x = e by Gaussian elimination
+    for c in range(6):
+        piv = max(range(c, 6), key=lambda r: abs(A[r][c]))
+        if A[piv][c] == 0:
+            return None
+        A[c], A[piv] = A[piv], A[c]
+        for r in range(c + 1, 6):
+            f = A[r][c] / A[c][c]
+            A[r] = [A[r][k] - f * A[c][k] for k in range(7)]
+    x = [0.0] * 6
+    for r in range(5, -1, -1):
+        x[r] = (A[r][6] - sum(A[r][k] * x[k] for k in range(r + 1, 6))) / A[r][r]
+    return sum(e[i] * x[i] for i in range(6))
 
 
 def axis_angle(axis, deg):
@@ -152,10 +182,16 @@ def main():
                     qe = pose['quaternion'] if isinstance(pose, dict) else pose[3:7]
                     pos_err = math.sqrt(sum((te[i] - t[i]) ** 2 for i in range(3)))
                     ang_err = angle_deg(matrix(qe), R)
+                    # How far the answer's own covariance covers its error against the
+                    # aero-triangulated pose (converged answers only: the others carry none).
+                    cov = out.get('covariance') if out['converged'] else None
+                    sigma_pos = math.sqrt(sum(cov[3 + i][3 + i] for i in range(3))) if cov else None
+                    answer_nees = nees(cov, t, R, te, matrix(qe)) if cov else None
                     results.append({"frame": name, "prior": k, "layer": layer, "method": method,
                                     "converged": out['converged'], "reason": out['reason'],
                                     "position_error_m": pos_err, "angle_error_deg": ang_err, "position": te,
                                     "prior_position_error_m": 50.0, "prior_angle_error_deg": angle_deg(Rp, R),
+                                    "sigma_position_m": sigma_pos, "nees": answer_nees,
                                     "residual_final": out.get('residual_final'), "refinements": out.get('refinements'),
                                     "uniform_refinements": out.get('uniform_refinements')})
                     print(f'{name} prior {k} {layer:14s} {method:7s} {pos_err:8.2f} m {ang_err:6.2f} deg  '
@@ -179,8 +215,8 @@ def main():
             d += [math.sqrt(sum((x['position'][i] - m[i]) ** 2 for i in range(3))) for x in g]
         return med(d)
 
-    print('\n| reference | method | position error m (median / mean) | angle deg (median) | spread m (median) | < 10 m and < 0.5 deg | converged | converged and right |')
-    print('|---|---|---|---|---|---|---|---|')
+    print('\n| reference | method | position error m (median / mean) | angle deg (median) | spread m (median) | < 10 m and < 0.5 deg | converged | converged and right | converged: position sigma m, NEES (medians) |')
+    print('|---|---|---|---|---|---|---|---|---|')
     for layer in ('ortho_5m', 'sentinel2_10m'):
         for method in ('classic', 'nn'):
             r = [x for x in results if x['layer'] == layer and x['method'] == method]
@@ -190,7 +226,8 @@ def main():
             print(f'| {layer} | {method} | {med([x["position_error_m"] for x in r]):.1f} / '
                   f'{sum(x["position_error_m"] for x in r) / len(r):.1f} | {med([x["angle_error_deg"] for x in r]):.2f} | '
                   f'{spread(r):.2f} | {100 * len(good) / len(r):.0f} % | {100 * len(conv) / len(r):.0f} % | '
-                  f'{(100 * len(cg) / len(conv)) if conv else 0:.0f} % |')
+                  f'{(100 * len(cg) / len(conv)) if conv else 0:.0f} % | '
+                  f'{med([x["sigma_position_m"] for x in conv]):.2f}, {med([x["nees"] for x in conv if x["nees"] is not None]):.1f} |')
     print(f'\n{len(frames)} frames x {args.priors} priors (50 m, 3 deg), seed {args.seed}; prior angle error 3 deg')
 
 
