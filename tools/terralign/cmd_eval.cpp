@@ -312,8 +312,7 @@ int run_eval(const std::vector<std::string>& argv) {
         m.sigma_position.push_back(out->converged ? std::sqrt(P.bottomRightCorner<3, 3>().trace()) : NAN);
         m.nees.push_back(out->converged ? nees_of(out->T_W_C, s.truth, P) : NAN);
         m.covariance.push_back(P);
-        const Eigen::AngleAxisd dr(s.truth.q_W_C * out->T_W_C.q_W_C.conjugate());
-        m.rotation_error.push_back(dr.angle() * dr.axis());
+        m.rotation_error.push_back(pose_error(out->T_W_C, s.truth).head<3>());
         m.residual_correlation.push_back(out->residual_correlation);
         m.iterations_used.push_back(out->iterations);
         m.reason.push_back(out->reason);

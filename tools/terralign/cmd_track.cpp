@@ -326,10 +326,9 @@ int run_track(const std::vector<std::string>& argv) {
     }
     if (!truth.empty()) {
       const geo::Pose& T = truth[i];
-      const Eigen::Vector3d dp = T.t_W_C - estimate.t_W_C;
-      const Eigen::AngleAxisd dr(T.q_W_C * estimate.q_W_C.conjugate());  // world-frame rotation error
-      pos_err.push_back(dp.norm());
-      ang_err.push_back(dr.angle() * 180 / kPi);
+      const Eigen::Matrix<double, 6, 1> e = pose_error(estimate, T);  // world-frame rotation, position
+      pos_err.push_back(e.tail<3>().norm());
+      ang_err.push_back(e.head<3>().norm() * 180 / kPi);
       if (ok || filter) {  // every estimate that has a covariance
         const double v = nees_of(estimate, T, cov);
         if (std::isfinite(v)) nees.push_back(v);

@@ -81,10 +81,15 @@ Eigen::Matrix<double, 6, 6> covariance_in_world(const Eigen::Matrix<double, 6, 6
   return J * cov_ref * J.transpose();
 }
 
-double nees_of(const geo::Pose& estimate, const geo::Pose& truth, const Eigen::Matrix<double, 6, 6>& P) {
+Eigen::Matrix<double, 6, 1> pose_error(const geo::Pose& estimate, const geo::Pose& truth) {
   const Eigen::AngleAxisd dr(truth.q_W_C * estimate.q_W_C.conjugate());
   Eigen::Matrix<double, 6, 1> e;
   e << dr.angle() * dr.axis(), truth.t_W_C - estimate.t_W_C;
+  return e;
+}
+
+double nees_of(const geo::Pose& estimate, const geo::Pose& truth, const Eigen::Matrix<double, 6, 6>& P) {
+  const Eigen::Matrix<double, 6, 1> e = pose_error(estimate, truth);
   const auto ldlt = P.ldlt();
   return ldlt.info() == Eigen::Success && ldlt.isPositive() ? e.dot(ldlt.solve(e)) : NAN;
 }

@@ -171,10 +171,12 @@ class Localizer {
 // to the world-frame [dtheta; dp] of LocalizeOutput::covariance.
 Eigen::Matrix<double, 6, 6> covariance_in_world(const Eigen::Matrix<double, 6, 6>& cov_ref,
                                                 const geo::Pose& T_W_ref, const iclk::SE3<double>& T_ref_live);
-// The normalised estimation error squared of a pose against the truth, e^T P^-1 e with e = (the
-// world-axis rotation error as angle x axis, the position error truth - estimate) and P the
-// estimate's covariance in that order (covariance_in_world's); NaN where P is not positive
-// definite. 6 expected where P is honest (eval's and track's NEES).
+// A pose's error against the truth in the covariance's order (covariance_in_world's): the
+// world-axis rotation truth * estimate^-1 as angle x axis (rad), then truth - estimate (m).
+Eigen::Matrix<double, 6, 1> pose_error(const geo::Pose& estimate, const geo::Pose& truth);
+// The normalised estimation error squared of a pose against the truth, e^T P^-1 e with e its
+// pose_error and P the estimate's covariance; NaN where P is not positive definite. 6
+// expected where P is honest (eval's and track's NEES).
 double nees_of(const geo::Pose& estimate, const geo::Pose& truth, const Eigen::Matrix<double, 6, 6>& P);
 
 // A pinhole copy of a camera, and the live image resampled to it (bilinear), for cameras
