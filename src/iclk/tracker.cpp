@@ -18,25 +18,46 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double ms(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
 
+// Whether two parameter sets are the same bits (an SE(3) pose or a homography's matrix).
+template <class S>
+bool same_params(const SE3<S>& a, const SE3<S>& b) {
+  return a.R == b.R && a.t == b.t;
+}
+template <class M>
+bool same_params(const M& a, const M& b) {
+  return a == b;
+}
+
 // Zero mean, unit variance per channel over the pixels where `mask` (if given) is finite.
+// One pass over the pixels sums every channel, each channel's sums in pixel order.
+template <int C>
 void normalize(ImageF& img, const ImageF* mask) {
-  const std::size_t C = static_cast<std::size_t>(img.channels());
-  for (std::size_t c = 0; c < C; ++c) {
-    double s = 0, s2 = 0;
-    long n = 0;
-    for (std::size_t k = c; k < img.size(); k += C) {
-      if (mask && !std::isfinite(mask->data()[k / C])) continue;
-      const double v = img.data()[k];
-      s += v;
-      s2 += v * v;
-      ++n;
+  const std::size_t pixels = img.size() / C;
+  float* d = img.data();
+  const float* m = mask ? mask->data() : nullptr;
+  double s[C] = {}, s2[C] = {};
+  long n = 0;
+  for (std::size_t k = 0; k < pixels; ++k) {
+    if (m && !std::isfinite(m[k])) continue;
+    for (int c = 0; c < C; ++c) {
+      const double v = d[k * C + static_cast<std::size_t>(c)];
+      s[c] += v;
+      s2[c] += v * v;
     }
-    if (n < 2) continue;
-    const double mean = s / static_cast<double>(n);
-    const double var = s2 / static_cast<double>(n) - mean * mean;
-    const double inv = var > 1e-20 ? 1.0 / std::sqrt(var) : 1.0;
-    for (std::size_t k = c; k < img.size(); k += C) img.data()[k] = static_cast<float>((img.data()[k] - mean) * inv);
+    ++n;
   }
+  if (n < 2) return;
+  double mean[C], inv[C];
+  for (int c = 0; c < C; ++c) {
+    mean[c] = s[c] / static_cast<double>(n);
+    const double var = s2[c] / static_cast<double>(n) - mean[c] * mean[c];
+    inv[c] = var > 1e-20 ? 1.0 / std::sqrt(var) : 1.0;
+  }
+  for (std::size_t k = 0; k < pixels; ++k)
+    for (int c = 0; c < C; ++c) {
+      float& v = d[k * C + static_cast<std::size_t>(c)];
+      v = static_cast<float>((v - mean[c]) * inv[c]);
+    }
 }
 
 // The covariance inflation f = ((1 + rho) / (1 - rho))^2 of a residual field whose
@@ -177,8 +198,8 @@ template <class S, class Warp, int C>
 void Tracker<S, Warp, C>::normalize_levels(bool live) {
   if (opt_.normalize)
     for (std::size_t l = 0; l < levels_in_use(); ++l) {
-      normalize(levels_[l].ref, &levels_[l].depth);
-      if (live) normalize(levels_[l].live, nullptr);
+      normalize<C>(levels_[l].ref, &levels_[l].depth);
+      if (live) normalize<C>(levels_[l].live, nullptr);
     }
   if (!live) return;  // the earlier alignment's, normalised and in planes already
   live_ready_ = levels_in_use();
@@ -875,7 +896,11 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       std::nth_element(r_.begin(), r_.begin() + n / 2, r_.begin() + n);
       depth_scale = static_cast<double>(r_[static_cast<std::size_t>(n / 2)]);
     }
-    if (level == 0) {
+    // The cost at the initial parameters, with the finest level's weights. Where the finest
+    // level starts there (one level, no search: a refinement pass), the first iteration's
+    // evaluation is the same one and gives it.
+    const bool init_from_first = level == 0 && opt_.iterations > 0 && same_params(p, init);
+    if (level == 0 && !init_from_first) {
       evaluate(n, init, K[0], g, Hout, cost, wsum);
       R.cost_init = wsum > 0 ? cost / wsum : 0;
       R.residual_init = mean_square_residual(n);
@@ -917,6 +942,10 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
     for (int it = 0; it < opt_.iterations; ++it) {
       const int valid = evaluate(n, p, K[level], g, Hout, cost, wsum);
       if (level == 0 && it == 0) R.cost_start = wsum > 0 ? cost / wsum : 0;
+      if (init_from_first && it == 0) {
+        R.cost_init = R.cost_start;
+        R.residual_init = mean_square_residual(n);
+      }
       if (valid < std::max(DoF * 4, level == 0 ? opt_.min_valid_pixels : 0)) {
         if (level == 0) return fail("too few pixels land inside the live image");
         break;
