@@ -566,13 +566,14 @@ struct VectorKernels {
   detail::Se3EvalFn se3 = nullptr;
   detail::OuterSumsFn outer = nullptr;
   detail::OuterSumsAtFn outer_at = nullptr;
+  detail::Se3JacobianFn jacobians = nullptr;  // AVX2 only: NEON runs the scalar one
 };
 VectorKernels vector_kernels() {
 #if defined(TERRALIGN_ICLK_AVX2)
   if (!cpu_features().avx2_fma) return {};
-  return {detail::evaluate_se3_avx2, detail::outer_sums_avx2, detail::outer_sums_at_avx2};
+  return {detail::evaluate_se3_avx2, detail::outer_sums_avx2, detail::outer_sums_at_avx2, detail::se3_jacobians_avx2};
 #else
-  return {detail::evaluate_se3_neon, detail::outer_sums_neon, detail::outer_sums_at_neon};
+  return {detail::evaluate_se3_neon, detail::outer_sums_neon, detail::outer_sums_at_neon, nullptr};
 #endif
 }
 
@@ -786,6 +787,124 @@ TEST_CASE("the J^T W J kernels: their vector builds (AVX2, NEON) and the scalar 
         OuterSums s4{};
         vector_kernels().outer_at(J, w.data(), index->data(), count, s4);
         CHECK(std::memcmp(&s3, &s4, sizeof s3) == 0);
+      }
+#endif
+    }
+  }
+}
+
+TEST_CASE("the Jacobian kernel: the warp's d_warp_d_xi with a Sobel / 8 gradient, and its AVX2 build the same bits (runs of eight, gathered and partial groups; 1, 2 and 4 channels)") {
+  using namespace detail;
+  const int W = 40, H = 23;
+  const Pinhole<float> K{35.0f, 33.0f, 19.5f, 11.0f};
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> U(-1, 1);
+  std::vector<float> depth(static_cast<std::size_t>(W) * H);
+  for (auto& d : depth) d = 100.0f + 40.0f * U(rng);
+  // Groups of pixels (x, y), each with a neighbour on every side: eight side by side on a row
+  // (the AVX2 build's plain loads), eight side by side across a row's end, eight scattered,
+  // three of a row and one alone (lanes past the count unwritten, adding +0 to the sums).
+  std::vector<std::vector<std::pair<int, int>>> groups = {{}, {}, {}, {}, {{17, 9}}};
+  for (int l = 0; l < 8; ++l) {
+    groups[0].push_back({5 + l, 7});
+    groups[1].push_back(l < 4 ? std::pair<int, int>{W - 5 + l, 3} : std::pair<int, int>{l - 3, 4});
+    groups[2].push_back({1 + (l * 13) % (W - 2), 1 + (l * 7) % (H - 2)});
+    if (l < 3) groups[3].push_back({W - 4 + l, H - 2});
+  }
+  for (const int C : {1, 2, 4}) {
+    CAPTURE(C);
+    std::vector<float> ref(static_cast<std::size_t>(W) * H * static_cast<std::size_t>(C));
+    for (auto& v : ref) v = 3.0f * U(rng);
+    Se3JacobianInput in;
+    in.ref = ref.data();
+    in.depth = depth.data();
+    in.width = W;
+    in.channels = C;
+    in.fx = K.fx;
+    in.fy = K.fy;
+    in.cx = K.cx;
+    in.cy = K.cy;
+    // Outputs of 8 pixels, 8 floats a plane, filled with a marker.
+    struct Out {
+      std::vector<float> buf = std::vector<float>(8 * (5 + 4 + 6 * 4), 7.0f);
+      Se3JacobianGroup g{};
+      Se3FinestSums sums{};
+      Out(int channels) {
+        float* p = buf.data();
+        g.pu = p;
+        g.pv = p + 8;
+        g.px = p + 16;
+        g.py = p + 24;
+        g.pz = p + 32;
+        g.val = p + 40;
+        g.plane = 8;
+        for (int a = 0; a < 6; ++a) g.jac[a] = p + 40 + 8 * channels + 8 * a;
+        g.jac_plane = 6 * 8;
+        // Sums already under way: the kernel adds to them.
+        for (auto& e : sums.motion)
+          for (int l = 0; l < 8; ++l) e[l] = 0.25f * static_cast<float>(l + 1);
+        for (auto& a : sums.floor)
+          for (auto& m : a)
+            for (int l = 0; l < 8; ++l) m[l] = -0.5f * static_cast<float>(l);
+      }
+    };
+    for (const auto& group : groups) {
+      const int count = static_cast<int>(group.size());
+      int xs[8] = {}, ys[8] = {};
+      for (int l = 0; l < count; ++l) {
+        xs[l] = group[static_cast<std::size_t>(l)].first;
+        ys[l] = group[static_cast<std::size_t>(l)].second;
+      }
+      Out a(C);
+      const Out start(C);
+      se3_jacobians_scalar(in, xs, ys, count, a.g, &a.sums);
+      // Against the warp's own Jacobian and a Sobel / 8 of each channel, pixel by pixel.
+      auto I = [&](int x, int y, int c) { return ref[(static_cast<std::size_t>(y) * W + static_cast<std::size_t>(x)) * static_cast<std::size_t>(C) + static_cast<std::size_t>(c)]; };
+      Se3FinestSums sums = start.sums;
+      for (int l = 0; l < 8; ++l) {
+        float wu[6] = {}, wv[6] = {}, mu = 0.0f, mv = 0.0f;
+        if (l < count) {
+          const int x = xs[l], y = ys[l];
+          const float u = static_cast<float>(x), v = static_cast<float>(y), d = depth[static_cast<std::size_t>(y * W + x)];
+          const Vec3<float> X(d * (u - K.cx) / K.fx, d * (v - K.cy) / K.fy, d);
+          const auto dW = SE3DepthWarp<float>::d_warp_d_xi(X, u, v, K);
+          CHECK((a.g.pu[l] == u && a.g.pv[l] == v && a.g.px[l] == X.x() && a.g.py[l] == X.y() && a.g.pz[l] == X.z()));
+          for (int c = 0; c < C; ++c) {
+            const float gx = (I(x + 1, y - 1, c) + 2.0f * I(x + 1, y, c) + I(x + 1, y + 1, c) - I(x - 1, y - 1, c) -
+                              2.0f * I(x - 1, y, c) - I(x - 1, y + 1, c)) / 8.0f;
+            const float gy = (I(x - 1, y + 1, c) + 2.0f * I(x, y + 1, c) + I(x + 1, y + 1, c) - I(x - 1, y - 1, c) -
+                              2.0f * I(x, y - 1, c) - I(x + 1, y - 1, c)) / 8.0f;
+            CHECK(a.g.val[c * 8 + l] == I(x, y, c));
+            for (int k = 0; k < 6; ++k) CHECK(a.g.jac[k][c * a.g.jac_plane + l] == gx * dW(0, k) + gy * dW(1, k));
+          }
+          for (int k = 0; k < 6; ++k) {
+            wu[k] = dW(0, k);
+            wv[k] = dW(1, k);
+          }
+          mu = u - K.cx;
+          mv = v - K.cy;
+        } else {  // not written
+          CHECK((a.g.pu[l] == 7.0f && a.g.pz[l] == 7.0f && a.g.val[l] == 7.0f && a.g.jac[5][l] == 7.0f));
+        }
+        int e = 0;
+        for (int p = 0; p < 6; ++p)
+          for (int q = 0; q <= p; ++q, ++e) sums.motion[e][l] += wu[p] * wu[q] + wv[p] * wv[q];
+        for (int p = 0; p < 6; ++p) {
+          const float radial = wu[p] * mu + wv[p] * mv;
+          const float modes[6] = {wu[p], wv[p], wv[p] * mu - wu[p] * mv, radial, radial * mu, radial * mv};
+          for (int m = 0; m < 6; ++m) sums.floor[p][m][l] += modes[m];
+        }
+      }
+      CHECK(std::memcmp(&sums, &a.sums, sizeof sums) == 0);
+#if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
+      if (vector_kernels().jacobians) {
+        Out b(C);
+        vector_kernels().jacobians(in, xs, ys, count, b.g, &b.sums);
+        CHECK(std::memcmp(a.buf.data(), b.buf.data(), a.buf.size() * sizeof(float)) == 0);
+        CHECK(std::memcmp(&a.sums, &b.sums, sizeof a.sums) == 0);
+        Out c(C);  // without the sums (the coarser levels)
+        vector_kernels().jacobians(in, xs, ys, count, c.g, nullptr);
+        CHECK(std::memcmp(a.buf.data(), c.buf.data(), a.buf.size() * sizeof(float)) == 0);
       }
 #endif
     }

@@ -122,6 +122,112 @@ void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
   s.n_out = n_out;
 }
 
+void se3_jacobians_avx2(const Se3JacobianInput& in, const int* xs, const int* ys, int count, Se3JacobianGroup& out,
+                        Se3FinestSums* sums) {
+  const __m256i lane_index = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256i used = _mm256_cmpgt_epi32(_mm256_set1_epi32(count), lane_index);
+  // Lanes past count repeat lane 0's pixel (inside the level) and are not written.
+  const __m256i first_x = _mm256_set1_epi32(xs[0]), first_y = _mm256_set1_epi32(ys[0]);
+  const __m256i xi = _mm256_blendv_epi8(first_x, _mm256_maskload_epi32(xs, used), used);
+  const __m256i yi = _mm256_blendv_epi8(first_y, _mm256_maskload_epi32(ys, used), used);
+  const __m256 u = _mm256_cvtepi32_ps(xi), v = _mm256_cvtepi32_ps(yi);
+  // Eight pixels side by side on one row (every pixel selected: the learned tracker's levels)
+  // load their taps plainly, one or two channels deinterleaved; else they are gathered.
+  const int C = in.channels, row = in.width * C;
+  const bool run = count == kLanes && ys[kLanes - 1] == ys[0] && xs[kLanes - 1] - xs[0] == kLanes - 1 && C <= 2;
+  const float* at0 = in.ref + static_cast<std::ptrdiff_t>(ys[0]) * row + static_cast<std::ptrdiff_t>(xs[0]) * C;
+  const __m256i centre = _mm256_add_epi32(_mm256_mullo_epi32(yi, _mm256_set1_epi32(row)), _mm256_mullo_epi32(xi, _mm256_set1_epi32(C)));
+  auto tap = [&](int c, int dx, int dy) {
+    if (!run) return _mm256_i32gather_ps(in.ref + c, _mm256_add_epi32(centre, _mm256_set1_epi32(dy * row + dx * C)), 4);
+    const float* p = at0 + dy * row + dx * C;
+    if (C == 1) return _mm256_loadu_ps(p);
+    // lo: lanes 0-3's two channels interleaved, hi: lanes 4-7's; channel c of lanes
+    // 0 1 4 5 | 2 3 6 7, then in lane order.
+    const __m256 lo = _mm256_loadu_ps(p), hi = _mm256_loadu_ps(p + kLanes);
+    const __m256 t = c == 0 ? _mm256_shuffle_ps(lo, hi, _MM_SHUFFLE(2, 0, 2, 0)) : _mm256_shuffle_ps(lo, hi, _MM_SHUFFLE(3, 1, 3, 1));
+    return _mm256_castpd_ps(_mm256_permute4x64_pd(_mm256_castps_pd(t), _MM_SHUFFLE(3, 1, 2, 0)));
+  };
+  const __m256 d = run ? _mm256_loadu_ps(in.depth + static_cast<std::ptrdiff_t>(ys[0]) * in.width + xs[0])
+                       : _mm256_i32gather_ps(in.depth, _mm256_add_epi32(_mm256_mullo_epi32(yi, _mm256_set1_epi32(in.width)), xi), 4);
+  const __m256 fx = _mm256_set1_ps(in.fx), fy = _mm256_set1_ps(in.fy);
+  const __m256 X = _mm256_div_ps(_mm256_mul_ps(d, _mm256_sub_ps(u, _mm256_set1_ps(in.cx))), fx);
+  const __m256 Y = _mm256_div_ps(_mm256_mul_ps(d, _mm256_sub_ps(v, _mm256_set1_ps(in.cy))), fy);
+  const __m256 Z = d;
+  const __m256 iz = _mm256_div_ps(_mm256_set1_ps(1.0f), Z);
+  const __m256 xn = _mm256_mul_ps(X, iz), yn = _mm256_mul_ps(Y, iz);
+  const __m256 sign = _mm256_set1_ps(-0.0f);
+  auto neg = [&](__m256 t) { return _mm256_xor_ps(t, sign); };
+  // The projection's derivatives: du/dX, du/dZ, dv/dY, dv/dZ.
+  const __m256 ux = _mm256_mul_ps(fx, iz), uz = _mm256_mul_ps(_mm256_mul_ps(neg(fx), xn), iz);
+  const __m256 vy = _mm256_mul_ps(fy, iz), vz = _mm256_mul_ps(_mm256_mul_ps(neg(fy), yn), iz);
+  const __m256 zero = _mm256_setzero_ps();
+  __m256 wu[6], wv[6];
+  wu[0] = _mm256_mul_ps(uz, Y);
+  wu[1] = _mm256_add_ps(_mm256_mul_ps(ux, Z), _mm256_mul_ps(uz, neg(X)));
+  wu[2] = _mm256_mul_ps(ux, neg(Y));
+  wu[3] = ux;
+  wu[4] = zero;
+  wu[5] = uz;
+  wv[0] = _mm256_add_ps(_mm256_mul_ps(vy, neg(Z)), _mm256_mul_ps(vz, Y));
+  wv[1] = _mm256_mul_ps(vz, neg(X));
+  wv[2] = _mm256_mul_ps(vy, X);
+  wv[3] = zero;
+  wv[4] = vy;
+  wv[5] = vz;
+  if (sums) {
+    // Lanes past count: dW and the offsets +0, as the scalar twin's.
+    const __m256 mask = _mm256_castsi256_ps(used);
+    __m256 mu = _mm256_and_ps(_mm256_sub_ps(u, _mm256_set1_ps(in.cx)), mask);
+    __m256 mv = _mm256_and_ps(_mm256_sub_ps(v, _mm256_set1_ps(in.cy)), mask);
+    __m256 su[6], sv[6];
+    for (int k = 0; k < 6; ++k) {
+      su[k] = _mm256_and_ps(wu[k], mask);
+      sv[k] = _mm256_and_ps(wv[k], mask);
+    }
+    int e = 0;
+    for (int a = 0; a < 6; ++a)
+      for (int b = 0; b <= a; ++b, ++e) {
+        const __m256 m = _mm256_add_ps(_mm256_mul_ps(su[a], su[b]), _mm256_mul_ps(sv[a], sv[b]));
+        _mm256_storeu_ps(sums->motion[e], _mm256_add_ps(_mm256_loadu_ps(sums->motion[e]), m));
+      }
+    for (int a = 0; a < 6; ++a) {
+      const __m256 radial = _mm256_add_ps(_mm256_mul_ps(su[a], mu), _mm256_mul_ps(sv[a], mv));
+      const __m256 modes[6] = {su[a], sv[a], _mm256_sub_ps(_mm256_mul_ps(sv[a], mu), _mm256_mul_ps(su[a], mv)), radial,
+                               _mm256_mul_ps(radial, mu), _mm256_mul_ps(radial, mv)};
+      for (int m = 0; m < 6; ++m)
+        _mm256_storeu_ps(sums->floor[a][m], _mm256_add_ps(_mm256_loadu_ps(sums->floor[a][m]), modes[m]));
+    }
+  }
+  auto put = [&](float* p, __m256 t) {
+    if (count == kLanes) _mm256_storeu_ps(p, t);
+    else _mm256_maskstore_ps(p, used, t);
+  };
+  put(out.pu, u);
+  put(out.pv, v);
+  put(out.px, X);
+  put(out.py, Y);
+  put(out.pz, Z);
+  const __m256 two = _mm256_set1_ps(2.0f), eighth = _mm256_set1_ps(8.0f);
+  for (int c = 0; c < C; ++c) {
+    auto I = [&](int dx, int dy) { return tap(c, dx, dy); };
+    const __m256 nw = I(-1, -1), n = I(0, -1), ne = I(1, -1), w = I(-1, 0), o = I(0, 0), east = I(1, 0);
+    const __m256 sw = I(-1, 1), s = I(0, 1), se = I(1, 1);
+    // (ne + 2 e + se - nw - 2 w - sw) / 8 and (sw + 2 s + se - nw - 2 n - ne) / 8, left to right.
+    const __m256 gx = _mm256_div_ps(
+        _mm256_sub_ps(_mm256_sub_ps(_mm256_sub_ps(_mm256_add_ps(_mm256_add_ps(ne, _mm256_mul_ps(two, east)), se), nw),
+                                    _mm256_mul_ps(two, w)),
+                      sw),
+        eighth);
+    const __m256 gy = _mm256_div_ps(
+        _mm256_sub_ps(_mm256_sub_ps(_mm256_sub_ps(_mm256_add_ps(_mm256_add_ps(sw, _mm256_mul_ps(two, s)), se), nw),
+                                    _mm256_mul_ps(two, n)),
+                      ne),
+        eighth);
+    for (int k = 0; k < 6; ++k) put(out.jac[k] + c * out.jac_plane, _mm256_add_ps(_mm256_mul_ps(gx, wu[k]), _mm256_mul_ps(gy, wv[k])));
+    put(out.val + c * out.plane, o);
+  }
+}
+
 namespace {
 
 // Pixels k of [0, count) in lane k mod kOuterLanes; get(p, k, n) loads the floats of pixels

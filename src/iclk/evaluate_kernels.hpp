@@ -54,6 +54,50 @@ void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
 void evaluate_se3_neon(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
 #endif
 
+// The set-up of a level for the 6-DoF warp with depth (Tracker::write_band): at each of up to
+// kLanes selected reference pixels (x[l], y[l]), lane l, the point X = (d (u - cx) / fx,
+// d (v - cy) / fy, d) of its depth d, its image motion dW = d(u, v) / d xi
+// (SE3DepthWarp::d_warp_d_xi, each entry the same IEEE operations as that 2 x 3 by 3 x 6
+// product's nonzero terms), and per channel the Sobel / 8 gradient (gx, gy), the Jacobian row
+// gx dW_u + gy dW_v and the pixel's value. Each pixel needs depth at (x, y) and its eight
+// neighbours inside the level; the same bits from every build.
+struct Se3JacobianInput {
+  const float* ref;    // the level's reference, `channels` interleaved, row-major
+  const float* depth;  // the level's depth, row-major
+  int width;           // pixels a row
+  int channels = 1;
+  float fx, fy, cx, cy;
+};
+
+struct Se3JacobianGroup {
+  // Written at [0, count) (the tracker's arrays at the group's first pixel): the pixel, the
+  // point, per channel c the value at val + c plane and parameter a's Jacobian at
+  // jac[a] + c jac_plane.
+  float *pu, *pv, *px, *py, *pz;
+  float* val;
+  float* jac[6];
+  std::ptrdiff_t plane = 0, jac_plane = 0;
+};
+
+// The finest level's sums over the selected pixels (Tracker::write_band), lane l of a group
+// into lane l: motion[e] += dW_u,a dW_u,b + dW_v,a dW_v,b for the lower half's e-th (a, b)
+// (row by row), and dW_a's product with each registration-floor mode of the pixel's offset
+// (mu, mv) = (u - cx, v - cy): floor[a][m] over u {1, 0, -mv, mu, mu^2, mu mv} and
+// v {0, 1, mu, mv, mu mv, mv^2}, as (dW_u m_u + dW_v m_v) with the radial mode's dot product
+// mu dW_u + mv dW_v taken once. Lanes past count add +0.
+struct Se3FinestSums {
+  float motion[21][kLanes];
+  float floor[6][6][kLanes];
+};
+
+// `sums`: the finest level's, added to (nullptr at the other levels).
+void se3_jacobians_scalar(const Se3JacobianInput& in, const int* x, const int* y, int count, Se3JacobianGroup& out,
+                          Se3FinestSums* sums);
+#if defined(TERRALIGN_ICLK_AVX2)
+void se3_jacobians_avx2(const Se3JacobianInput& in, const int* x, const int* y, int count, Se3JacobianGroup& out,
+                        Se3FinestSums* sums);
+#endif
+
 // J^T W J of one channel over pixels [i0, i1), added to `h` (the signature is
 // detail::OuterSumsFn): entry k of the lower half (row by row: (0,0), (1,0), (1,1), ...) of
 // pixel i goes to lane (i - i0) mod kOuterLanes, as (w_i J_ia) J_ib in double. A pixel whose

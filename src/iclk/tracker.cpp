@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include <Eigen/Cholesky>
@@ -125,10 +126,15 @@ Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& option
 template <class S, class Warp, int C>
 void Tracker<S, Warp, C>::pick_kernel() {
   se3_kernel_ = nullptr;
+  jacobian_kernel_ = nullptr;
   if constexpr (kSe3Kernel) {
     se3_kernel_ = detail::evaluate_se3_scalar;
+    jacobian_kernel_ = detail::se3_jacobians_scalar;
 #if defined(TERRALIGN_ICLK_AVX2)
-    if (opt_.simd && cpu_features().avx2_fma) se3_kernel_ = detail::evaluate_se3_avx2;
+    if (opt_.simd && cpu_features().avx2_fma) {
+      se3_kernel_ = detail::evaluate_se3_avx2;
+      jacobian_kernel_ = detail::se3_jacobians_avx2;
+    }
 #elif defined(TERRALIGN_ICLK_NEON)
     if (opt_.simd) se3_kernel_ = detail::evaluate_se3_neon;
 #endif
@@ -389,44 +395,89 @@ void Tracker<S, Warp, C>::write_band(int level, const Pinhole<S>& K, Band& band)
       }
     lanes = 0;
   };
+  // Finest level: one pixel's moments (in double, pixel by pixel).
+  auto add_moments = [&](S u, S v) {
+    const double du = static_cast<double>(u - K.cx), dv = static_cast<double>(v - K.cy);
+    const double r2 = du * du + dv * dv;
+    band.moments[0] += du * du;
+    band.moments[1] += dv * dv;
+    band.moments[2] += du * dv;
+    band.moments[3] += du * du * r2;
+    band.moments[4] += dv * dv * r2;
+  };
   int n = band.offset;
   const int* pick = pick_.data() + static_cast<std::size_t>(band.row0) * static_cast<std::size_t>(pick_cols_);
   const int blocks = (band.row1 - band.row0) * pick_cols_;
-  for (int k = 0; k < blocks; ++k) {
-    if (pick[k] < 0) continue;
-    const int x = pick[k] % L.w, y = pick[k] / L.w;
-    const S d = static_cast<S>(L.depth.at(x, y));
-    const S u = static_cast<S>(x), v = static_cast<S>(y);
-    const Vec3<S> X(d * (u - K.cx) / K.fx, d * (v - K.cy) / K.fy, d);
-    const typename Warp::Jac dW = Warp::d_warp_d_xi(X, u, v, K);
-    if (level == 0) {
-      for (int a = 0; a < DoF; ++a) {
-        wu[a][lanes] = dW(0, a);
-        wv[a][lanes] = dW(1, a);
+  if constexpr (kSe3Kernel) {
+    // The kernel, eight pixels at a time (a group's lanes are the sums' lanes).
+    detail::Se3JacobianInput in;
+    in.ref = L.ref.data();
+    in.depth = L.depth.data();
+    in.width = L.w;
+    in.channels = C;
+    in.fx = K.fx;
+    in.fy = K.fy;
+    in.cx = K.cx;
+    in.cy = K.cy;
+    detail::Se3JacobianGroup group;
+    group.plane = static_cast<std::ptrdiff_t>(jac_stride_);
+    group.jac_plane = static_cast<std::ptrdiff_t>(jac_stride_) * DoF;
+    detail::Se3FinestSums finest{};
+    int xs[kLanes], ys[kLanes], count = 0;
+    auto flush = [&]() {
+      group.pu = pu_.data() + n;
+      group.pv = pv_.data() + n;
+      group.px = px_.data() + n;
+      group.py = py_.data() + n;
+      group.pz = pz_.data() + n;
+      group.val = val_.data() + n;
+      for (int a = 0; a < DoF; ++a) group.jac[a] = &jac(n, 0, a);
+      jacobian_kernel_(in, xs, ys, count, group, level == 0 ? &finest : nullptr);
+      if (level == 0)
+        for (int l = 0; l < count; ++l) add_moments(static_cast<S>(xs[l]), static_cast<S>(ys[l]));
+      n += count;
+      count = 0;
+    };
+    for (int k = 0; k < blocks; ++k) {
+      if (pick[k] < 0) continue;
+      xs[count] = pick[k] % L.w;
+      ys[count] = pick[k] / L.w;
+      if (++count == kLanes) flush();
+    }
+    if (count > 0) flush();
+    std::memcpy(motion, finest.motion, sizeof motion);
+    std::memcpy(floor_sum, finest.floor, sizeof floor_sum);
+  } else {
+    for (int k = 0; k < blocks; ++k) {
+      if (pick[k] < 0) continue;
+      const int x = pick[k] % L.w, y = pick[k] / L.w;
+      const S d = static_cast<S>(L.depth.at(x, y));
+      const S u = static_cast<S>(x), v = static_cast<S>(y);
+      const Vec3<S> X(d * (u - K.cx) / K.fx, d * (v - K.cy) / K.fy, d);
+      const typename Warp::Jac dW = Warp::d_warp_d_xi(X, u, v, K);
+      if (level == 0) {
+        for (int a = 0; a < DoF; ++a) {
+          wu[a][lanes] = dW(0, a);
+          wv[a][lanes] = dW(1, a);
+        }
+        mu[lanes] = u - K.cx;
+        mv[lanes] = v - K.cy;
+        if (++lanes == kLanes) add_lanes();
+        add_moments(u, v);
       }
-      mu[lanes] = u - K.cx;
-      mv[lanes] = v - K.cy;
-      if (++lanes == kLanes) add_lanes();
-      const double du = static_cast<double>(u - K.cx), dv = static_cast<double>(v - K.cy);
-      const double r2 = du * du + dv * dv;
-      band.moments[0] += du * du;
-      band.moments[1] += dv * dv;
-      band.moments[2] += du * dv;
-      band.moments[3] += du * du * r2;
-      band.moments[4] += dv * dv * r2;
+      for (int c = 0; c < C; ++c) {
+        S gx, gy;
+        sobel(x, y, c, gx, gy);
+        for (int a = 0; a < DoF; ++a) jac(n, c, a) = gx * dW(0, a) + gy * dW(1, a);
+        val_[at(static_cast<std::size_t>(n), c)] = static_cast<S>(L.ref.at(x, y, c));
+      }
+      pu_[static_cast<std::size_t>(n)] = u;
+      pv_[static_cast<std::size_t>(n)] = v;
+      px_[static_cast<std::size_t>(n)] = X.x();
+      py_[static_cast<std::size_t>(n)] = X.y();
+      pz_[static_cast<std::size_t>(n)] = X.z();
+      ++n;
     }
-    for (int c = 0; c < C; ++c) {
-      S gx, gy;
-      sobel(x, y, c, gx, gy);
-      for (int a = 0; a < DoF; ++a) jac(n, c, a) = gx * dW(0, a) + gy * dW(1, a);
-      val_[at(static_cast<std::size_t>(n), c)] = static_cast<S>(L.ref.at(x, y, c));
-    }
-    pu_[static_cast<std::size_t>(n)] = u;
-    pv_[static_cast<std::size_t>(n)] = v;
-    px_[static_cast<std::size_t>(n)] = X.x();
-    py_[static_cast<std::size_t>(n)] = X.y();
-    pz_[static_cast<std::size_t>(n)] = X.z();
-    ++n;
   }
   if (level == 0) {
     if (lanes > 0) add_lanes();

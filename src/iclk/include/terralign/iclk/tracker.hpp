@@ -45,6 +45,12 @@ struct Se3EvalSums;
 // The residual kernel of the 6-DoF warp on one float channel (src/iclk/evaluate_kernels.hpp):
 // pixels [i0, i1), writes r and ok, fills the lane sums.
 using Se3EvalFn = void (*)(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
+// Its Jacobians at up to eight selected pixels, a level's set-up (evaluate_kernels.hpp).
+struct Se3JacobianInput;
+struct Se3JacobianGroup;
+struct Se3FinestSums;
+using Se3JacobianFn = void (*)(const Se3JacobianInput& in, const int* x, const int* y, int count, Se3JacobianGroup& out,
+                               Se3FinestSums* sums);
 // The lower half of a 6 x 6 J^T W J in lanes of double (evaluate_kernels.hpp).
 constexpr int kOuterLanes = 4;
 struct OuterSums {
@@ -382,6 +388,7 @@ class Tracker {
   // The 6-DoF float warp has a vector kernel (evaluate_kernels.hpp), run once per channel.
   static constexpr bool kSe3Kernel = std::is_same_v<S, float> && std::is_same_v<Warp, SE3DepthWarp<float>>;
   detail::Se3EvalFn se3_kernel_ = nullptr;
+  detail::Se3JacobianFn jacobian_kernel_ = nullptr;
   // J^T W J of the 6-DoF float trackers has one too, whatever the warp and channels.
   static constexpr bool kOuterKernel = std::is_same_v<S, float> && DoF == 6;
   detail::OuterSumsFn outer_kernel_ = nullptr;
