@@ -325,23 +325,34 @@ TEST_CASE("the layers Winograd suits (16 input channels or more, more than one o
   CHECK(conv_scratch_floats(pack_conv(wt.data(), bias.data(), 32, 16, 2, Act::Elu, 16)) == 16 * 8 * (32 + 64));
 }
 
-TEST_CASE("a forward pass gives the same bytes on 1 and 2 threads and allocates nothing") {
+TEST_CASE("a forward pass gives the same bytes on 1 and 2 threads and on a pool shared with another network, and allocates nothing") {
   const WeightFile weights = load("weights/lv19_tum_abc.tlw");
   auto one = Network::plan(weights, "encoder", 97, 61, 1);
   auto two = Network::plan(weights, "encoder", 97, 61, 2);
-  REQUIRE((one.ok() && two.ok()));
+  // Three threads (other bands) of a pool the M-estimator also runs on, in turn.
+  ThreadPool pool(3);
+  auto shared = Network::plan(weights, "encoder", 97, 61, 2, Simd::Auto, Memory::Shared, &pool);
+  auto other = Network::plan(weights, "mestimator", 97, 61, 2, Simd::Auto, Memory::Shared, &pool);
+  REQUIRE((one.ok() && two.ok() && shared.ok() && other.ok()));
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> u(-2, 2);
   Tensor* a = one.value()->input("x");
   Tensor* b = two.value()->input("x");
+  Tensor* d = shared.value()->input("x");
   for (int y = 0; y < 61; ++y)
     for (int x = 0; x < 97; ++x)
-      for (int c = 0; c < 8; ++c) a->at(y, x)[c] = b->at(y, x)[c] = u(rng);
+      for (int c = 0; c < 8; ++c) a->at(y, x)[c] = b->at(y, x)[c] = d->at(y, x)[c] = u(rng);
   one.value()->forward();
   test::AllocationCounter count;
   two.value()->forward();
+  other.value()->forward();
+  shared.value()->forward();
+  other.value()->forward();
   CHECK(count.allocations() == 0);
-  for (const char* o : {"f0", "f3", "e3_2"}) CHECK(same_pixels(*one.value()->output(o), *two.value()->output(o)));
+  for (const char* o : {"f0", "f3", "e3_2"}) {
+    CHECK(same_pixels(*one.value()->output(o), *two.value()->output(o)));
+    CHECK(same_pixels(*one.value()->output(o), *shared.value()->output(o)));
+  }
 }
 
 TEST_CASE("forward_until runs the first steps alone, and a pass again on the same input gives the same bytes") {

@@ -90,7 +90,7 @@ struct SE3Log<SE3<S>> {
 };
 
 template <class S, class Warp, int C>
-Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& options)
+Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& options, ThreadPool* pool)
     : opt_(options), width_(width), height_(height) {
   opt_.levels = std::max(1, std::min(6, opt_.levels));
   int w = width, h = height;
@@ -118,7 +118,11 @@ Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& option
   if (kSe3Kernel) out_index_.resize(partials_.size() * kChunk);
   bands_.resize(kBands);
   pick_.resize(n);  // blocks of one pixel at the finest level at most
-  pool_ = std::make_unique<ThreadPool>(std::max(1, opt_.threads));
+  if (!pool) {
+    own_pool_ = std::make_unique<ThreadPool>(std::max(1, opt_.threads));
+    pool = own_pool_.get();
+  }
+  pool_ = pool;
   ok_.resize(n);
   pick_kernel();
 }

@@ -107,6 +107,9 @@ class DeepAligner : public iclk::LevelWeights {
   // Encodes the finest `levels` levels into out (the encoder stops at the last step they need).
   void encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out, int levels);
   int width_ = 0, height_ = 0, levels_ = 0, channels_ = 1;
+  // One pool for the encoder, the M-estimators and the solver, which run one after another
+  // (declared first: it outlives them).
+  std::unique_ptr<ThreadPool> pool_;
   std::unique_ptr<nn::Network> encoder_;
   std::array<std::unique_ptr<nn::Network>, kMaxLevels> mest_;
   // The networks' tensors, looked up once: the encoder's input and level outputs, each

@@ -247,7 +247,10 @@ class Tracker {
   static constexpr int DoF = Warp::DoF;
 
   // Sizes every buffer for images of width x height at the finest level.
-  Tracker(int width, int height, const TrackerOptions& options);
+  // `pool`: the caller's pool to run on (shared with its other work, e.g. the learned
+  // tracker's networks; it must outlive the tracker, and its thread count replaces
+  // options.threads), else the tracker starts one of options.threads.
+  Tracker(int width, int height, const TrackerOptions& options, ThreadPool* pool = nullptr);
 
   const TrackerOptions& options() const { return opt_; }
   void set_options(const TrackerOptions& o);  // same sizes; at most the levels it was built with
@@ -382,7 +385,8 @@ class Tracker {
   std::vector<Band> bands_;
   std::vector<int> pick_;  // per block of the level: its chosen pixel (y * w + x), or -1
   int pick_cols_ = 0, pick_block_ = 1;
-  std::unique_ptr<ThreadPool> pool_;
+  std::unique_ptr<ThreadPool> own_pool_;  // without a caller's pool
+  ThreadPool* pool_ = nullptr;
   void evaluate_chunk(int chunk, int n, const Params& p, const Pinhole<S>& K);
   void add_outer(Partial& P, int i);  // pixel i's share of J^T W J into P.H_out (a pixel that left; hessian())
   // The 6-DoF float warp has a vector kernel (evaluate_kernels.hpp), run once per channel.

@@ -63,10 +63,14 @@ class Network {
  public:
   // Checks the description against the weights (every conv's tensors present with the
   // right shapes; a tensor no network uses is an error), sizes every tensor for an input of
-  // width x height, and packs the weights.
+  // width x height, and packs the weights. `pool`: the caller's pool to run on (its thread
+  // count replaces `threads`), which must outlive the network and is not used by two callers
+  // at once; else the network starts a pool of its own. One pool for the networks and the
+  // solver of a pipeline keeps one worker awake between them, where a pool each woke a
+  // sleeping thread at every hand-over.
   static Result<std::unique_ptr<Network>> plan(const WeightFile& weights, const std::string& net, int width, int height,
                                                int threads = 2, Simd simd = Simd::Auto,
-                                               Memory memory = Memory::Shared);
+                                               Memory memory = Memory::Shared, ThreadPool* pool = nullptr);
 
   // The input tensor to fill (h x w x c, see tensor.hpp), or null for an unknown name.
   Tensor* input(const std::string& name);
@@ -128,7 +132,8 @@ class Network {
   std::vector<std::string> names_;  // tensor names, by index
   std::vector<ConvWeights> convs_;
   std::vector<Step> steps_;
-  std::unique_ptr<ThreadPool> pool_;
+  std::unique_ptr<ThreadPool> own_pool_;  // without a caller's pool
+  ThreadPool* pool_ = nullptr;
   ConvRowsFn conv_ = conv3x3_rows_scalar;
   const char* simd_name_ = "scalar";
   bool profile_ = false;
