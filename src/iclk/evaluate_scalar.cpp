@@ -57,58 +57,59 @@ void evaluate_se3_scalar(const Se3EvalInput& in, int i0, int i1, float* r, unsig
 void se3_jacobians_scalar(const Se3JacobianInput& in, const int* xs, const int* ys, int count, Se3JacobianGroup& out,
                           Se3FinestSums* sums) {
   const std::ptrdiff_t row = static_cast<std::ptrdiff_t>(in.width) * in.channels;
-  for (int l = 0; l < kLanes; ++l) {
-    float wu[6] = {}, wv[6] = {}, mu = 0.0f, mv = 0.0f;
-    if (l < count) {
-      const int x = xs[l], y = ys[l];
-      const float u = static_cast<float>(x), v = static_cast<float>(y);
-      const float d = in.depth[static_cast<std::ptrdiff_t>(y) * in.width + x];
-      const float X = d * (u - in.cx) / in.fx, Y = d * (v - in.cy) / in.fy, Z = d;
-      const float iz = 1.0f / Z, xn = X * iz, yn = Y * iz;
-      // The projection's derivatives du/dX, du/dZ, dv/dY, dv/dZ: [ux 0 uz; 0 vy vz] times
-      // [-hat(X) I] gives the rows of dW.
-      const float ux = in.fx * iz, uz = -in.fx * xn * iz, vy = in.fy * iz, vz = -in.fy * yn * iz;
-      wu[0] = uz * Y;
-      wu[1] = ux * Z + uz * -X;
-      wu[2] = ux * -Y;
-      wu[3] = ux;
-      wu[5] = uz;
-      wv[0] = vy * -Z + vz * Y;
-      wv[1] = vz * -X;
-      wv[2] = vy * X;
-      wv[4] = vy;
-      wv[5] = vz;
-      const float* p = in.ref + static_cast<std::ptrdiff_t>(y) * row + static_cast<std::ptrdiff_t>(x) * in.channels;
-      const std::ptrdiff_t dx = in.channels;
-      for (int c = 0; c < in.channels; ++c, ++p) {
-        const float gx = (p[dx - row] + 2.0f * p[dx] + p[dx + row] - p[-dx - row] - 2.0f * p[-dx] - p[-dx + row]) / 8.0f;
-        const float gy = (p[row - dx] + 2.0f * p[row] + p[row + dx] - p[-row - dx] - 2.0f * p[-row] - p[-row + dx]) / 8.0f;
-        for (int k = 0; k < 6; ++k) out.jac[k][c * out.jac_plane + l] = gx * wu[k] + gy * wv[k];
-        out.val[c * out.plane + l] = p[0];
-      }
-      out.pu[l] = u;
-      out.pv[l] = v;
-      out.px[l] = X;
-      out.py[l] = Y;
-      out.pz[l] = Z;
-      mu = u - in.cx;
-      mv = v - in.cy;
+  // dW's rows and the pixel's offset from the principal point per lane (+0 past count).
+  float wu[6][kLanes] = {}, wv[6][kLanes] = {}, mu[kLanes] = {}, mv[kLanes] = {};
+  for (int l = 0; l < count; ++l) {
+    const int x = xs[l], y = ys[l];
+    const float u = static_cast<float>(x), v = static_cast<float>(y);
+    const float d = in.depth[static_cast<std::ptrdiff_t>(y) * in.width + x];
+    const float X = d * (u - in.cx) / in.fx, Y = d * (v - in.cy) / in.fy, Z = d;
+    const float iz = 1.0f / Z, xn = X * iz, yn = Y * iz;
+    // The projection's derivatives du/dX, du/dZ, dv/dY, dv/dZ: [ux 0 uz; 0 vy vz] times
+    // [-hat(X) I] gives the rows of dW.
+    const float ux = in.fx * iz, uz = -in.fx * xn * iz, vy = in.fy * iz, vz = -in.fy * yn * iz;
+    wu[0][l] = uz * Y;
+    wu[1][l] = ux * Z + uz * -X;
+    wu[2][l] = ux * -Y;
+    wu[3][l] = ux;
+    wu[5][l] = uz;
+    wv[0][l] = vy * -Z + vz * Y;
+    wv[1][l] = vz * -X;
+    wv[2][l] = vy * X;
+    wv[4][l] = vy;
+    wv[5][l] = vz;
+    const float* p = in.ref + static_cast<std::ptrdiff_t>(y) * row + static_cast<std::ptrdiff_t>(x) * in.channels;
+    const std::ptrdiff_t dx = in.channels;
+    for (int c = 0; c < in.channels; ++c, ++p) {
+      const float gx = (p[dx - row] + 2.0f * p[dx] + p[dx + row] - p[-dx - row] - 2.0f * p[-dx] - p[-dx + row]) / 8.0f;
+      const float gy = (p[row - dx] + 2.0f * p[row] + p[row + dx] - p[-row - dx] - 2.0f * p[-row] - p[-row + dx]) / 8.0f;
+      for (int k = 0; k < 6; ++k) out.jac[k][c * out.jac_plane + l] = gx * wu[k][l] + gy * wv[k][l];
+      out.val[c * out.plane + l] = p[0];
     }
-    if (!sums) continue;
-    int e = 0;
-    for (int a = 0; a < 6; ++a)
-      for (int b = 0; b <= a; ++b, ++e) sums->motion[e][l] += wu[a] * wu[b] + wv[a] * wv[b];
-    for (int a = 0; a < 6; ++a) {
-      const float radial = wu[a] * mu + wv[a] * mv;
-      float* f = &sums->floor[a][0][0];
-      f[0 * kLanes + l] += wu[a];
-      f[1 * kLanes + l] += wv[a];
-      f[2 * kLanes + l] += wv[a] * mu - wu[a] * mv;
-      f[3 * kLanes + l] += radial;
-      f[4 * kLanes + l] += radial * mu;
-      f[5 * kLanes + l] += radial * mv;
-    }
+    out.pu[l] = u;
+    out.pv[l] = v;
+    out.px[l] = X;
+    out.py[l] = Y;
+    out.pz[l] = Z;
+    mu[l] = u - in.cx;
+    mv[l] = v - in.cy;
   }
+  if (!sums) return;
+  // Lane by lane, the lanes innermost (the loops a compiler vectorises).
+  int e = 0;
+  for (int a = 0; a < 6; ++a)
+    for (int b = 0; b <= a; ++b, ++e)
+      for (int l = 0; l < kLanes; ++l) sums->motion[e][l] += wu[a][l] * wu[b][l] + wv[a][l] * wv[b][l];
+  for (int a = 0; a < 6; ++a)
+    for (int l = 0; l < kLanes; ++l) {
+      const float radial = wu[a][l] * mu[l] + wv[a][l] * mv[l];
+      sums->floor[a][0][l] += wu[a][l];
+      sums->floor[a][1][l] += wv[a][l];
+      sums->floor[a][2][l] += wv[a][l] * mu[l] - wu[a][l] * mv[l];
+      sums->floor[a][3][l] += radial;
+      sums->floor[a][4][l] += radial * mu[l];
+      sums->floor[a][5][l] += radial * mv[l];
+    }
 }
 
 namespace {
