@@ -33,24 +33,10 @@ bool comment_value(const nn::WeightFile& weights, const std::string& key, std::s
   return false;
 }
 
-// f(y0, y1) over h rows in one band a thread of the pool: per-pixel work whose rows are
-// independent, so the bytes do not depend on the split.
-template <class F>
-void for_rows(ThreadPool& pool, int h, const F& f) {
-  struct Ctx {
-    const F* f;
-    int h, bands;
-  } ctx{&f, h, pool.threads()};
-  pool.run(ctx.bands, [](void* p, int i) {
-    const auto* c = static_cast<const Ctx*>(p);
-    (*c->f)(c->h * i / c->bands, c->h * (i + 1) / c->bands);
-  }, &ctx);
-}
-
 // Bilinear resize of one channel, PyTorch's interpolate(size, align_corners = False): the
-// source coordinate of output pixel i is (i + 0.5) in / out - 0.5, clamped at 0. Rows
-// [y0, y1) of the output.
-void resize_bilinear(const ImageF& in, ImageF& out, int w, int h, int y0, int y1) {
+// source coordinate of output pixel i is (i + 0.5) in / out - 0.5, clamped at 0. Row y of
+// the output.
+void resize_bilinear_row(const ImageF& in, ImageF& out, int w, int h, int y) {
   auto src = [](int i, int n_in, int n_out, int& i0, int& i1, float& f) {
     float s = (static_cast<float>(i) + 0.5f) * (static_cast<float>(n_in) / static_cast<float>(n_out)) - 0.5f;
     s = std::max(s, 0.0f);
@@ -58,17 +44,15 @@ void resize_bilinear(const ImageF& in, ImageF& out, int w, int h, int y0, int y1
     i1 = std::min(i0 + 1, n_in - 1);
     f = s - static_cast<float>(i0);
   };
-  for (int y = y0; y < y1; ++y) {
-    int ya, yb;
-    float fy;
-    src(y, in.height(), h, ya, yb, fy);
-    for (int x = 0; x < w; ++x) {
-      int xa, xb;
-      float fx;
-      src(x, in.width(), w, xa, xb, fx);
-      const float a = in.at(xa, ya), b = in.at(xb, ya), c = in.at(xa, yb), d = in.at(xb, yb);
-      out.at(x, y) = (1.0f - fy) * ((1.0f - fx) * a + fx * b) + fy * ((1.0f - fx) * c + fx * d);
-    }
+  int ya, yb;
+  float fy;
+  src(y, in.height(), h, ya, yb, fy);
+  for (int x = 0; x < w; ++x) {
+    int xa, xb;
+    float fx;
+    src(x, in.width(), w, xa, xb, fx);
+    const float a = in.at(xa, ya), b = in.at(xb, ya), c = in.at(xa, yb), d = in.at(xb, yb);
+    out.at(x, y) = (1.0f - fy) * ((1.0f - fx) * a + fx * b) + fy * ((1.0f - fx) * c + fx * d);
   }
 }
 
@@ -208,23 +192,20 @@ void DeepAligner::set_iterations(int n) {
 
 void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out, int levels) {
   nn::Tensor* x = enc_in_;
-  for_rows(*pool_, height_, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y) {
-      const float* s = rgb.row(y);
-      for (int i = 0; i < width_; ++i, s += 3) {
-        float* p = x->at(y, i);
-        for (int c = 0; c < 3; ++c) p[c] = (s[c] / 255.0f - kMean[c]) / kStd[c];
-      }
+  for_rows(*pool_, height_, [&](int y) {
+    const float* s = rgb.row(y);
+    for (int i = 0; i < width_; ++i, s += 3) {
+      float* p = x->at(y, i);
+      for (int c = 0; c < 3; ++c) p[c] = (s[c] / 255.0f - kMean[c]) / kStd[c];
     }
   });
   encoder_->forward_until(enc_until_[static_cast<std::size_t>(levels - 1)]);
   for (int l = 0; l < levels; ++l) {
     const nn::Tensor* f = enc_out_[static_cast<std::size_t>(l)];
     ImageF& o = out[static_cast<std::size_t>(l)];
-    for_rows(*pool_, f->h, [&](int y0, int y1) {
-      for (int y = y0; y < y1; ++y)
-        for (int i = 0; i < f->w; ++i)
-          for (int c = 0; c < channels_; ++c) o.at(i, y, c) = f->at(y, i)[c];
+    for_rows(*pool_, f->h, [&](int y) {
+      for (int i = 0; i < f->w; ++i)
+        for (int c = 0; c < channels_; ++c) o.at(i, y, c) = f->at(y, i)[c];
     });
   }
 }
@@ -246,23 +227,21 @@ void DeepAligner::weights(int level, ImageView<const float> abs_r, ImageView<con
     for (int c = 0; c < channels_; ++c) s += f.at(i, y, c);
     return s * inv;
   };
-  for_rows(*pool_, h, [&](int y0, int y1) {
-    if (!coarsest) resize_bilinear(w_[static_cast<std::size_t>(level + 1)], up_, w, h, y0, y1);
-    for (int y = y0; y < y1; ++y)
-      for (int i = 0; i < w; ++i) {
-        float* p = x->at(y, i);
-        p[0] = abs_r.at(i, y);
-        p[1] = mean(ref, i, y);
-        p[2] = mean(live, i, y);
-        p[3] = coarsest ? 1.0f : up_.at(i, y);
-      }
+  for_rows(*pool_, h, [&](int y) {
+    if (!coarsest) resize_bilinear_row(w_[static_cast<std::size_t>(level + 1)], up_, w, h, y);
+    for (int i = 0; i < w; ++i) {
+      float* p = x->at(y, i);
+      p[0] = abs_r.at(i, y);
+      p[1] = mean(ref, i, y);
+      p[2] = mean(live, i, y);
+      p[3] = coarsest ? 1.0f : up_.at(i, y);
+    }
   });
   m.forward();
   const nn::Tensor* wt = mest_out_[static_cast<std::size_t>(level)];
   ImageF& keep = w_[static_cast<std::size_t>(level)];
-  for_rows(*pool_, h, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y)
-      for (int i = 0; i < w; ++i) out.at(i, y) = keep.at(i, y) = wt->at(y, i)[0];
+  for_rows(*pool_, h, [&](int y) {
+    for (int i = 0; i < w; ++i) out.at(i, y) = keep.at(i, y) = wt->at(y, i)[0];
   });
   ms_mest_ += elapsed_ms(t0);
 }

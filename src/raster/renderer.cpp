@@ -233,21 +233,6 @@ struct Renderer::Impl {
 
 namespace {
 
-// Calls fn(y) for y in [0, rows), split into fixed blocks of rows over the pool's threads
-// (each row is written by one call only, so the bytes do not depend on the thread count).
-template <class F>
-void for_rows(ThreadPool& pool, int rows, F fn) {
-  struct Ctx {
-    F* fn;
-    int rows;
-  } ctx{&fn, rows};
-  constexpr int kRows = 64;
-  pool.run((rows + kRows - 1) / kRows, [](void* c, int i) {
-    auto* x = static_cast<Ctx*>(c);
-    for (int y = i * kRows; y < std::min(x->rows, (i + 1) * kRows); ++y) (*x->fn)(y);
-  }, &ctx);
-}
-
 void build_mips(const geo::Layer& L, LayerTexture& T, ThreadPool& pool) {
   const int w0 = L.rgba.width(), h0 = L.rgba.height();
   T.levels = mip_chain(w0, h0, kMaxMipLevels);

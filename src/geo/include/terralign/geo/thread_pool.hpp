@@ -63,4 +63,20 @@ class ThreadPool {
 #endif
 };
 
+// Calls fn(y) for y in [0, rows), split into fixed blocks of `block` rows over the pool's
+// threads (each row is written by one call only, so the bytes do not depend on the thread
+// count). Allocates nothing.
+template <class F>
+void for_rows(ThreadPool& pool, int rows, F fn, int block = 64) {
+  struct Ctx {
+    F* fn;
+    int rows, block;
+  } ctx{&fn, rows, block};
+  pool.run((rows + block - 1) / block, [](void* c, int i) {
+    auto* x = static_cast<Ctx*>(c);
+    const int end = x->rows < (i + 1) * x->block ? x->rows : (i + 1) * x->block;
+    for (int y = i * x->block; y < end; ++y) (*x->fn)(y);
+  }, &ctx);
+}
+
 }  // namespace terralign
