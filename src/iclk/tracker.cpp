@@ -427,6 +427,8 @@ void Tracker<S, Warp, C>::write_band(int level, const Pinhole<S>& K, Band& band)
     group.plane = static_cast<std::ptrdiff_t>(jac_stride_);
     group.jac_plane = static_cast<std::ptrdiff_t>(jac_stride_) * DoF;
     detail::Se3FinestSums finest{};
+    static_assert(kLanes == detail::kLanes && sizeof motion == sizeof finest.motion && sizeof floor_sum == sizeof finest.floor,
+                  "the kernel's lanes are the sums' lanes: its sums are copied into them");
     int xs[kLanes], ys[kLanes], count = 0;
     auto flush = [&]() {
       group.pu = pu_.data() + n;
