@@ -793,7 +793,7 @@ TEST_CASE("the J^T W J kernels: their vector builds (AVX2, NEON) and the scalar 
   }
 }
 
-TEST_CASE("the Jacobian kernel: the warp's d_warp_d_xi with a Sobel / 8 gradient, and its AVX2 build the same bits (runs of eight, gathered and partial groups; 1, 2 and 4 channels)") {
+TEST_CASE("the Jacobian kernel: the warp's d_warp_d_xi with a Sobel / 8 gradient, and its AVX2 build the same bits (runs of eight, gathered and partial groups, in 1, 2 and 4 channels)") {
   using namespace detail;
   const int W = 40, H = 23;
   const Pinhole<float> K{35.0f, 33.0f, 19.5f, 11.0f};

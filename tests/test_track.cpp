@@ -403,7 +403,7 @@ TEST_CASE("dataset: the same seed gives the same bytes, and training and validat
 #endif
 
 #if defined(TERRALIGN_CLI)
-TEST_CASE("eval --prior-scale: the same true poses with priors nearer by the factor; --json holds each pose's truth and ground shift") {
+TEST_CASE("eval --prior-scale: the same true poses with priors nearer by the factor, and --json holds each pose's truth and ground shift") {
   const std::string tl = TERRALIGN_CLI;
   const std::string map = test::source_path("data/naip_west/map.json");
   const std::string cam = test::source_path("data/cameras/uav_752x480.json");
