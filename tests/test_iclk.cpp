@@ -212,6 +212,40 @@ TEST_CASE("a rendered same-layer pair with a known small relative pose converges
   CHECK(converge_same_layer(naip.value(), "2016") < 0.05);
 }
 
+TEST_CASE("min_step_px stops the finest level once a step moves the image by less, and the answer stays within it") {
+  auto naip = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(naip.ok());
+  const geo::CameraModel cam = test::paper_camera();
+  const geo::Pose truth = geo::pose_from_ypr({487450, 5207437, 570 + 800}, 30, 2, -3);
+  const geo::Pose prior = geo::pose_from_ypr({487450 + 12, 5207437 - 9, 570 + 806}, 31.5, 1, -2);
+  const Pair p = render_pair(naip.value(), cam, prior, truth, "2016", "2016");
+  const Pinhole<float> Kf{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
+  TrackerOptions opt;
+  opt.iterations = 50;
+  opt.step_tol = 0;  // never: every level runs its 50 steps unless the motion stop ends it
+  SE3<double> answer[2];
+  int iterations[2] = {0, 0};
+  for (int k = 0; k < 2; ++k) {
+    opt.min_step_px = k ? 0.01 : 0.0;
+    Tracker<float, SE3DepthWarp<float>, 1> tracker(cam.width, cam.height, opt);
+    const auto& res = tracker.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), Kf, SE3<float>::identity());
+    REQUIRE(res.converged);
+    answer[k] = res.params.cast<double>();
+    iterations[k] = res.iterations;
+  }
+  const double e0 = epe_px(p, answer[0]), e1 = epe_px(p, answer[1]);
+  MESSAGE("every step: " << iterations[0] << " iterations, EPE " << e0 << " px; min_step_px 0.01: " << iterations[1]
+                         << ", EPE " << e1 << " px");
+  CHECK(iterations[0] == 4 * 50);
+  // The coarse levels run all their steps; the finest stops early.
+  CHECK(iterations[1] > 3 * 50);
+  CHECK(iterations[1] < 4 * 50);
+  // Steps under 0.01 px that shrink as LM converges add up to a few hundredths: the answers
+  // differ by far less than the 0.05 px this same-layer pair is registered to (test above).
+  CHECK(std::abs(e1 - e0) < 0.02);
+  CHECK(e1 < 0.05);
+}
+
 TEST_CASE("the coarse search starts the coarsest level nearer a prior that is a few coarse pixels off") {
   auto naip = geo::load_map(test::source_path("data/naip_west/map.json"));
   REQUIRE(naip.ok());

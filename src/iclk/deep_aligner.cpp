@@ -158,6 +158,7 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   o.block.fill(1);
   o.robust = iclk::Robust::None;
   if (o.agree_px == 0) o.agree_px = kAgreePx;
+  if (o.min_step_px == 0) o.min_step_px = kMinStepPx;
   if (o.coarse_search_px == 0) o.coarse_search_px = kCoarseSearchPx;
   if (o.coarse_search_yaw_deg == 0) o.coarse_search_yaw_deg = kCoarseSearchYawDeg;
   if (o.coarse_search_px < 0) o.coarse_search_px = 0;  // no search at all

@@ -966,6 +966,8 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
     // the step's size is returned (rad, and m per metre of median depth), or -1 with `why`
     // set when the step is not finite or exceeds the bound. `level_start`: the first step of
     // the level, which measures the image noise that weighs the tilt prior.
+    // The last step, for its image motion (TrackerOptions::min_step_px).
+    Eigen::Matrix<double, DoF, 1> delta;
     auto lm_step = [&](Params& q, bool level_start, const char*& why) -> double {
       Hv = H - Hout;
       Eigen::Matrix<double, DoF, DoF> A = Hv;
@@ -981,7 +983,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
         A.template topLeftCorner<3, 3>() += P;
         rhs.template head<3>() += P * e;
       }
-      const Eigen::Matrix<double, DoF, 1> delta = A.ldlt().solve(rhs);
+      delta = A.ldlt().solve(rhs);
       if (!delta.allFinite()) {
         why = "numerical failure: the step is not finite";
         return -1;
@@ -995,6 +997,11 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       Warp::update(q, delta.template cast<S>());
       if (!Warp::kNeedsDepth) return delta.norm();
       return std::max(delta.template head<3>().norm(), delta.template segment<3>(DoF - 3).norm() / depth_scale);
+    };
+    // Whether the last step moved the finest level's image by less than min_step_px.
+    auto still = [&] {
+      if constexpr (Warp::kNeedsDepth) return level == 0 && opt_.min_step_px > 0 && rms_motion_px(delta, n) < opt_.min_step_px;
+      return false;
     };
     for (int it = 0; it < opt_.iterations; ++it) {
       const int valid = evaluate(n, p, K[level], g, Hout, cost, wsum);
@@ -1011,7 +1018,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       const double step = lm_step(p, it == 0, why);
       if (why) return fail(why);
       ++R.iterations;
-      if (step < opt_.step_tol) break;
+      if (step < opt_.step_tol || still()) break;
     }
     R.ms_iterations += ms(ti, Clock::now());
     if (level == 0) {
@@ -1109,7 +1116,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
             const bool inside = evaluate(n, q, K[0], g, Hout, cost, wsum) >= opt_.min_valid_pixels;
             const double step = inside ? lm_step(q, false, why) : -1.0;
             settled = step >= 0;
-            if (settled && step < opt_.step_tol) break;
+            if (settled && (step < opt_.step_tol || still())) break;
           }
           R.disagreement_px = settled ? rms_motion_px(SE3Log<Params>::of(p, q), n) : INFINITY;
           R.ms_iterations += ms(ta, Clock::now());
