@@ -202,6 +202,18 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   check_refused(cmd + "--min-sharpness 1001", dir + "/err.txt", "--min-sharpness '1001' must be in [-1000, 1000]");
   check_refused(cmd + "--max-disagreement -1001", dir + "/err.txt", "--max-disagreement '-1001' must be in [-1000, 1000]");
   check_refused(cmd + "--coarse-search 17", dir + "/err.txt", "--coarse-search '17' must be an integer in [-1, 16]");
+  check_refused(cmd + "--min-step 11", dir + "/err.txt", "--min-step '11' must be in [-1, 10] working pixels");
+  // --min-step reaches the learned tracker: every step (-1) takes more iterations over the
+  // flight than the default stop at 0.01 px (369 against 347 when written).
+  auto flight_iterations = [&](const std::string& extra) {
+    REQUIRE(run(cmd + extra) == 0);
+    int sum = 0;
+    for (const auto& r : csv_rows(dir + "/sharp.csv")) sum += std::stoi(r[10]);
+    return sum;
+  };
+  const int every = flight_iterations("--min-step -1"), stop = flight_iterations("");
+  MESSAGE("iterations over the flight: every step " << every << ", the default stop " << stop);
+  CHECK(stop < every);
   // --nn-levels reaches the learned tracker: with 3 iterations a level, all five levels take
   // 14-15 steps a frame, the finest alone at most 3.
   for (const int levels : {0, 1}) {

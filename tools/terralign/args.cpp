@@ -115,6 +115,10 @@ Result<iclk::TrackerOptions> parse_tracker_options(const Args& args) {
                  "' must be in [-1000, 1000] working pixels (negative: no agreement test)"};
   opt.max_disagreement_px = agree.value();
   TERRALIGN_TRY_ASSIGN(opt.coarse_search_px, args.get_int("coarse-search", 0, -1, 16));
+  auto min_step = args.get_double("min-step", 0.0);
+  if (!min_step.ok() || !(min_step.value() >= -1 && min_step.value() <= 10))
+    return Error{"--min-step '" + args.get("min-step") + "' must be in [-1, 10] working pixels (negative: none)"};
+  opt.min_step_px = min_step.value();
   return opt;
 }
 

@@ -61,6 +61,9 @@ Result<nn::WeightFile> learned_weights(const Args& args);
 // --coarse-search PX: the search before the coarsest level (coarse_search_px), in [-1, 16]
 //   coarsest-level pixels; 0 (the default): each tracker's own (kClassicCoarseSearchPx,
 //   iclk::DeepAligner::kCoarseSearchPx); -1: none.
+// --min-step PX: the finest level stops once a step moves the image by less (min_step_px),
+//   in [-1, 10] working pixels; 0 (the default): each tracker's own (none for the classical,
+//   iclk::DeepAligner::kMinStepPx for the learned); negative: none.
 Result<iclk::TrackerOptions> parse_tracker_options(const Args& args);
 // The tilt prior the commands assume when --tilt-prior is not given: a rough pose's roll and
 // pitch are good to 3 degrees (1 sigma per axis). The evaluation protocol turns its priors by
