@@ -543,7 +543,7 @@ TEST_CASE("no-data texels do not darken their neighbours, at any level of detail
   }
 }
 
-TEST_CASE("1, 2 and 3 threads, and the scalar, AVX2 and AVX-512 kernels, give the same bytes") {
+TEST_CASE("1, 2 and 3 threads, and the scalar, AVX2 and AVX-512 kernels, give the same bytes, on a pool of its own or the caller's") {
   const geo::Map map = test::dem_map(257, 257, 0, 2000, 7.8125, [](double x, double y) {
     return 100 + 30 * std::sin(x * 0.004) * std::cos(y * 0.006);
   }, smooth_layer());
@@ -563,17 +563,28 @@ TEST_CASE("1, 2 and 3 threads, and the scalar, AVX2 and AVX-512 kernels, give th
   RenderOptions avx2 = two;
   avx2.simd = RenderOptions::Simd::Avx2;
   auto r4 = make(map, cam, cpu_has_avx2() ? avx2 : two);
-  auto o1 = r1->make_output({"all"}), o2 = r2->make_output({"all"}), o3 = r3->make_output({"all"}), o4 = r4->make_output({"all"});
-  REQUIRE((o1.ok() && o2.ok() && o3.ok() && o4.ok()));
+  // On a caller's pool of three (as a localizer's, shared with its aligner); one of two
+  // threads is refused for three.
+  ThreadPool pool3(3), pool2(2);
+  auto shared = Renderer::create(map, cam, three, &pool3);
+  REQUIRE(shared.ok());
+  auto r5 = std::move(shared.value());
+  auto mismatch = Renderer::create(map, cam, three, &pool2);
+  REQUIRE_FALSE(mismatch.ok());
+  CHECK(mismatch.error().message == "render threads 3 but the pool given has 2");
+  auto o1 = r1->make_output({"all"}), o2 = r2->make_output({"all"}), o3 = r3->make_output({"all"}), o4 = r4->make_output({"all"}),
+       o5 = r5->make_output({"all"});
+  REQUIRE((o1.ok() && o2.ok() && o3.ok() && o4.ok() && o5.ok()));
   for (const geo::Pose& T : {look_down(900, 1100, 900), look_down(700, 600, 500, 50, 30)}) {
     RenderStats s1, s3;
     REQUIRE(r1->render(T, o1.value(), &s1).ok());
     REQUIRE(r2->render(T, o2.value()).ok());
     REQUIRE(r3->render(T, o3.value(), &s3).ok());
     REQUIRE(r4->render(T, o4.value()).ok());
+    REQUIRE(r5->render(T, o5.value()).ok());
     CHECK(s1.chunks > 3);  // enough chunks that every thread draws some
     CHECK(s1.triangles == s3.triangles);
-    for (const RenderOutput* o : {&o2.value(), &o3.value(), &o4.value()}) {
+    for (const RenderOutput* o : {&o2.value(), &o3.value(), &o4.value(), &o5.value()}) {
       CHECK(o1->rgb[0].pixels() == o->rgb[0].pixels());
       CHECK(o1->valid[0].pixels() == o->valid[0].pixels());
       CHECK(std::memcmp(o1->depth.data(), o->depth.data(), o1->depth.size() * sizeof(float)) == 0);

@@ -92,7 +92,7 @@ Result<double> DeepAligner::max_disagreement(const nn::WeightFile& weights) {
 
 Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& weights, int width, int height,
                                                          const iclk::TrackerOptions& options, int threads,
-                                                         int use_levels) {
+                                                         int use_levels, ThreadPool* pool) {
   TERRALIGN_TRY_ASSIGN(int levels, DeepAligner::levels(weights));
   if (use_levels < 0 || use_levels > levels)
     return Error{weights.name + ": " + std::to_string(use_levels) + " levels asked of weights with " +
@@ -107,9 +107,14 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   D->levels_ = levels;
   // The encoder and the M-estimators run one after the other and their outputs are copied
   // out at once: one buffer holds the tensors of all of them (the largest network's need).
-  D->pool_ = std::make_unique<ThreadPool>(std::max(1, threads));
+  if (!pool) {
+    D->own_pool_ = std::make_unique<ThreadPool>(std::max(1, threads));
+    pool = D->own_pool_.get();
+  }
+  D->pool_ = pool;
+  threads = pool->threads();
   TERRALIGN_TRY_ASSIGN(D->encoder_, nn::Network::plan(weights, "encoder", width, height, threads, nn::Simd::Auto,
-                                                      nn::Memory::External, D->pool_.get()));
+                                                      nn::Memory::External, D->pool_));
   D->enc_in_ = D->encoder_->input("x");
   if (const nn::Tensor* x = D->enc_in_; !x || x->c != 3)
     return Error{weights.name + ": the encoder must take x, 3 channels of normalised RGB" +
@@ -133,7 +138,7 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
         std::max(l > 0 ? D->enc_until_[static_cast<std::size_t>(l - 1)] : -1, D->encoder_->step_of(name));
     auto& m = D->mest_[static_cast<std::size_t>(l)];
     TERRALIGN_TRY_ASSIGN(m, nn::Network::plan(weights, "mestimator", width >> l, height >> l, threads, nn::Simd::Auto,
-                                              nn::Memory::External, D->pool_.get()));
+                                              nn::Memory::External, D->pool_));
     const nn::Tensor* x = D->mest_in_[static_cast<std::size_t>(l)] = m->input("x");
     const nn::Tensor* w = D->mest_out_[static_cast<std::size_t>(l)] = m->output("w");
     if (!x || x->c != 4 || !w || w->c != 1)
@@ -174,7 +179,6 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   // Every pixel of four levels: enough work per iteration for the threads to pay off
   // (unlike the sparse classical selection); chunked sums keep the result thread-count free.
   o.threads = threads;
-  ThreadPool* pool = D->pool_.get();
   if (C == 1) D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 1>>(width, height, o, pool);
   else if (C == 2) D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 2>>(width, height, o, pool);
   else D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 4>>(width, height, o, pool);

@@ -150,7 +150,8 @@ struct Renderer::Impl {
   SetupEntriesFn setup_entries = setup_entries_scalar;
   DrawSmallEntriesFn draw_small_entries = nullptr;  // where built; else draw_small_entries_edge32()
   const char* simd = "scalar";
-  std::unique_ptr<ThreadPool> pool;
+  std::unique_ptr<ThreadPool> own_pool;  // where the caller gave none
+  ThreadPool* pool = nullptr;
 
   // Frame buffers, sized at construction.
   int vw = 0, vh = 0;                     // pinhole (G-buffer) size
@@ -277,10 +278,13 @@ void build_mips(const geo::Layer& L, LayerTexture& T, ThreadPool& pool) {
 }  // namespace
 
 Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const geo::CameraModel& camera,
-                                                   const RenderOptions& options) {
+                                                   const RenderOptions& options, ThreadPool* pool) {
   TERRALIGN_TRY(camera.validate("camera"));
   if (options.threads < 1 || options.threads > 64)
     return Error{"render threads " + std::to_string(options.threads) + " is outside 1..64"};
+  if (pool && pool->threads() != options.threads)
+    return Error{"render threads " + std::to_string(options.threads) + " but the pool given has " +
+                 std::to_string(pool->threads())};
   if (!(options.lod_error_px > 0) || !(options.near_m > 0))
     return Error{"render options: lod_error_px and near_m must be > 0"};
   if (options.max_triangles < 1024 || options.max_triangles > (1 << 24))
@@ -299,8 +303,12 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.ox = 0.5 * (common.min_x + common.max_x);
   m.oy = 0.5 * (common.min_y + common.max_y);
   m.oz = map.dem.min_height;
-  m.pool = std::make_unique<ThreadPool>(options.threads);  // also builds the mip-maps below
-  m.terrain = Terrain::build(map, m.ox, m.oy, m.oz, m.pool.get());
+  if (!pool) {
+    m.own_pool = std::make_unique<ThreadPool>(options.threads);
+    pool = m.own_pool.get();
+  }
+  m.pool = pool;  // also builds the mip-maps below
+  m.terrain = Terrain::build(map, m.ox, m.oy, m.oz, m.pool);
 
   for (const auto& L : map.layers) {
     LayerTexture T;

@@ -33,7 +33,8 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
     iclk::TrackerOptions dopt = with_map;
     dopt.registration_floor_px *= s;  // camera pixels -> working pixels
     dopt.registration_floor_per_residual_px *= s;
-    TERRALIGN_TRY_ASSIGN(L->deep_, iclk::DeepAligner::create(*weights, w, h, dopt, threads, sizes.levels));
+    L->pool_ = std::make_unique<ThreadPool>(std::max(1, threads));
+    TERRALIGN_TRY_ASSIGN(L->deep_, iclk::DeepAligner::create(*weights, w, h, dopt, threads, sizes.levels, L->pool_.get()));
     L->ref_rgb_.resize(w, h, 3);
     L->live_rgb_.resize(w, h, 3);
     L->sum_row_.resize(static_cast<std::size_t>(3 * w));
@@ -41,7 +42,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   raster::RenderOptions ro;
   ro.threads = threads;
   if (sizes.max_triangles > 0) ro.max_triangles = sizes.max_triangles;
-  TERRALIGN_TRY_ASSIGN(L->renderer_, raster::Renderer::create(map, L->work_, ro));
+  TERRALIGN_TRY_ASSIGN(L->renderer_, raster::Renderer::create(map, L->work_, ro, L->pool_.get()));
   TERRALIGN_TRY_ASSIGN(L->ref_, L->renderer_->make_output({layer}));
   L->depth_.resize(L->work_.width, L->work_.height, 1);
   if (L->deep_) return L;

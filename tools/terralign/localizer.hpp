@@ -158,6 +158,9 @@ class Localizer {
   double refine_min_deg_ = kRefineMinDeg;
   double refine_uniform_max_residual_ = kRefineUniformOff;
   geo::CameraModel camera_, work_;
+  // Learned: one pool for the renderer and the aligner, which run one after the other
+  // (declared before both: it outlives them). The classical tracker runs on the caller's thread.
+  std::unique_ptr<ThreadPool> pool_;
   std::unique_ptr<iclk::DeepAligner> deep_;
   ImageF ref_rgb_, live_rgb_;  // learned: float RGB at the working size
   std::vector<int> sum_row_;   // learned: one row of the live image's box sums

@@ -70,9 +70,12 @@ class DeepAligner : public iclk::LevelWeights {
   // features).
   // `levels` > 0 uses that many of the weights' levels (fewer: a small image whose coarsest
   // level would be under 8 pixels); 0 all of them.
+  // `pool`: the caller's pool to run on (its thread count replaces `threads`; as
+  // nn::Network::plan's: it outlives the aligner and no one else runs on it meanwhile), such
+  // as the renderer's of the same pipeline; else the aligner starts a pool of its own.
   static Result<std::unique_ptr<DeepAligner>> create(const nn::WeightFile& weights, int width, int height,
                                                      const iclk::TrackerOptions& options, int threads,
-                                                     int levels = 0);
+                                                     int levels = 0, ThreadPool* pool = nullptr);
   // The input scale a weight file asks for (0.5 when it says nothing) and its levels (4).
   static Result<double> input_scale(const nn::WeightFile& weights);
   static Result<int> levels(const nn::WeightFile& weights);
@@ -116,9 +119,10 @@ class DeepAligner : public iclk::LevelWeights {
   // Encodes the finest `levels` levels into out (the encoder stops at the last step they need).
   void encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out, int levels);
   int width_ = 0, height_ = 0, levels_ = 0, channels_ = 1;
-  // One pool for the encoder, the M-estimators and the solver, which run one after another
-  // (declared first: it outlives them).
-  std::unique_ptr<ThreadPool> pool_;
+  // One pool for the encoder, the M-estimators and the solver, which run one after another:
+  // the caller's or own_pool_ (declared first: it outlives them).
+  std::unique_ptr<ThreadPool> own_pool_;
+  ThreadPool* pool_ = nullptr;
   std::unique_ptr<nn::Network> encoder_;
   std::array<std::unique_ptr<nn::Network>, kMaxLevels> mest_;
   // The networks' tensors, looked up once: the encoder's input and level outputs, each

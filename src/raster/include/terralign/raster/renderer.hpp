@@ -39,6 +39,7 @@
 #include <terralign/geo/map.hpp>
 #include <terralign/geo/pose.hpp>
 #include <terralign/geo/result.hpp>
+#include <terralign/geo/thread_pool.hpp>
 
 namespace terralign::raster {
 
@@ -74,9 +75,12 @@ struct RenderStats {
 
 class Renderer {
  public:
-  // The map must outlive the renderer. Errors: bad camera, bad options.
+  // The map must outlive the renderer. Errors: bad camera, bad options. `pool`: the caller's
+  // pool to run on, with options.threads threads, which must outlive the renderer and is not
+  // used by two callers at once (a pipeline that renders and then aligns: nn::Network::plan);
+  // else the renderer starts a pool of its own.
   static Result<std::unique_ptr<Renderer>> create(const geo::Map& map, const geo::CameraModel& camera,
-                                                  const RenderOptions& options = {});
+                                                  const RenderOptions& options = {}, ThreadPool* pool = nullptr);
   ~Renderer();
   Renderer(const Renderer&) = delete;
   Renderer& operator=(const Renderer&) = delete;
