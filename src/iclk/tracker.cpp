@@ -1000,7 +1000,8 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
     };
     // Whether the last step moved the finest level's image by less than min_step_px.
     auto still = [&] {
-      if constexpr (Warp::kNeedsDepth) return level == 0 && opt_.min_step_px > 0 && rms_motion_px(delta, n) < opt_.min_step_px;
+      if constexpr (Warp::kNeedsDepth)
+        return level == 0 && opt_.min_step_px > 0 && rms_motion_px(delta, n) < opt_.min_step_px;
       return false;
     };
     for (int it = 0; it < opt_.iterations; ++it) {

@@ -58,9 +58,10 @@ class DeepAligner : public iclk::LevelWeights {
   // on each of NAIP 2016/2016, 2016/2017, 2009/2020 and Christchurch 000121: 8-15 % fewer
   // iterations; answers moved by 0.01 px median (full-size 2-D EPE, 0.12 at most), their
   // positions by 3 mm median same year, 0.3-0.4 m across years on NAIP (3.6 m at most, at
-  // 700-900 m) and 5 cm on Christchurch (at 100-140 m), under 0.15 of their stated sigma; no converged flag changed, and two answers 4.99 px off
-  // crossed to 5.03-5.04. 0.005 px saved 5-12 %; 0.02 px 10-18 % but failed two right answers,
-  // whose agreement test's second start then stopped short (session 43).
+  // 700-900 m) and 5 cm on Christchurch (at 100-140 m), under 0.15 of their stated sigma. No
+  // converged flag changed, and two answers 4.99 px off crossed to 5.03-5.04. 0.005 px saved
+  // 5-12 %; 0.02 px 10-18 % but failed two right answers, whose agreement test's second start
+  // then stopped short (session 43).
   static constexpr double kMinStepPx = 0.01;
   static constexpr int kCoarseSearchPx = 2;
   static constexpr double kCoarseSearchYawDeg = 4.0;

@@ -74,7 +74,7 @@ struct TrackerOptions {
   bool normalize = true;             // zero mean, unit variance per image, level and channel
   double step_tol = 1e-6;            // rad, and m per metre of median depth
   // The finest level (and the agreement test's second start) also stops once a step moves
-  // the image by less than this, RMS over the used pixels (6-DoF warp; 0: never). The
+  // the image by less than this, RMS over the used pixels (6-DoF warp; 0 or negative: never). The
   // parameters then lie well inside the registration floor (0.1 px and more), yet step_tol
   // rarely stops a level: across a year the learned tracker's finest level ran all 20
   // iterations on 76 of 80 solves, steps of thousandths of a pixel among them (session 42).
