@@ -107,12 +107,8 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   D->levels_ = levels;
   // The encoder and the M-estimators run one after the other and their outputs are copied
   // out at once: one buffer holds the tensors of all of them (the largest network's need).
-  if (!pool) {
-    D->own_pool_ = std::make_unique<ThreadPool>(std::max(1, threads));
-    pool = D->own_pool_.get();
-  }
-  D->pool_ = pool;
-  threads = pool->threads();
+  D->pool_ = given_or_own(pool, std::max(1, threads), D->own_pool_);
+  threads = D->pool_->threads();
   TERRALIGN_TRY_ASSIGN(D->encoder_, nn::Network::plan(weights, "encoder", width, height, threads, nn::Simd::Auto,
                                                       nn::Memory::External, D->pool_));
   D->enc_in_ = D->encoder_->input("x");
@@ -179,9 +175,9 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   // Every pixel of four levels: enough work per iteration for the threads to pay off
   // (unlike the sparse classical selection); chunked sums keep the result thread-count free.
   o.threads = threads;
-  if (C == 1) D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 1>>(width, height, o, pool);
-  else if (C == 2) D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 2>>(width, height, o, pool);
-  else D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 4>>(width, height, o, pool);
+  if (C == 1) D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 1>>(width, height, o, D->pool_);
+  else if (C == 2) D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 2>>(width, height, o, D->pool_);
+  else D->tracker_ = std::make_unique<iclk::Tracker<float, Warp, 4>>(width, height, o, D->pool_);
   return D;
 }
 

@@ -118,11 +118,7 @@ Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& option
   if (kSe3Kernel) out_index_.resize(partials_.size() * kChunk);
   bands_.resize(kBands);
   pick_.resize(n);  // blocks of one pixel at the finest level at most
-  if (!pool) {
-    own_pool_ = std::make_unique<ThreadPool>(std::max(1, opt_.threads));
-    pool = own_pool_.get();
-  }
-  pool_ = pool;
+  pool_ = given_or_own(pool, std::max(1, opt_.threads), own_pool_);
   ok_.resize(n);
   pick_kernel();
 }

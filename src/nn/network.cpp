@@ -208,11 +208,7 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
   for (auto& s : N->steps_) s.node = &N->desc_.nodes[static_cast<std::size_t>(&s - N->steps_.data())];
   for (const auto& o : N->desc_.outputs)
     if (N->index_of(o) < 0) return Error{weights.name + ": " + net + ": output '" + o + "' is not a node"};
-  if (!pool) {
-    N->own_pool_ = std::make_unique<ThreadPool>(threads);
-    pool = N->own_pool_.get();
-  }
-  N->pool_ = pool;
+  N->pool_ = given_or_own(pool, threads, N->own_pool_);
   // Each band (one a thread) has scratch of its own for the convolutions (Winograd's tiles).
   for (const auto& c : N->convs_) N->scratch_floats_ = std::max(N->scratch_floats_, (conv_scratch_floats(c) + 15) / 16 * 16);
   if (memory != Memory::Separate) {

@@ -303,11 +303,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   m.ox = 0.5 * (common.min_x + common.max_x);
   m.oy = 0.5 * (common.min_y + common.max_y);
   m.oz = map.dem.min_height;
-  if (!pool) {
-    m.own_pool = std::make_unique<ThreadPool>(options.threads);
-    pool = m.own_pool.get();
-  }
-  m.pool = pool;  // also builds the mip-maps below
+  m.pool = given_or_own(pool, options.threads, m.own_pool);  // also builds the mip-maps below
   m.terrain = Terrain::build(map, m.ox, m.oy, m.oz, m.pool);
 
   for (const auto& L : map.layers) {

@@ -12,6 +12,8 @@
 // before it sleeps, and the caller likewise spins before sleeping on the workers' completion.
 #pragma once
 
+#include <memory>
+
 #if !defined(TERRALIGN_NO_THREADS)
 #include <atomic>
 #include <condition_variable>
@@ -62,6 +64,15 @@ class ThreadPool {
   int tasks_ = 0;
 #endif
 };
+
+// The pool a component runs on: the caller's `given`, which the caller keeps alive, or else a
+// pool of `threads` of its own, created in `own` (the component's member, declared before
+// whatever runs on it).
+inline ThreadPool* given_or_own(ThreadPool* given, int threads, std::unique_ptr<ThreadPool>& own) {
+  if (given) return given;
+  own = std::make_unique<ThreadPool>(threads);
+  return own.get();
+}
 
 // Calls fn(y) for y in [0, rows), split into fixed blocks of `block` rows over the pool's
 // threads (each row is written by one call only, so the bytes do not depend on the thread
