@@ -136,7 +136,10 @@ void Tracker<S, Warp, C>::pick_kernel() {
       jacobian_kernel_ = detail::se3_jacobians_avx2;
     }
 #elif defined(TERRALIGN_ICLK_NEON)
-    if (opt_.simd) se3_kernel_ = detail::evaluate_se3_neon;
+    if (opt_.simd) {
+      se3_kernel_ = detail::evaluate_se3_neon;
+      jacobian_kernel_ = detail::se3_jacobians_neon;
+    }
 #endif
   }
   outer_kernel_ = nullptr;
@@ -297,7 +300,8 @@ void Tracker<S, Warp, C>::pick_band(int level, Band& band) {
   if (block == 1) {
     // Every pixel whose 3x3 neighbourhood has depth, without a branch per pixel (what the
     // loop below picks when blocks are single pixels).
-    auto finite = [](float d) { return std::abs(d) <= std::numeric_limits<float>::max(); };  // NaN: false
+    // 1 or 0 (an int, so the & below is plainly bitwise); NaN: 0.
+    auto finite = [](float d) -> int { return std::abs(d) <= std::numeric_limits<float>::max(); };
     const ImageView<const float> D = L.depth.view();
     for (int row = band.row0; row < band.row1; ++row) {
       const int y = 1 + row;
@@ -306,7 +310,7 @@ void Tracker<S, Warp, C>::pick_band(int level, Band& band) {
       int count = 0;
       for (int col = 0; col < pick_cols_; ++col) {
         const int x = 1 + col;
-        bool ok = true;
+        int ok = 1;
         for (int dx = -1; dx <= 1; ++dx) ok = ok & finite(a[x + dx]) & finite(b[x + dx]) & finite(c[x + dx]);
         pick[col] = ok ? y * L.w + x : -1;
         count += ok;
