@@ -600,14 +600,14 @@ struct VectorKernels {
   detail::Se3EvalFn se3 = nullptr;
   detail::OuterSumsFn outer = nullptr;
   detail::OuterSumsAtFn outer_at = nullptr;
-  detail::Se3JacobianFn jacobians = nullptr;  // AVX2 only: NEON runs the scalar one
+  detail::Se3JacobianFn jacobians = nullptr;
 };
 VectorKernels vector_kernels() {
 #if defined(TERRALIGN_ICLK_AVX2)
   if (!cpu_features().avx2_fma) return {};
   return {detail::evaluate_se3_avx2, detail::outer_sums_avx2, detail::outer_sums_at_avx2, detail::se3_jacobians_avx2};
 #else
-  return {detail::evaluate_se3_neon, detail::outer_sums_neon, detail::outer_sums_at_neon, nullptr};
+  return {detail::evaluate_se3_neon, detail::outer_sums_neon, detail::outer_sums_at_neon, detail::se3_jacobians_neon};
 #endif
 }
 
@@ -827,7 +827,7 @@ TEST_CASE("the J^T W J kernels: their vector builds (AVX2, NEON) and the scalar 
   }
 }
 
-TEST_CASE("the Jacobian kernel: the warp's d_warp_d_xi with a Sobel / 8 gradient, and its AVX2 build the same bits (runs of eight, gathered and partial groups, in 1, 2 and 4 channels)") {
+TEST_CASE("the Jacobian kernel: the warp's d_warp_d_xi with a Sobel / 8 gradient, and its vector build (AVX2, NEON) the same bits (runs of eight, gathered and partial groups, in 1, 2 and 4 channels)") {
   using namespace detail;
   const int W = 40, H = 23;
   const Pinhole<float> K{35.0f, 33.0f, 19.5f, 11.0f};
@@ -836,7 +836,7 @@ TEST_CASE("the Jacobian kernel: the warp's d_warp_d_xi with a Sobel / 8 gradient
   std::vector<float> depth(static_cast<std::size_t>(W) * H);
   for (auto& d : depth) d = 100.0f + 40.0f * U(rng);
   // Groups of pixels (x, y), each with a neighbour on every side: eight side by side on a row
-  // (the AVX2 build's plain loads), eight side by side across a row's end, eight scattered,
+  // (the vector builds' plain loads), eight side by side across a row's end, eight scattered,
   // three of a row and one alone (lanes past the count unwritten, adding +0 to the sums).
   std::vector<std::vector<std::pair<int, int>>> groups = {{}, {}, {}, {}, {{17, 9}}};
   for (int l = 0; l < 8; ++l) {

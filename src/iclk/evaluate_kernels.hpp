@@ -97,6 +97,10 @@ void se3_jacobians_scalar(const Se3JacobianInput& in, const int* x, const int* y
 void se3_jacobians_avx2(const Se3JacobianInput& in, const int* x, const int* y, int count, Se3JacobianGroup& out,
                         Se3FinestSums* sums);
 #endif
+#if defined(TERRALIGN_ICLK_NEON)
+void se3_jacobians_neon(const Se3JacobianInput& in, const int* x, const int* y, int count, Se3JacobianGroup& out,
+                        Se3FinestSums* sums);
+#endif
 
 // J^T W J of one channel over pixels [i0, i1), added to `h` (the signature is
 // detail::OuterSumsFn): entry k of the lower half (row by row: (0,0), (1,0), (1,1), ...) of

@@ -1,8 +1,9 @@
-// NEON build (aarch64) of the residual and J^T W J kernels: the eight lanes of
+// NEON build (aarch64) of the residual, Jacobian and J^T W J kernels: the eight lanes of
 // evaluate_kernels.hpp as two float32x4 halves, the four double lanes of the outer sums as two
 // float64x2, the same operations in the same order as evaluate_scalar.cpp (the library is
 // built with -ffp-contract=off, so no multiply and add fuse; AArch64's vdivq_f32 is the
-// correctly rounded division). The live image's taps are read lane by lane.
+// correctly rounded division). The live image's taps are read lane by lane; the Jacobian
+// kernel's reference taps too, unless eight pixels lie side by side on a row.
 #include "evaluate_kernels.hpp"
 
 #include <arm_neon.h>
@@ -118,6 +119,128 @@ void evaluate_se3_neon(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
   }
   s.valid = valid;
   s.n_out = n_out;
+}
+
+void se3_jacobians_neon(const Se3JacobianInput& in, const int* xs, const int* ys, int count, Se3JacobianGroup& out,
+                        Se3FinestSums* sums) {
+  // Lanes past count repeat lane 0's pixel (inside the level) and are not written.
+  int x8[kLanes], y8[kLanes];
+  for (int l = 0; l < kLanes; ++l) {
+    x8[l] = xs[l < count ? l : 0];
+    y8[l] = ys[l < count ? l : 0];
+  }
+  // Eight pixels side by side on one row (every pixel selected: the learned tracker's levels)
+  // load their taps plainly, two channels deinterleaved by vld2q; else lane by lane.
+  const int C = in.channels, row = in.width * C;
+  const bool run = count == kLanes && ys[kLanes - 1] == ys[0] && xs[kLanes - 1] - xs[0] == kLanes - 1 && C <= 2;
+  auto at = [&](int l) { return in.ref + static_cast<std::ptrdiff_t>(y8[l]) * row + static_cast<std::ptrdiff_t>(x8[l]) * C; };
+  auto tap = [&](int c, int dx, int dy) -> F8 {
+    const std::ptrdiff_t off = static_cast<std::ptrdiff_t>(dy) * row + dx * C;
+    if (run) {
+      const float* p = at(0) + off;
+      if (C == 1) return {{vld1q_f32(p), vld1q_f32(p + 4)}};
+      const float32x4x2_t lo = vld2q_f32(p), hi = vld2q_f32(p + kLanes);
+      return {{lo.val[c], hi.val[c]}};
+    }
+    float t[kLanes];
+    for (int l = 0; l < kLanes; ++l) t[l] = at(l)[off + c];
+    return {{vld1q_f32(t), vld1q_f32(t + 4)}};
+  };
+  float dl[kLanes];
+  if (run) {
+    std::memcpy(dl, in.depth + static_cast<std::ptrdiff_t>(ys[0]) * in.width + xs[0], sizeof dl);
+  } else {
+    for (int l = 0; l < kLanes; ++l) dl[l] = in.depth[static_cast<std::ptrdiff_t>(y8[l]) * in.width + x8[l]];
+  }
+  const uint32_t lane_ids[kLanes] = {0, 1, 2, 3, 4, 5, 6, 7};
+  const float32x4_t fx = vdupq_n_f32(in.fx), fy = vdupq_n_f32(in.fy), cx = vdupq_n_f32(in.cx), cy = vdupq_n_f32(in.cy);
+  const float32x4_t zero = vdupq_n_f32(0.0f), two = vdupq_n_f32(2.0f), eighth = vdupq_n_f32(8.0f);
+  // Per half h: the pixel, the point, dW's rows (the scalar twin's operations, lane by lane).
+  F8 u, v, X, Y, Z, wu[6], wv[6];
+  for (int h = 0; h < 2; ++h) {
+    u.v[h] = vcvtq_f32_s32(vld1q_s32(x8 + 4 * h));
+    v.v[h] = vcvtq_f32_s32(vld1q_s32(y8 + 4 * h));
+    const float32x4_t d = vld1q_f32(dl + 4 * h);
+    X.v[h] = vdivq_f32(vmulq_f32(d, vsubq_f32(u.v[h], cx)), fx);
+    Y.v[h] = vdivq_f32(vmulq_f32(d, vsubq_f32(v.v[h], cy)), fy);
+    Z.v[h] = d;
+    const float32x4_t iz = vdivq_f32(vdupq_n_f32(1.0f), d);
+    const float32x4_t xn = vmulq_f32(X.v[h], iz), yn = vmulq_f32(Y.v[h], iz);
+    // The projection's derivatives: du/dX, du/dZ, dv/dY, dv/dZ.
+    const float32x4_t ux = vmulq_f32(fx, iz), uz = vmulq_f32(vmulq_f32(vnegq_f32(fx), xn), iz);
+    const float32x4_t vy = vmulq_f32(fy, iz), vz = vmulq_f32(vmulq_f32(vnegq_f32(fy), yn), iz);
+    wu[0].v[h] = vmulq_f32(uz, Y.v[h]);
+    wu[1].v[h] = vaddq_f32(vmulq_f32(ux, d), vmulq_f32(uz, vnegq_f32(X.v[h])));
+    wu[2].v[h] = vmulq_f32(ux, vnegq_f32(Y.v[h]));
+    wu[3].v[h] = ux;
+    wu[4].v[h] = zero;
+    wu[5].v[h] = uz;
+    wv[0].v[h] = vaddq_f32(vmulq_f32(vy, vnegq_f32(d)), vmulq_f32(vz, Y.v[h]));
+    wv[1].v[h] = vmulq_f32(vz, vnegq_f32(X.v[h]));
+    wv[2].v[h] = vmulq_f32(vy, X.v[h]);
+    wv[3].v[h] = zero;
+    wv[4].v[h] = vy;
+    wv[5].v[h] = vz;
+  }
+  if (sums) {
+    for (int h = 0; h < 2; ++h) {
+      // Lanes past count: dW and the offsets +0, as the scalar twin's.
+      const uint32x4_t used = vcltq_u32(vld1q_u32(lane_ids + 4 * h), vdupq_n_u32(static_cast<uint32_t>(count)));
+      const float32x4_t mu = masked(vsubq_f32(u.v[h], cx), used), mv = masked(vsubq_f32(v.v[h], cy), used);
+      float32x4_t su[6], sv[6];
+      for (int k = 0; k < 6; ++k) {
+        su[k] = masked(wu[k].v[h], used);
+        sv[k] = masked(wv[k].v[h], used);
+      }
+      auto add = [h](float* lanes, float32x4_t t) { vst1q_f32(lanes + 4 * h, vaddq_f32(vld1q_f32(lanes + 4 * h), t)); };
+      int e = 0;
+      for (int a = 0; a < 6; ++a)
+        for (int b = 0; b <= a; ++b, ++e) add(sums->motion[e], vaddq_f32(vmulq_f32(su[a], su[b]), vmulq_f32(sv[a], sv[b])));
+      for (int a = 0; a < 6; ++a) {
+        const float32x4_t radial = vaddq_f32(vmulq_f32(su[a], mu), vmulq_f32(sv[a], mv));
+        const float32x4_t modes[6] = {su[a], sv[a], vsubq_f32(vmulq_f32(sv[a], mu), vmulq_f32(su[a], mv)), radial,
+                                      vmulq_f32(radial, mu), vmulq_f32(radial, mv)};
+        for (int m = 0; m < 6; ++m) add(sums->floor[a][m], modes[m]);
+      }
+    }
+  }
+  auto put = [&](float* p, const F8& t) {
+    if (count == kLanes) {
+      vst1q_f32(p, t.v[0]);
+      vst1q_f32(p + 4, t.v[1]);
+      return;
+    }
+    float tmp[kLanes];
+    vst1q_f32(tmp, t.v[0]);
+    vst1q_f32(tmp + 4, t.v[1]);
+    std::memcpy(p, tmp, sizeof(float) * static_cast<std::size_t>(count));
+  };
+  put(out.pu, u);
+  put(out.pv, v);
+  put(out.px, X);
+  put(out.py, Y);
+  put(out.pz, Z);
+  for (int c = 0; c < C; ++c) {
+    const F8 nw = tap(c, -1, -1), n = tap(c, 0, -1), ne = tap(c, 1, -1), w = tap(c, -1, 0), o = tap(c, 0, 0);
+    const F8 east = tap(c, 1, 0), sw = tap(c, -1, 1), s = tap(c, 0, 1), se = tap(c, 1, 1);
+    F8 jac[6];
+    for (int h = 0; h < 2; ++h) {
+      // (ne + 2 e + se - nw - 2 w - sw) / 8 and (sw + 2 s + se - nw - 2 n - ne) / 8, left to right.
+      const float32x4_t gx = vdivq_f32(
+          vsubq_f32(vsubq_f32(vsubq_f32(vaddq_f32(vaddq_f32(ne.v[h], vmulq_f32(two, east.v[h])), se.v[h]), nw.v[h]),
+                              vmulq_f32(two, w.v[h])),
+                    sw.v[h]),
+          eighth);
+      const float32x4_t gy = vdivq_f32(
+          vsubq_f32(vsubq_f32(vsubq_f32(vaddq_f32(vaddq_f32(sw.v[h], vmulq_f32(two, s.v[h])), se.v[h]), nw.v[h]),
+                              vmulq_f32(two, n.v[h])),
+                    ne.v[h]),
+          eighth);
+      for (int k = 0; k < 6; ++k) jac[k].v[h] = vaddq_f32(vmulq_f32(gx, wu[k].v[h]), vmulq_f32(gy, wv[k].v[h]));
+    }
+    for (int k = 0; k < 6; ++k) put(out.jac[k] + c * out.jac_plane, jac[k]);
+    put(out.val + c * out.plane, o);
+  }
 }
 
 namespace {
