@@ -121,10 +121,12 @@ geo::CameraModel paper_camera(int w, int h) {
   return cam;
 }
 
+#if defined(TERRALIGN_BENCH_OSMESA)
 // Alternations of terralign and llvmpipe per scene: nine, so that a slow period of a few
 // seconds (one run of session 25 had a round at 8.8x between rounds at 21x) moves the
 // median little.
 constexpr int kPeerRounds = 9;
+#endif
 
 double median(std::vector<double> v) {
   std::sort(v.begin(), v.end());

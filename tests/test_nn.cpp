@@ -203,7 +203,9 @@ void check_against_scalar(const std::vector<std::tuple<const char*, ConvRowsFn, 
   std::mt19937 rng(seed);
   std::normal_distribution<float> n01(0, 1);
   for (int dil : {1, 2, 4})
-    for (auto [cin, cout] : {std::pair<int, int>{3, 5}, {16, 32}, {37, 24}, {64, 1}}) {
+    for (const auto& shape : {std::pair<int, int>{3, 5}, {16, 32}, {37, 24}, {64, 1}}) {
+      // Plain copies: CAPTURE's lambda may not capture a structured binding in C++17 (clang).
+      const int cin = shape.first, cout = shape.second;
       CAPTURE(dil);
       CAPTURE(cin);
       CAPTURE(cout);
@@ -226,7 +228,8 @@ void check_against_scalar(const std::vector<std::tuple<const char*, ConvRowsFn, 
         const double worst = worst_difference(a, b, scale);
         CHECK(worst <= 1e-5 * std::max(scale, 1.0));  // the same sum in another order
       }
-      for (const auto& [name, fn, block] : kernels) {
+      for (const auto& [kernel, fn, block] : kernels) {
+        const char* const name = kernel;
         CAPTURE(name);
         conv(fn, in, pack_conv(wt.data(), bias.data(), cin, cout, dil, Act::Elu, block), b, 0, 13);
         double scale = 0;
@@ -271,9 +274,12 @@ TEST_CASE("Winograd's convolution agrees with the direct kernel in every build, 
   std::mt19937 rng(17);
   std::normal_distribution<float> n01(0, 1);
   const int h = 11, w = 17;
-  for (const auto& [name, fn, block] : conv_kernels())
+  for (const auto& [kernel, fn, block] : conv_kernels())
     for (int dil : {1, 2, 4})
-      for (auto [cin, cout] : {std::pair<int, int>{16, 5}, {16, 16}, {37, 24}, {32, 32}}) {
+      for (const auto& shape : {std::pair<int, int>{16, 5}, {16, 16}, {37, 24}, {32, 32}}) {
+        // Plain copies: CAPTURE's lambda may not capture a structured binding in C++17 (clang).
+        const char* const name = kernel;
+        const int cin = shape.first, cout = shape.second;
         CAPTURE(name);
         CAPTURE(dil);
         CAPTURE(cin);
@@ -523,7 +529,8 @@ TEST_CASE("every conv kernel's ELU matches expm1 to 5e-7 (the vector wrappers' e
   in.allocate(1, n, 1);
   out.allocate(1, n, 1);
   for (int i = 0; i < n; ++i) in.at(0, i)[0] = -20.0f + 21.0f * static_cast<float>(i) / n;  // -20 .. 1
-  for (const auto& [name, fn, block] : conv_kernels()) {
+  for (const auto& [kernel, fn, block] : conv_kernels()) {
+    const char* const name = kernel;  // CAPTURE may not capture a structured binding (C++17)
     CAPTURE(name);
     conv(fn, in, pack_conv(w.data(), &bias, 1, 1, 1, Act::Elu, block), out, 0, 1);
     double worst = 0;

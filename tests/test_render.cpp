@@ -1068,8 +1068,9 @@ TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (A
     const bool all_s = project_posts_scalar(f, x, y, z, n, k0, clip_grid(cs), proj_grid(ps, is), os, hs);
     whole_rows += all_s;
     for (int k = k0; k < k0 + n; ++k) (os[k] != 0 ? outside : inside) += 1;
-    for (const auto& [name, project] : builds) {
-      CAPTURE(std::string(name));
+    for (const auto& [kernel, project] : builds) {
+      const std::string name(kernel);  // CAPTURE may not capture a structured binding (C++17)
+      CAPTURE(name);
       CAPTURE(round);
       std::uint8_t ov[kSlots] = {};
       bool hv[kSlots] = {};
@@ -1138,8 +1139,9 @@ TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows o
     PixelBox bs[2 * kMaxGridQuads], bv[2 * kMaxGridQuads];
     const bool anti = round % 2 == 1;  // and quads split along either diagonal
     const int cs = emit_quad_row_scalar(g, 0, kRow, n, anti, 200, 120, ts, bs);
-    for (const auto& [name, emit] : builds) {
-      CAPTURE(std::string(name));
+    for (const auto& [kernel, emit] : builds) {
+      const std::string name(kernel);  // CAPTURE may not capture a structured binding (C++17)
+      CAPTURE(name);
       CAPTURE(round);
       const int cv = emit(g, 0, kRow, n, anti, 200, 120, tv, bv);
       REQUIRE(cs == cv);
@@ -1205,8 +1207,9 @@ TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit fo
     EntrySetup a;
     std::vector<float> ca(kPlaneFloats * EntrySetup::kMax + 1, -1.0f);
     setup_entries_scalar(tris.data(), ids, n, x0, y0, x1, y1, vw, vh, a, ca.data());
-    for (const auto& [name, setup] : builds) {
-      CAPTURE(std::string(name));
+    for (const auto& [kernel, setup] : builds) {
+      const std::string name(kernel);  // CAPTURE may not capture a structured binding (C++17)
+      CAPTURE(name);
       CAPTURE(round);
       EntrySetup b;
       std::vector<float> cb(ca.size(), -1.0f);
