@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
-# Builds the libFuzzer targets with clang (ASan + UBSan) and runs each for SECONDS (default 30),
-# starting from the committed corpus in fuzz/corpus/<target>. New inputs go to a scratch
+# Builds the libFuzzer targets with clang (ASan + UBSan; the libraries with warnings as errors,
+# CI's one clang build of them) and runs each for SECONDS (default 30), starting from the
+# committed corpus in fuzz/corpus/<target>. New inputs go to a scratch
 # folder; a crash stops the run with a non-zero exit and leaves the input in fuzz/artifacts.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds=${1:-30}
 bash scripts/install-deps.sh clang libclang-rt-14-dev
-CC=clang CXX=clang++ cmake -S . -B build/fuzz -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRALIGN_FUZZ=ON \
+CC=clang CXX=clang++ cmake -S . -B build/fuzz -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRALIGN_FUZZ=ON -DTERRALIGN_WERROR=ON \
   -DTERRALIGN_SANITIZE=ON -DTERRALIGN_BUILD_TESTS=OFF -DTERRALIGN_BUILD_TOOLS=OFF -DTERRALIGN_BUILD_BENCH=OFF >/dev/null
 cmake --build build/fuzz -j "$(nproc)"
 mkdir -p fuzz/artifacts
