@@ -543,7 +543,7 @@ TEST_CASE("no-data texels do not darken their neighbours, at any level of detail
   }
 }
 
-TEST_CASE("1, 2 and 3 threads, and the scalar, AVX2 and AVX-512 kernels, give the same bytes, on a pool of its own or the caller's") {
+TEST_CASE("1, 2 and 3 threads, and the scalar and vector (AVX2, AVX-512 or NEON) kernels, give the same bytes, on a pool of its own or the caller's") {
   const geo::Map map = test::dem_map(257, 257, 0, 2000, 7.8125, [](double x, double y) {
     return 100 + 30 * std::sin(x * 0.004) * std::cos(y * 0.006);
   }, smooth_layer());
@@ -644,6 +644,46 @@ TEST_CASE("render options out of range are refused, naming the option and its va
   o.threads = 3;
   o.max_triangles = 1 << 20;
   CHECK(Renderer::create(map, camera(), o).ok());
+}
+
+// The vector builds of a kernel that this CPU runs, by name (a null build: not in this
+// build); none, and a message saying so, where there is none.
+template <class Fn>
+std::vector<std::pair<const char*, Fn>> vector_builds(Fn avx2, Fn avx512, Fn neon) {
+  std::vector<std::pair<const char*, Fn>> builds;
+  if (avx2 && cpu_has_avx2()) builds.emplace_back("avx2", avx2);
+  if (avx512 && cpu_has_avx512()) builds.emplace_back("avx512", avx512);
+  if (neon) builds.emplace_back("neon", neon);
+  if (builds.empty()) MESSAGE("this CPU or build has no vector build of the kernel: nothing to compare");
+  return builds;
+}
+#if defined(TERRALIGN_HAVE_AVX2)
+#define VECTOR_BUILDS(kernel) vector_builds<decltype(&kernel##_scalar)>(kernel##_avx2, kernel##_avx512, nullptr)
+#elif defined(TERRALIGN_HAVE_NEON)
+#define VECTOR_BUILDS(kernel) vector_builds<decltype(&kernel##_scalar)>(nullptr, nullptr, kernel##_neon)
+#else
+#define VECTOR_BUILDS(kernel) vector_builds<decltype(&kernel##_scalar)>(nullptr, nullptr, nullptr)
+#endif
+
+// The 32-bit edge kernel and the run of small entries drawn through it, where this CPU has
+// them (AVX2's serve the AVX-512 renderer too); null elsewhere.
+EdgeBlock32Fn built_edge_block32() {
+#if defined(TERRALIGN_HAVE_AVX2)
+  return cpu_has_avx2() ? edge_block32_avx2 : nullptr;
+#elif defined(TERRALIGN_HAVE_NEON)
+  return edge_block32_neon;
+#else
+  return nullptr;
+#endif
+}
+DrawSmallEntriesFn built_draw_small_entries() {
+#if defined(TERRALIGN_HAVE_AVX2)
+  return cpu_has_avx2() ? draw_small_entries_avx2 : nullptr;
+#elif defined(TERRALIGN_HAVE_NEON)
+  return draw_small_entries_neon;
+#else
+  return nullptr;
+#endif
 }
 
 TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agree bit for bit on seeded random inputs (AVX2, AVX-512, NEON vs scalar)") {
@@ -960,6 +1000,7 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   std::uniform_int_distribution<std::int64_t> corner(-6 * 65536, 6 * 65536), slope(-3 * 65536, 3 * 65536);
   std::uniform_int_distribution<int> side(1, 8);
   long covered_total = 0, blocks_partly = 0;
+  int compared32 = 0;
   for (int tri = 0; tri < 200; ++tri) {
     const std::int64_t Ec[3] = {corner(rng), corner(rng), corner(rng)};
     const std::int64_t dx_[3] = {slope(rng), slope(rng), slope(rng)}, dy_[3] = {slope(rng), slope(rng), slope(rng)};
@@ -982,43 +1023,29 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
       CHECK(std::memcmp(zs.data(), zv.data(), zs.size() * sizeof(float)) == 0);
       CHECK(is == iv);
     }
-#if defined(TERRALIGN_HAVE_AVX2)
     // The 32-bit kernel on the same block: every value here fits (|E| < 6 * 2^16 + 14 * 3 * 2^16).
-    if (cpu_has_avx2()) {
+    if (const EdgeBlock32Fn edge32 = built_edge_block32()) {
       const std::int32_t E32[3] = {static_cast<std::int32_t>(Ec[0]), static_cast<std::int32_t>(Ec[1]), static_cast<std::int32_t>(Ec[2])};
       const std::int32_t dx32[3] = {static_cast<std::int32_t>(dx_[0]), static_cast<std::int32_t>(dx_[1]), static_cast<std::int32_t>(dx_[2])};
       const std::int32_t dy32[3] = {static_cast<std::int32_t>(dy_[0]), static_cast<std::int32_t>(dy_[1]), static_cast<std::int32_t>(dy_[2])};
       std::vector<float> zv = z0;
       std::vector<int> iv = id0;
-      const long nv = edge_block32_avx2(bw, bh, E32, dx32, dy32, 0.001f, 1.3e-5f, -0.7e-5f, 3, 5, zv.data() + stride + 2,
-                                        iv.data() + stride + 2, stride, 7);
+      const long nv = edge32(bw, bh, E32, dx32, dy32, 0.001f, 1.3e-5f, -0.7e-5f, 3, 5, zv.data() + stride + 2,
+                             iv.data() + stride + 2, stride, 7);
       CAPTURE(tri);
       CHECK(ns == nv);
       CHECK(std::memcmp(zs.data(), zv.data(), zs.size() * sizeof(float)) == 0);
       CHECK(is == iv);
+      ++compared32;
     }
-#endif
   }
   CHECK(covered_total > 0);
   CHECK(blocks_partly > 20);  // edges cross many of the blocks (not all in or all out)
+  CHECK(compared32 == (built_edge_block32() ? 200 : 0));
 }
 
-#if defined(TERRALIGN_HAVE_AVX2)
-// The vector builds of a kernel this CPU runs, by name; none (and a message saying so) on a
-// CPU without AVX2.
-template <class Fn>
-std::vector<std::pair<const char*, Fn>> vector_builds(Fn avx2, Fn avx512) {
-  std::vector<std::pair<const char*, Fn>> builds;
-  if (cpu_has_avx2()) builds.emplace_back("avx2", avx2);
-  if (cpu_has_avx512()) builds.emplace_back("avx512", avx512);
-  if (builds.empty()) MESSAGE("this CPU has no AVX2: nothing to compare");
-  return builds;
-}
-#endif
-
-TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (AVX2, AVX-512 vs scalar)") {
-#if defined(TERRALIGN_HAVE_AVX2)
-  const auto builds = vector_builds<ProjectPostsFn>(project_posts_avx2, project_posts_avx512);
+TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (AVX2, AVX-512, NEON vs scalar)") {
+  const auto builds = VECTOR_BUILDS(project_posts);
   if (builds.empty()) return;
   // A camera 300 m up looking 40 degrees from nadir over posts up to 3 km away: some behind
   // it, some beyond the guard band, some without a height (NaN, infinite).
@@ -1091,14 +1118,10 @@ TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (A
   CHECK(inside > 1000);
   CHECK(outside > 300);
   CHECK(whole_rows > 10);
-#else
-  MESSAGE("no x86 vector build: nothing to compare");
-#endif
 }
 
-TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows of quads (AVX2, AVX-512 vs scalar)") {
-#if defined(TERRALIGN_HAVE_AVX2)
-  const auto builds = vector_builds<EmitQuadRowFn>(emit_quad_row_avx2, emit_quad_row_avx512);
+TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows of quads (AVX2, AVX-512, NEON vs scalar)") {
+  const auto builds = VECTOR_BUILDS(emit_quad_row);
   if (builds.empty()) return;
   // Two rows of 33 vertices a grid (a Wide chunk's; rows of 16 quads, 32 and fewer): screen
   // positions over and around a 200 x 120 view, some rows coarse (triangles of tens of
@@ -1158,15 +1181,13 @@ TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows o
   MESSAGE("kept " << kept_total << ", rejected " << rejected_total);
   CHECK(kept_total > 2000);     // real triangles compared ...
   CHECK(rejected_total > 2000);  // ... and the rejections (no area, no pixel centre, off the view) too
-#else
-  MESSAGE("no x86 vector build: nothing to compare");
-#endif
 }
 
-TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit for bit on seeded random triangles (AVX2, AVX-512 vs scalar)") {
-#if defined(TERRALIGN_HAVE_AVX2)
-  const auto builds = vector_builds<SetupEntriesFn>(setup_entries_avx2, setup_entries_avx512);
+TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit for bit on seeded random triangles (AVX2, AVX-512, NEON vs scalar)") {
+  const auto builds = VECTOR_BUILDS(setup_entries);
   if (builds.empty()) return;
+  const DrawSmallEntriesFn draw_small = built_draw_small_entries();
+  REQUIRE((draw_small != nullptr));  // (doubled: doctest cannot print a function pointer)
   // Triangles of under a pixel to hundreds of pixels over and around a 300 x 200 view, seen
   // from the tile at pixels 128 .. 255, 24 .. 47: small ones inside it, across its edges,
   // outside it, and large ones.
@@ -1223,9 +1244,9 @@ TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit fo
         CHECK((a.base[i] == b.base[i] && a.A[i] == b.A[i] && a.B[i] == b.B[i]));
         for (int k = 0; k < 3; ++k) CHECK((a.E[k][i] == b.E[k][i] && a.dEx[k][i] == b.dEx[k][i] && a.dEy[k][i] == b.dEy[k][i]));
       }
-      // The small entries drawn into a tile's visibility buffers, by the AVX2 run (which the
-      // AVX-512 renderer uses too) from this build's set-up and by the scalar edge kernel one
-      // by one from the scalar set-up: the same depths, entries and counts.
+      // The small entries drawn into a tile's visibility buffers, by this ISA's run of them
+      // (AVX2's, which the AVX-512 renderer uses too) from this build's set-up and by the
+      // scalar edge kernel one by one from the scalar set-up: the same depths, entries and counts.
       const std::ptrdiff_t stride = (x1 - x0 + 1) + 8;
       std::vector<float> za(static_cast<std::size_t>(stride * (y1 - y0 + 1)), 0.0f), zb = za;
       std::vector<int> ia(za.size(), -1), ib = ia;
@@ -1236,7 +1257,7 @@ TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit fo
           ++at;
           continue;
         }
-        const int end = draw_small_entries_avx2(b, at, n, x0, y0, zb.data(), ib.data(), stride, 1000, cov_b);
+        const int end = draw_small(b, at, n, x0, y0, zb.data(), ib.data(), stride, 1000, cov_b);
         for (; at < n && (a.small >> at & 1); ++at) {
           const std::ptrdiff_t o = (a.y0[at] - y0) * stride + (a.x0[at] - x0);
           const std::int64_t E[3] = {a.E[0][at], a.E[1][at], a.E[2][at]}, dx[3] = {a.dEx[0][at], a.dEx[1][at], a.dEx[2][at]},
@@ -1268,9 +1289,6 @@ TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit fo
   CHECK(small_total > 500);
   CHECK(drawn_pixels > small_total);  // more than a pixel each, on average
   CHECK(other_total > 500);
-#else
-  MESSAGE("no x86 vector build: nothing to compare");
-#endif
 }
 
 TEST_CASE("a view needing more than max_triangles fails with a clear error, the same on 1 and 2 threads") {

@@ -293,15 +293,7 @@ void setup_entries_avx2(const Tri* tris, const int* ids, int n, int x0, int y0, 
 
 int draw_small_entries_avx2(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
                             int e0, int* covered) {
-  int i = from;
-  for (; i < n && (s.small >> i & 1); ++i) {
-    const std::ptrdiff_t at = (s.y0[i] - y0) * stride + (s.x0[i] - x0);
-    const std::int32_t E[3] = {s.E[0][i], s.E[1][i], s.E[2][i]};
-    const std::int32_t dEx[3] = {s.dEx[0][i], s.dEx[1][i], s.dEx[2][i]}, dEy[3] = {s.dEy[0][i], s.dEy[1][i], s.dEy[2][i]};
-    covered[i] = static_cast<int>(
-        edge_block32_avx2_inline(s.w[i], s.h[i], E, dEx, dEy, s.base[i], s.A[i], s.B[i], 0, 0, z + at, id + at, stride, e0 + i));
-  }
-  return i;
+  return draw_small_entries_through<edge_block32_avx2_inline>(s, from, n, x0, y0, z, id, stride, e0, covered);
 }
 
 }  // namespace terralign::raster

@@ -148,7 +148,7 @@ struct Renderer::Impl {
   EmitQuadRowFn emit_quad_row = emit_quad_row_scalar;
   ProjectPostsFn project_posts = project_posts_scalar;
   SetupEntriesFn setup_entries = setup_entries_scalar;
-  DrawSmallEntriesFn draw_small_entries = nullptr;  // where built; else draw_small_entries_edge32()
+  DrawSmallEntriesFn draw_small_entries = nullptr;  // where edge_block32 is built
   const char* simd = "scalar";
   std::unique_ptr<ThreadPool> own_pool;  // where the caller gave none
   ThreadPool* pool = nullptr;
@@ -223,8 +223,6 @@ struct Renderer::Impl {
   Across across(const TerrainChunk& c, int side) const;
   void raster_tile(int tile, int thread);
   void resolve_tile(int tile, int thread, const int* ids, std::ptrdiff_t id_stride, const float* coef);
-  int draw_small_entries_edge32(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
-                                int e0, int* covered) const;
   void deal_bands(int units);
   template <class F>
   void claim_units(int thread, F&& draw);
@@ -450,23 +448,23 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     m.simd = "avx512";
   }
 #endif
-  if (options.simd == RenderOptions::Simd::Neon) {
 #if defined(TERRALIGN_HAVE_NEON)
+  // Every aarch64 core has NEON. The 64-bit edge kernel stays scalar: blocks whose edge values
+  // fit 32 bits (most) and runs of small entries take the NEON 32-bit one.
+  if (options.simd == RenderOptions::Simd::Auto || options.simd == RenderOptions::Simd::Neon) {
     m.shade = shade_row_neon;
     m.resolve_shade = resolve_shade_row_neon;
     m.depth_block = depth_block_neon;
+    m.edge_block32 = edge_block32_neon;
+    m.draw_small_entries = draw_small_entries_neon;
+    m.project_posts = project_posts_neon;
+    m.emit_quad_row = emit_quad_row_neon;
+    m.setup_entries = setup_entries_neon;
     m.simd = "neon";
+  }
 #else
+  if (options.simd == RenderOptions::Simd::Neon)
     return Error{"render options: NEON kernels requested but this build (not aarch64) has none"};
-#endif
-  }
-#if defined(TERRALIGN_HAVE_NEON)
-  if (options.simd == RenderOptions::Simd::Auto) {  // every aarch64 core has NEON
-    m.shade = shade_row_neon;
-    m.resolve_shade = resolve_shade_row_neon;
-    m.depth_block = depth_block_neon;
-    m.simd = "neon";
-  }
 #endif
   return std::unique_ptr<Renderer>(new Renderer(std::move(impl)));
 }
@@ -868,19 +866,6 @@ inline float footprint_log2(T A0, T B0, T A1, T B1, T A2, T B2, T wx, T wy, T z)
 
 }  // namespace
 
-// draw_small_entries (geometry_kernels.hpp) through the edge_block32 kernel.
-int Renderer::Impl::draw_small_entries_edge32(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id,
-                                              std::ptrdiff_t stride, int e0, int* covered) const {
-  int i = from;
-  for (; i < n && (s.small >> i & 1); ++i) {
-    const std::ptrdiff_t at = (s.y0[i] - y0) * stride + (s.x0[i] - x0);
-    const std::int32_t E[3] = {s.E[0][i], s.E[1][i], s.E[2][i]};
-    const std::int32_t dEx[3] = {s.dEx[0][i], s.dEx[1][i], s.dEx[2][i]}, dEy[3] = {s.dEy[0][i], s.dEy[1][i], s.dEy[2][i]};
-    covered[i] = static_cast<int>(edge_block32(s.w[i], s.h[i], E, dEx, dEy, s.base[i], s.A[i], s.B[i], 0, 0, z + at, id + at, stride, e0 + i));
-  }
-  return i;
-}
-
 void Renderer::Impl::raster_tile(int tile, int thread) {
   const int tx = tile % tiles_x, ty = tile / tiles_x;
   const int x0 = tx * kTileW, y0 = ty * kTileH;
@@ -936,12 +921,11 @@ void Renderer::Impl::raster_tile(int tile, int thread) {
     // A view's triangles outgrow the caches: fetch the next batch's while drawing this one.
     for (int i = e0 + EntrySetup::kMax; i < std::min(count, e0 + 2 * EntrySetup::kMax); ++i)
       __builtin_prefetch(&tris[static_cast<std::size_t>(bin_entries[static_cast<std::size_t>(first + i)])]);
-    const std::uint32_t small = edge_block32 ? setup.small : 0u;
+    const std::uint32_t small = draw_small_entries ? setup.small : 0u;
     for (int i = 0; i < batch; ++i) {
       const int e = e0 + i;
       if (small >> i & 1) {
-        const int end = draw_small_entries ? draw_small_entries(setup, i, batch, x0, y0, tz, tid, stride, e0, covered)
-                                           : draw_small_entries_edge32(setup, i, batch, x0, y0, tz, tid, stride, e0, covered);
+        const int end = draw_small_entries(setup, i, batch, x0, y0, tz, tid, stride, e0, covered);
         for (int j = i; j < end; ++j) {
           frags += covered[j];
           footprint_bound(e0 + j, covered[j], setup.x0[j], setup.x0[j] + setup.w[j] - 1, setup.y0[j], setup.y0[j] + setup.h[j] - 1);

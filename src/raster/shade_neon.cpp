@@ -3,12 +3,14 @@
 // bits; vqrdmulh is the lerp's rounding multiply), texels fetched lane by lane (NEON has no
 // gather). The same integer and float operations in the same order as shade_scalar.cpp (the
 // raster target compiles with -ffp-contract=off), so the output matches it bit for bit. The
-// tail (n % 4) runs the scalar kernel. Also the NEON depth kernel.
+// tail (n % 4) runs the scalar kernel. Also the NEON depth kernel and 32-bit edge kernel.
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <arm_neon.h>
 
 #include <cmath>
+
+#include "edge_neon.hpp"
 
 namespace terralign::raster {
 namespace {
@@ -247,6 +249,11 @@ void depth_block_neon(int w, int h, float base, float A, float B, int dx, int dy
       }
     }
   }
+}
+
+long edge_block32_neon(int w, int h, const std::int32_t* E, const std::int32_t* dEx, const std::int32_t* dEy, float base,
+                       float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e) {
+  return edge_block32_neon_inline(w, h, E, dEx, dEy, base, A, B, dx, dy, z, id, stride, e);
 }
 
 }  // namespace terralign::raster

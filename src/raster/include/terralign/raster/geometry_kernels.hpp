@@ -4,9 +4,9 @@
 // Triangle set-up: a screen triangle from three projected vertices (its snapped corners made
 // clockwise, its pixel box, the planes of 1/z, x/z and y/z fitted in double), one at a time
 // (setup_triangle(): the clipped triangles) or for a row of a terrain chunk's quads at once
-// (emit_quad_row: most of a frame's triangles). A scalar build and an AVX-512 build (16 posts,
-// eight triangles a vector) do the same integer, float and double operations in the same
-// order, so they agree bit for bit.
+// (emit_quad_row: most of a frame's triangles). A scalar build, AVX2 and AVX-512 builds (8 or
+// 16 posts, four or eight triangles a vector) and a NEON build (four of each) do the same
+// integer, float and double operations in the same order, so they agree bit for bit.
 #pragma once
 
 #include <algorithm>
@@ -113,6 +113,10 @@ bool project_posts_avx2(const PostFrame& f, const float* x, const float* y, cons
 bool project_posts_avx512(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
                           const ProjGrid& proj, std::uint8_t* out, bool* no_height);
 #endif
+#if defined(TERRALIGN_HAVE_NEON)
+bool project_posts_neon(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
+                        const ProjGrid& proj, std::uint8_t* out, bool* no_height);
+#endif
 using ProjectPostsFn = bool (*)(const PostFrame&, const float*, const float*, const float*, int, int, const ClipGrid&,
                                 const ProjGrid&, std::uint8_t*, bool*);
 
@@ -185,6 +189,9 @@ int emit_quad_row_scalar(const ProjGrid& g, int top, int bottom, int n, bool ant
 int emit_quad_row_avx2(const ProjGrid& g, int top, int bottom, int n, bool anti, int vw, int vh, Tri* out, PixelBox* boxes);
 int emit_quad_row_avx512(const ProjGrid& g, int top, int bottom, int n, bool anti, int vw, int vh, Tri* out, PixelBox* boxes);
 #endif
+#if defined(TERRALIGN_HAVE_NEON)
+int emit_quad_row_neon(const ProjGrid& g, int top, int bottom, int n, bool anti, int vw, int vh, Tri* out, PixelBox* boxes);
+#endif
 using EmitQuadRowFn = int (*)(const ProjGrid&, int, int, int, bool, int, int, Tri*, PixelBox*);
 
 // The set-up of up to 16 of a tile's bin entries for the rasterizer. A small entry is a
@@ -213,17 +220,41 @@ void setup_entries_avx2(const Tri* tris, const int* ids, int n, int x0, int y0, 
 void setup_entries_avx512(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
                           EntrySetup& s, float* coef);
 #endif
+#if defined(TERRALIGN_HAVE_NEON)
+void setup_entries_neon(const Tri* tris, const int* ids, int n, int x0, int y0, int x1, int y1, int vw, int vh,
+                        EntrySetup& s, float* coef);
+#endif
 using SetupEntriesFn = void (*)(const Tri*, const int*, int, int, int, int, int, int, int, EntrySetup&, float*);
 
 // Draws the small entries of a set-up batch from entry `from` on, in order, up to the first
 // that is not small (or n): each as edge_block32 (shade_kernels.hpp) draws its box into the
 // tile's visibility buffers z and id (row stride `stride`, the tile's corner at pixel x0, y0)
 // as entry e0 + i. covered[i] gets the pixels each covers. Returns where it stopped. (The
-// AVX2 build, with the edge kernel inlined, serves the AVX-512 renderer too.)
+// AVX2 build, with the edge kernel inlined, serves the AVX-512 renderer too.) Built where
+// edge_block32 is; a scalar renderer draws no entry as small.
 #if defined(TERRALIGN_HAVE_AVX2)
 int draw_small_entries_avx2(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
                             int e0, int* covered);
 #endif
+#if defined(TERRALIGN_HAVE_NEON)
+int draw_small_entries_neon(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id, std::ptrdiff_t stride,
+                            int e0, int* covered);
+#endif
 using DrawSmallEntriesFn = int (*)(const EntrySetup&, int, int, int, int, float*, int*, std::ptrdiff_t, int, int*);
+
+// draw_small_entries through the 32-bit edge kernel Edge (edge_block32's signature): each
+// vector build's, with its kernel inlined.
+template <auto Edge>
+inline int draw_small_entries_through(const EntrySetup& s, int from, int n, int x0, int y0, float* z, int* id,
+                                      std::ptrdiff_t stride, int e0, int* covered) {
+  int i = from;
+  for (; i < n && (s.small >> i & 1); ++i) {
+    const std::ptrdiff_t at = (s.y0[i] - y0) * stride + (s.x0[i] - x0);
+    const std::int32_t E[3] = {s.E[0][i], s.E[1][i], s.E[2][i]};
+    const std::int32_t dEx[3] = {s.dEx[0][i], s.dEx[1][i], s.dEx[2][i]}, dEy[3] = {s.dEy[0][i], s.dEy[1][i], s.dEy[2][i]};
+    covered[i] = static_cast<int>(Edge(s.w[i], s.h[i], E, dEx, dEy, s.base[i], s.A[i], s.B[i], 0, 0, z + at, id + at, stride, e0 + i));
+  }
+  return i;
+}
 
 }  // namespace terralign::raster

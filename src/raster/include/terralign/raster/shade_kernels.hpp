@@ -243,9 +243,14 @@ using EdgeBlockFn = long (*)(int, int, const std::int64_t*, const std::int64_t*,
 // The same with 32-bit edge functions, for a block where every pixel's three values fit in
 // 32 bits (the renderer checks the block's corners: the functions are linear, so the corners
 // bound them): twice the lanes of the 64-bit kernel, and the same results (compared with
-// edge_block_scalar in the tests). AVX2 only; elsewhere the 64-bit kernel runs.
+// edge_block_scalar in the tests). Blocks of at most 8 columns, read and written back 8 (AVX2)
+// or 4 columns at a time, as depth_block's. AVX2 and NEON; elsewhere the 64-bit kernel runs.
 #if defined(TERRALIGN_HAVE_AVX2)
 long edge_block32_avx2(int w, int h, const std::int32_t* E, const std::int32_t* dEx, const std::int32_t* dEy, float base,
+                       float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e);
+#endif
+#if defined(TERRALIGN_HAVE_NEON)
+long edge_block32_neon(int w, int h, const std::int32_t* E, const std::int32_t* dEx, const std::int32_t* dEy, float base,
                        float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e);
 #endif
 using EdgeBlock32Fn = long (*)(int, int, const std::int32_t*, const std::int32_t*, const std::int32_t*, float, float, float,
