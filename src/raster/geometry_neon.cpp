@@ -16,6 +16,7 @@
 #include <cmath>
 
 #include "edge_neon.hpp"
+#include "quad_row4.hpp"
 
 namespace terralign::raster {
 namespace {
@@ -145,14 +146,6 @@ inline Vert4 load4(const ProjGrid& g, int k) {
   return v;
 }
 
-// Four triangles set up, field by field, and the lanes kept (bit i: lane i).
-struct Tri4 {
-  std::int32_t X[3][4], Y[3][4];
-  float A[3][4], B[3][4], C[3][4];
-  std::int32_t box[4][4];
-  unsigned keep;
-};
-
 inline void setup4(const Vert4& a, const Vert4& b, const Vert4& c, int vw, int vh, Tri4& t) {
   // The doubled area, in 64 bits: differences of corners inside the guard band fit 31 bits.
   const int32x4_t dx1 = vsubq_s32(b.X, a.X), dy2 = vsubq_s32(c.Y, a.Y), dy1 = vsubq_s32(b.Y, a.Y), dx2 = vsubq_s32(c.X, a.X);
@@ -208,33 +201,10 @@ inline void setup4(const Vert4& a, const Vert4& b, const Vert4& c, int vw, int v
   vst1q_s32(t.box[3], by1);
 }
 
-inline void copy_out(const Tri4& t, int i, Tri& out, PixelBox& box) {
-  for (int k = 0; k < 3; ++k) {
-    out.X[k] = t.X[k][i];
-    out.Y[k] = t.Y[k][i];
-    out.A[k] = t.A[k][i];
-    out.B[k] = t.B[k][i];
-    out.C[k] = t.C[k][i];
-  }
-  box = {t.box[0][i], t.box[1][i], t.box[2][i], t.box[3][i]};
-}
-
 }  // namespace
 
 int emit_quad_row_neon(const ProjGrid& g, int top, int bottom, int n, bool anti, int vw, int vh, Tri* out, PixelBox* boxes) {
-  int count = 0, a0 = 0;
-  Tri4 first, second;
-  for (; a0 + 4 <= n; a0 += 4) {
-    const Vert4 v00 = load4(g, top + a0), v10 = load4(g, top + a0 + 1), v01 = load4(g, bottom + a0), v11 = load4(g, bottom + a0 + 1);
-    setup4(v00, v10, anti ? v01 : v11, vw, vh, first);
-    setup4(anti ? v10 : v00, v11, v01, vw, vh, second);
-    for (int i = 0; i < 4; ++i) {
-      if (first.keep >> i & 1) copy_out(first, i, out[count], boxes[count]), ++count;
-      if (second.keep >> i & 1) copy_out(second, i, out[count], boxes[count]), ++count;
-    }
-  }
-  if (a0 < n) count += emit_quad_row_scalar(g, top + a0, bottom + a0, n - a0, anti, vw, vh, out + count, boxes + count);
-  return count;
+  return emit_quad_row_by4<load4, setup4>(g, top, bottom, n, anti, vw, vh, out, boxes);
 }
 
 bool project_posts_neon(const PostFrame& f, const float* x, const float* y, const float* z, int n, int k0, const ClipGrid& cv,
