@@ -6,8 +6,11 @@
 // too (LP_NUM_THREADS=2, colour and depth read back) in the same run, the two in turn nine
 // times: speed ratio (median and range of the rounds) and PSNR.
 // A third table renders the same views over a small and a 20000^2-texel, 4096^2-post map of
-// one procedural world (not with --quick; alone with --map-size).
-//   build/release/bench/bench_render [--quick | --map-size]
+// one procedural world (not with --quick; alone with --map-size). With --kernels alone: each
+// scene at 752 x 480 on one thread by the scalar kernels and by this machine's vector ones
+// (AVX2 / AVX-512 on x86-64, NEON on aarch64), in turn seven times, after checking that both
+// give the same bytes: the vector build's speed-up a frame and in each stage.
+//   build/release/bench/bench_render [--quick | --map-size | --kernels]
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -159,11 +162,72 @@ double fps(raster::Renderer& r, raster::RenderOutput& out, const geo::Pose& T, i
   return 1.0 / median(per);
 }
 
+// --kernels: the scalar kernels against this machine's vector ones, each scene at 752 x 480 on
+// one thread, the two renderers in turn seven times (this VM's speed drifts; each round's
+// ratios compare two measurements taken back to back). Returns false where a render fails
+// or the two renderers' bytes differ.
+template <class Scene>
+bool kernel_ratios(const Scene* scenes, int n_scenes) {
+  constexpr int kRounds = 7;
+  const geo::CameraModel cam = paper_camera(752, 480);
+  std::printf("752x480, 1 thread: scalar kernels against the vector build (least .. most of %d rounds; ms: medians)\n\n"
+              "| scene | view | vector build | scalar ms/frame | vector ms/frame | frame speed-up | geometry speed-up | raster + shade speed-up | triangles |\n"
+              "|---|---|---|---|---|---|---|---|---|\n",
+              kRounds);
+  for (int si = 0; si < n_scenes; ++si)
+    for (int view = 0; view < 2; ++view) {
+      const Scene& s = scenes[si];
+      const geo::Pose& T = view ? s.oblique : s.nadir;
+      std::unique_ptr<raster::Renderer> r[2];
+      raster::RenderOutput out[2];
+      raster::RenderStats st[2];
+      for (int b = 0; b < 2; ++b) {
+        raster::RenderOptions opt;
+        opt.threads = 1;
+        if (b == 0) opt.simd = raster::RenderOptions::Simd::Scalar;
+        auto made = raster::Renderer::create(*s.map, cam, opt);
+        if (!made.ok()) return false;
+        r[b] = std::move(made.value());
+        auto o = r[b]->make_output({s.layer});
+        if (!o.ok() || !r[b]->render(T, o.value(), &st[b]).ok()) return false;
+        out[b] = std::move(o.value());
+      }
+      if (out[0].rgb[0].pixels() != out[1].rgb[0].pixels() ||
+          std::memcmp(out[0].depth.data(), out[1].depth.data(), out[0].depth.size() * sizeof(float)) != 0) {
+        std::fprintf(stderr, "%s: the scalar and %s renders differ\n", s.name, r[1]->simd_name());
+        return false;
+      }
+      std::vector<double> ms[2], frame, geometry, raster;
+      for (int round = 0; round < kRounds; ++round) {
+        double stage[2][3], f[2];
+        for (int b = 0; b < 2; ++b) {
+          f[b] = fps(*r[b], out[b], T, 20, stage[b]);
+          ms[b].push_back(1000.0 / f[b]);
+        }
+        frame.push_back(f[1] / f[0]);
+        geometry.push_back(stage[0][0] / stage[1][0]);
+        raster.push_back(stage[0][1] / stage[1][1]);
+      }
+      auto range = [](const std::vector<double>& v) {
+        char buf[64];
+        std::snprintf(buf, sizeof buf, "%.2fx (%.2f .. %.2f)", median(v), *std::min_element(v.begin(), v.end()),
+                      *std::max_element(v.begin(), v.end()));
+        return std::string(buf);
+      };
+      std::printf("| %s | %s | %s | %.3f | %.3f | %s | %s | %s | %d |\n", s.name, view ? "oblique 45" : "nadir", r[1]->simd_name(),
+                  median(ms[0]), median(ms[1]), range(frame).c_str(), range(geometry).c_str(), range(raster).c_str(),
+                  st[0].triangles);
+      std::fflush(stdout);
+    }
+  return true;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   const bool quick = argc > 1 && std::strcmp(argv[1], "--quick") == 0;
   const bool size_only = argc > 1 && std::strcmp(argv[1], "--map-size") == 0;
+  const bool kernels_only = argc > 1 && std::strcmp(argv[1], "--kernels") == 0;
   auto sample = geo::load_map(TERRALIGN_SOURCE_DIR "/data/naip_west/map.json");
   if (!sample.ok()) {
     std::fprintf(stderr, "%s\n", sample.error().message.c_str());
@@ -184,6 +248,7 @@ int main(int argc, char** argv) {
       {"synthetic, bumps' crests north-south", &big_ns, geo::pose_from_ypr({500, 500, 600}, 0, 0, 0),
        geo::pose_from_ypr({500, 150, 500}, 0, 0, 0, geo::tilted_mount(45)), "tex"},
   };
+  if (kernels_only) return kernel_ratios(scenes, 3) ? 0 : 1;
   const int sizes[][2] = {{188, 120}, {376, 240}, {752, 480}, {1504, 960}};
   std::printf("| scene | view | size | threads | fps | ms/frame | geometry ms | raster (+ shade) ms | shade ms (distorted) | triangles |\n"
               "|---|---|---|---|---|---|---|---|---|---|\n");
