@@ -1,6 +1,7 @@
 // The 32-bit edge kernel (shade_kernels.hpp's edge_block32) in NEON, inline so that the
 // renderer's run of small entries (geometry_neon.cpp's draw_small_entries_neon) runs it
-// without a call, as edge_avx2.hpp does for the AVX2 builds.
+// without a call, as edge_avx2.hpp does for the AVX2 builds; and the depth test of four
+// columns that it and the 64-bit edge kernel (shade_neon.cpp) share.
 #pragma once
 
 #include <cstddef>
@@ -9,6 +10,17 @@
 #include <arm_neon.h>
 
 namespace terralign::raster {
+
+// The depth test of four columns of a row where `in` (all-ones lanes) marks the covered
+// pixels: where the triangle's 1/z `iz` is larger (nearer), it replaces z and id becomes `ve`.
+// The four columns are loaded and stored back whole. `count` gains one a covered lane.
+inline void depth_quad(uint32x4_t in, float32x4_t iz, float* z, int* id, int32x4_t ve, uint32x4_t& count) {
+  count = vsubq_u32(count, in);  // an all-ones lane is -1
+  const float32x4_t old = vld1q_f32(z);
+  const uint32x4_t nearer = vandq_u32(vcgtq_f32(iz, old), in);
+  vst1q_f32(z, vbslq_f32(nearer, iz, old));
+  vst1q_s32(id, vbslq_s32(nearer, ve, vld1q_s32(id)));
+}
 
 inline long edge_block32_neon_inline(int w, int h, const std::int32_t* E, const std::int32_t* dEx, const std::int32_t* dEy,
                                      float base, float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e) {
@@ -36,14 +48,7 @@ inline long edge_block32_neon_inline(int w, int h, const std::int32_t* E, const 
       int32x4_t* v = row[half];
       const uint32x4_t in = vandq_u32(vcgeq_s32(vorrq_s32(vorrq_s32(v[0], v[1]), v[2]), zero), cols[half]);  // all three >= 0
       for (int k = 0; k < 3; ++k) v[k] = vaddq_s32(v[k], down[k]);
-      count = vsubq_u32(count, in);  // an all-ones lane is -1
-      const float32x4_t iz = vaddq_f32(rowz, ax[half]);
-      float* zh = z + 4 * half;
-      int* ih = id + 4 * half;
-      const float32x4_t old = vld1q_f32(zh);
-      const uint32x4_t nearer = vandq_u32(vcgtq_f32(iz, old), in);
-      vst1q_f32(zh, vbslq_f32(nearer, iz, old));
-      vst1q_s32(ih, vbslq_s32(nearer, ve, vld1q_s32(ih)));
+      depth_quad(in, vaddq_f32(rowz, ax[half]), z + 4 * half, id + 4 * half, ve, count);
     }
   }
   return static_cast<long>(vaddvq_u32(count));

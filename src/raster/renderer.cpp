@@ -449,12 +449,11 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
   }
 #endif
 #if defined(TERRALIGN_HAVE_NEON)
-  // Every aarch64 core has NEON. The 64-bit edge kernel stays scalar: blocks whose edge values
-  // fit 32 bits (most) and runs of small entries take the NEON 32-bit one.
-  if (options.simd == RenderOptions::Simd::Auto || options.simd == RenderOptions::Simd::Neon) {
+  if (options.simd == RenderOptions::Simd::Auto || options.simd == RenderOptions::Simd::Neon) {  // every aarch64 core has it
     m.shade = shade_row_neon;
     m.resolve_shade = resolve_shade_row_neon;
     m.depth_block = depth_block_neon;
+    m.edge_block = edge_block_neon;
     m.edge_block32 = edge_block32_neon;
     m.draw_small_entries = draw_small_entries_neon;
     m.project_posts = project_posts_neon;

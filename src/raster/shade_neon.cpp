@@ -3,7 +3,7 @@
 // bits; vqrdmulh is the lerp's rounding multiply), texels fetched lane by lane (NEON has no
 // gather). The same integer and float operations in the same order as shade_scalar.cpp (the
 // raster target compiles with -ffp-contract=off), so the output matches it bit for bit. The
-// tail (n % 4) runs the scalar kernel. Also the NEON depth kernel and 32-bit edge kernel.
+// tail (n % 4) runs the scalar kernel. Also the NEON depth kernel and edge kernels (64 and 32 bits).
 #include <terralign/raster/shade_kernels.hpp>
 
 #include <arm_neon.h>
@@ -254,6 +254,49 @@ void depth_block_neon(int w, int h, float base, float A, float B, int dx, int dy
 long edge_block32_neon(int w, int h, const std::int32_t* E, const std::int32_t* dEx, const std::int32_t* dEy, float base,
                        float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e) {
   return edge_block32_neon_inline(w, h, E, dEx, dEy, base, A, B, dx, dy, z, id, stride, e);
+}
+
+long edge_block_neon(int w, int h, const std::int64_t* E, const std::int64_t* dEx, const std::int64_t* dEy, float base,
+                     float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e) {
+  // Edge k at columns 2 p and 2 p + 1 of a row: row start + {2 p, 2 p + 1} dEx, four pairs
+  // for the eight columns (the second four only where w > 4); a half's two pairs' coverage
+  // narrowed to four 32-bit lanes for the depth test.
+  static const std::int32_t lanes[8] = {0, 1, 2, 3, 4, 5, 6, 7};
+  const int halves = w > 4 ? 2 : 1;
+  int64x2_t step[3][4], row[3], down[3];
+  for (int k = 0; k < 3; ++k) {
+    for (int p = 0; p < 4; ++p) {
+      const std::int64_t pair[2] = {2 * p * dEx[k], (2 * p + 1) * dEx[k]};
+      step[k][p] = vld1q_s64(pair);
+    }
+    row[k] = vdupq_n_s64(E[k]);
+    down[k] = vdupq_n_s64(dEy[k]);
+  }
+  uint32x4_t cols[2];
+  float32x4_t ax[2];
+  for (int half = 0; half < halves; ++half) {
+    const int32x4_t lane = vld1q_s32(lanes + 4 * half);
+    cols[half] = vcgtq_s32(vdupq_n_s32(w), lane);
+    ax[half] = vmulq_f32(vdupq_n_f32(A), vcvtq_f32_s32(vaddq_s32(vdupq_n_s32(dx), lane)));
+  }
+  const int32x4_t ve = vdupq_n_s32(e);
+  uint32x4_t count = vdupq_n_u32(0);
+  for (int r = 0; r < h; ++r, z += stride, id += stride) {
+    const float32x4_t rowz = vdupq_n_f32(base + B * static_cast<float>(dy + r));
+    for (int half = 0; half < halves; ++half) {
+      uint64x2_t in64[2];
+      for (int j = 0; j < 2; ++j) {
+        const int p = 2 * half + j;
+        const int64x2_t any =
+            vorrq_s64(vorrq_s64(vaddq_s64(row[0], step[0][p]), vaddq_s64(row[1], step[1][p])), vaddq_s64(row[2], step[2][p]));
+        in64[j] = vcgezq_s64(any);  // all three >= 0
+      }
+      const uint32x4_t in = vandq_u32(vcombine_u32(vmovn_u64(in64[0]), vmovn_u64(in64[1])), cols[half]);
+      depth_quad(in, vaddq_f32(rowz, ax[half]), z + 4 * half, id + 4 * half, ve, count);
+    }
+    for (int k = 0; k < 3; ++k) row[k] = vaddq_s64(row[k], down[k]);
+  }
+  return static_cast<long>(vaddvq_u32(count));
 }
 
 }  // namespace terralign::raster

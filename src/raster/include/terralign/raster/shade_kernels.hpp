@@ -229,12 +229,17 @@ using DepthBlockFn = void (*)(int, int, float, float, float, int, int, float*, i
 
 // The same in a block the triangle's edges cross: pixel (i, r) is covered where all three
 // 64-bit edge functions E[k] + dEx[k] i + dEy[k] r (at the block's corner) are >= 0, and
-// only covered pixels are depth-tested. Returns the number of covered pixels. No NEON build
-// (aarch64 runs the scalar one).
+// only covered pixels are depth-tested. Returns the number of covered pixels. Blocks of at
+// most 8 columns; the vector builds read and write back 8 (AVX2) or 4 (NEON) columns at a time,
+// as depth_block's.
 long edge_block_scalar(int w, int h, const std::int64_t* E, const std::int64_t* dEx, const std::int64_t* dEy, float base,
                        float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e);
 #if defined(TERRALIGN_HAVE_AVX2)
 long edge_block_avx2(int w, int h, const std::int64_t* E, const std::int64_t* dEx, const std::int64_t* dEy, float base,
+                     float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e);
+#endif
+#if defined(TERRALIGN_HAVE_NEON)
+long edge_block_neon(int w, int h, const std::int64_t* E, const std::int64_t* dEx, const std::int64_t* dEy, float base,
                      float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e);
 #endif
 using EdgeBlockFn = long (*)(int, int, const std::int64_t*, const std::int64_t*, const std::int64_t*, float, float, float,
@@ -243,8 +248,7 @@ using EdgeBlockFn = long (*)(int, int, const std::int64_t*, const std::int64_t*,
 // The same with 32-bit edge functions, for a block where every pixel's three values fit in
 // 32 bits (the renderer checks the block's corners: the functions are linear, so the corners
 // bound them): twice the lanes of the 64-bit kernel, and the same results (compared with
-// edge_block_scalar in the tests). Blocks of at most 8 columns, read and written back 8 (AVX2)
-// or 4 columns at a time, as depth_block's. AVX2 and NEON; elsewhere the 64-bit kernel runs.
+// edge_block_scalar in the tests). AVX2 and NEON; elsewhere the 64-bit kernel runs.
 #if defined(TERRALIGN_HAVE_AVX2)
 long edge_block32_avx2(int w, int h, const std::int32_t* E, const std::int32_t* dEx, const std::int32_t* dEy, float base,
                        float A, float B, int dx, int dy, float* z, int* id, std::ptrdiff_t stride, int e);
