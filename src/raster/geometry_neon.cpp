@@ -2,13 +2,12 @@
 // four posts a vector (float32x4, their projections in two float64x2 halves; a row's last
 // posts by the scalar build); the triangle set-up, four quads' first triangles in one set of
 // vectors and their second in another (the corners in int32x4, the planes in two float64x2
-// halves), the kept ones copied out lane by lane in quad order; and the set-up of a tile's
-// entries four at a time from their transposed triangles; and the drawing of a run of small
-// entries through the inlined 32-bit edge kernel (edge_neon.hpp). Each
-// step is the scalar build's operation lane by lane, in its order (the raster target says
-// -ffp-contract=off, so no multiply and add fuse; AArch64's divisions and conversions to
-// float round to nearest, as the scalar ones do), so the results are the scalar kernels' bit
-// for bit.
+// halves; the row's loop is quad_row4.hpp's, shared with AVX2); the set-up of a tile's entries
+// four at a time from their transposed triangles; and the drawing of a run of small entries
+// through the inlined 32-bit edge kernel (edge_neon.hpp). Each step is the scalar build's
+// operation lane by lane, in its order (the raster target says -ffp-contract=off, so no
+// multiply and add fuse; AArch64's divisions and conversions to float round to nearest, as
+// the scalar ones do), so the results are the scalar kernels' bit for bit.
 #include <terralign/raster/geometry_kernels.hpp>
 
 #include <arm_neon.h>
