@@ -666,24 +666,18 @@ std::vector<std::pair<const char*, Fn>> vector_builds(Fn avx2, Fn avx512, Fn neo
 #endif
 
 // The 32-bit edge kernel and the run of small entries drawn through it, where this CPU has
-// them (AVX2's serve the AVX-512 renderer too); null elsewhere.
-EdgeBlock32Fn built_edge_block32() {
+// them (AVX2's serve the AVX-512 renderer too); nulls elsewhere.
+struct SmallEntryKernels {
+  EdgeBlock32Fn edge32 = nullptr;
+  DrawSmallEntriesFn draw = nullptr;
+};
+SmallEntryKernels built_small_entry_kernels() {
 #if defined(TERRALIGN_HAVE_AVX2)
-  return cpu_has_avx2() ? edge_block32_avx2 : nullptr;
+  if (cpu_has_avx2()) return {edge_block32_avx2, draw_small_entries_avx2};
 #elif defined(TERRALIGN_HAVE_NEON)
-  return edge_block32_neon;
-#else
-  return nullptr;
+  return {edge_block32_neon, draw_small_entries_neon};
 #endif
-}
-DrawSmallEntriesFn built_draw_small_entries() {
-#if defined(TERRALIGN_HAVE_AVX2)
-  return cpu_has_avx2() ? draw_small_entries_avx2 : nullptr;
-#elif defined(TERRALIGN_HAVE_NEON)
-  return draw_small_entries_neon;
-#else
-  return nullptr;
-#endif
+  return {};
 }
 
 TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agree bit for bit on seeded random inputs (AVX2, AVX-512, NEON vs scalar)") {
@@ -1034,7 +1028,7 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
       CHECK(is == iv);
     }
     // The 32-bit kernel on the same block, unscaled: every value fits (|E| < 6 * 2^16 + 14 * 3 * 2^16).
-    const EdgeBlock32Fn edge32 = built_edge_block32();
+    const EdgeBlock32Fn edge32 = built_small_entry_kernels().edge32;
     if (edge32 && scale == 1) {
       const std::int32_t E32[3] = {static_cast<std::int32_t>(Ec[0]), static_cast<std::int32_t>(Ec[1]), static_cast<std::int32_t>(Ec[2])};
       const std::int32_t dx32[3] = {static_cast<std::int32_t>(dx_[0]), static_cast<std::int32_t>(dx_[1]), static_cast<std::int32_t>(dx_[2])};
@@ -1052,7 +1046,7 @@ TEST_CASE("the shading (alone and fused with the resolve) and depth kernels agre
   }
   CHECK(covered_total > 0);
   CHECK(blocks_partly > 20);  // edges cross many of the blocks (not all in or all out)
-  CHECK(compared32 == (built_edge_block32() ? 100 : 0));
+  CHECK(compared32 == (built_small_entry_kernels().edge32 ? 100 : 0));
 }
 
 TEST_CASE("the vertex stage agrees bit for bit on seeded random rows of posts (AVX2, AVX-512, NEON vs scalar)") {
@@ -1197,7 +1191,7 @@ TEST_CASE("the triangle set-up kernel agrees bit for bit on seeded random rows o
 TEST_CASE("the bin entries' set-up and the drawing of small entries agree bit for bit on seeded random triangles (AVX2, AVX-512, NEON vs scalar)") {
   const auto builds = VECTOR_BUILDS(setup_entries);
   if (builds.empty()) return;
-  const DrawSmallEntriesFn draw_small = built_draw_small_entries();
+  const DrawSmallEntriesFn draw_small = built_small_entry_kernels().draw;
   REQUIRE((draw_small != nullptr));  // (doubled: doctest cannot print a function pointer)
   // Triangles of under a pixel to hundreds of pixels over and around a 300 x 200 view, seen
   // from the tile at pixels 128 .. 255, 24 .. 47: small ones inside it, across its edges,
