@@ -24,9 +24,9 @@ from phase_correlation import phase_correlate
 
 
 def shift(a, b):
-    """(rows, cols) shift of b against a and q, each image's mean taken out first."""
+    """(rows, cols) shift of b's content against a's and q, each image's mean taken out first."""
     dx, dy, q = phase_correlate(a - a.mean(), b - b.mean())
-    return dy, dx, q
+    return -dy, -dx, q
 
 
 def main():
@@ -46,7 +46,7 @@ def main():
     if A.shape != B.shape:
         sys.exit(f"local_coregistration: {o.a} is {A.shape[1]}x{A.shape[0]}, {o.b} {B.shape[1]}x{B.shape[0]}: not one grid")
     dy, dx, peak = shift(A, B)
-    print(f"whole image: shift ({dx * o.pixel_m:.2f}, {dy * o.pixel_m:.2f}) m (columns, rows), q {peak:.1f}")
+    print(f"whole image: shift of b's content ({dx * o.pixel_m:.2f}, {dy * o.pixel_m:.2f}) m (columns, rows), q {peak:.1f}")
     for n in sizes:
         if n < 8 or n > min(A.shape):
             sys.exit(f"local_coregistration: window {n} px does not fit the {A.shape[1]}x{A.shape[0]} image")

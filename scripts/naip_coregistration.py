@@ -49,7 +49,7 @@ ref = sys.argv[1] if len(sys.argv) > 1 else '2016'
 print('global offset of each year against', ref, '(metres east, north; + = year content lies east/north of ref) and peak/std')
 for y in years:
     dx, dy, q = pc(imgs[y], imgs[ref])
-    print(y, '%6.2f %6.2f  q %.1f' % (-5 * dx, 5 * dy, q))
+    print(y, '%6.2f %6.2f  q %.1f' % (5 * dx, -5 * dy, q))
 print('blocks (150x175 px = 750x875 m), offset of the second year against the first (m E, m N) and q:')
 for A, B in (('2009', '2020'), ('2016', '2017'), ('2012', '2020')):
     rows = []
@@ -57,7 +57,7 @@ for A, B in (('2009', '2020'), ('2016', '2017'), ('2012', '2020')):
         for bj in range(4):
             sl = (slice(bi*175, (bi+1)*175), slice(bj*150, (bj+1)*150))
             dx, dy, q = pc(imgs[B][sl], imgs[A][sl])
-            rows.append('(%5.1f,%5.1f q%3.0f)' % (-5*dx, 5*dy, q))
+            rows.append('(%5.1f,%5.1f q%3.0f)' % (5*dx, -5*dy, q))
     print(A, B)
     for k in range(4):
         print('  ', ' '.join(rows[k * 4:(k + 1) * 4]))
