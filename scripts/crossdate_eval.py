@@ -4,7 +4,6 @@ scripts/eval_fotbcd.py): their common options, a local flat-ground manifest of o
 
 The pairs are read in place from ../shared/data under non-commercial licences: evaluation only,
 nothing of them is copied into the repository. Python standard library only."""
-import argparse
 import json
 import os
 import subprocess
