@@ -29,21 +29,21 @@ def check_terralign(prog, path):
         sys.exit(f'{prog}: {path} is not an executable (build first: bash scripts/test.sh)')
 
 
-def flat_manifest(path, name, layers, pixel_m, side_px, offsets=None):
+def flat_manifest(path, name, layers, pixel_m, side_px, offsets=None, registration_sigma_m=None):
     """Writes a local-frame manifest of square rasters of side_px pixels of pixel_m metres over
     flat ground at height 0; layers: [(layer name, file)]; offsets: {layer name: (east, north)},
-    metres the layer's raster is moved by (none: every layer's corner at (0, side))."""
+    metres the layer's raster is moved by (none: every layer's corner at (0, side));
+    registration_sigma_m: every layer's, as the README's "Map manifests" says (none: not known)."""
     side = side_px * pixel_m
     offsets = offsets or {}
-    manifest = {
-        'name': name,
-        'crs': 'local',
-        'dem': {'constant': 0.0},
-        'layers': [{'name': layer, 'file': f,
-                    'transform': [offsets.get(layer, (0.0, 0.0))[0], pixel_m, 0.0,
-                                  side + offsets.get(layer, (0.0, 0.0))[1], 0.0, -pixel_m]}
-                   for layer, f in layers],
-    }
+    entries = []
+    for layer, f in layers:
+        east, north = offsets.get(layer, (0.0, 0.0))
+        entry = {'name': layer, 'file': f, 'transform': [east, pixel_m, 0.0, side + north, 0.0, -pixel_m]}
+        if registration_sigma_m is not None:
+            entry['registration_sigma_m'] = registration_sigma_m
+        entries.append(entry)
+    manifest = {'name': name, 'crs': 'local', 'dem': {'constant': 0.0}, 'layers': entries}
     with open(path, 'w') as fh:
         json.dump(manifest, fh, indent=1)
 

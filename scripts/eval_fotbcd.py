@@ -36,13 +36,15 @@ import numpy as np
 from PIL import Image
 
 from crossdate_eval import add_common_args, check_terralign, flat_manifest, percent, print_table, run_eval
-from phase_correlation import phase_correlate
+from local_coregistration import shift
 
 SIDE_PX = 515
 PIXEL_M = 102.4 / SIDE_PX
 TOP = 49
 PANELS = {'before': 15, 'after': 758}
 MIN_Q = 12.0  # scripts/local_coregistration.py's --min-q
+CHI2_6_95 = 12.592  # chi-square, 6 degrees of freedom, 95 %: eval's nees_within_95
+LOCAL_WINDOW_PX = 256  # 51 m, about a view at 50-70 m (58-81 x 37-52 m)
 
 
 def crop_panels(figure, out_dir, stem):
@@ -73,23 +75,34 @@ def campaigns_shift(layers):
     """Where the older campaign's tile places the ground against where the newer one places it,
     as a whole, and how much the two share: (east, north) metres and q of the whole-tile phase
     correlation (scripts/local_coregistration.py's: 4-6 for unrelated content; under 12, no
-    reliable shift)."""
+    reliable shift), and what the two disagree on about that shift over windows of a view's
+    size, 51 m: the RMS per axis in metres of the reliable windows' shifts against the whole
+    tile's (None with fewer than two reliable windows)."""
     a, b = (np.asarray(Image.open(f).convert('L'), np.float64) for _, f in layers)
-    dx, dy, q = phase_correlate(a - a.mean(), b - b.mean())
-    return dx * PIXEL_M, -dy * PIXEL_M, float(q)
+    rows, cols, q = shift(a, b)  # the newer tile's content against the older one's, pixels
+    n = LOCAL_WINDOW_PX
+    windows = [shift(a[y:y + n, x:x + n], b[y:y + n, x:x + n])
+               for y in range(0, SIDE_PX - n + 1, n // 2) for x in range(0, SIDE_PX - n + 1, n // 2)]
+    d = np.array([(wr - rows, wc - cols) for wr, wc, wq in windows if wq >= MIN_Q])
+    local_rms = float(np.sqrt(np.mean(np.sum(d ** 2, axis=1)) / 2)) * PIXEL_M if len(d) >= 2 else None
+    return -cols * PIXEL_M, rows * PIXEL_M, float(q), local_rms
 
 
 def pooled(results):
     """One method's rows over every pair: (within 5 px, converged, right, 3-D EPE median,
-    2-D EPE median, pairs at 90 % or more)."""
+    2-D EPE median, pairs at 90 % or more, the converged answers' NEES median and share inside
+    their own 95 % ellipsoid)."""
     within = statistics.mean(r['success_rate_5px'] for r in results)
     converged = statistics.mean(r['converged_fraction'] for r in results)
-    n_conv = sum(r['converged_fraction'] * len(r['samples']) for r in results)
-    n_right = sum(r['converged_within_5px'] * r['converged_fraction'] * len(r['samples']) for r in results)
+    conv = [s for r in results for s in r['samples'] if s['converged']]
+    right = sum(s['epe_px'] < 5 for s in conv) / len(conv) if conv else None
     epe_m = statistics.median(s['epe_m'] for r in results for s in r['samples'])
     epe_px = statistics.median(s['epe_px'] for r in results for s in r['samples'])
     at_90 = sum(r['success_rate_5px'] >= 0.9 for r in results)
-    return within, converged, (n_right / n_conv if n_conv > 0 else None), epe_m, epe_px, at_90
+    nees = [s['nees'] for s in conv if 'nees' in s]
+    nees_median = statistics.median(nees) if nees else None
+    inside_95 = sum(v < CHI2_6_95 for v in nees) / len(nees) if nees else None
+    return within, converged, right, epe_m, epe_px, at_90, nees_median, inside_95
 
 
 def main():
@@ -120,15 +133,18 @@ def main():
             label = labels[f]
             stem = label.replace('/', '_')
             layers = crop_panels(f, work, stem)
-            east, north, q = shifts[label] = campaigns_shift(layers)
+            east, north, q, local_rms = shifts[label] = campaigns_shift(layers)
             # Where phase correlation registers the two campaigns, the older one is moved onto
             # the newer, as WHU-CD's providers co-registered Christchurch's surveys: a tracker
             # aligned to the map is then not held to a whole-tile offset between the campaigns.
+            # What they still disagree on over a view's windows is split evenly between the two
+            # layers' registration_sigma_m, as data/christchurch's manifests state theirs.
             register = q >= MIN_Q and not args.no_coregister
             m = os.path.join(work, f'{stem}.json')
             flat_manifest(m, f'FOTBCD {label}: IGN BD ORTHO, two campaigns, {PIXEL_M:.4f} m/px, flat ground '
                              '(CC BY-NC-SA 4.0, evaluation only)', layers, PIXEL_M, SIDE_PX,
-                          {'before': (-east, -north)} if register else None)
+                          {'before': (-east, -north)} if register else None,
+                          local_rms / np.sqrt(2) if register and local_rms is not None else None)
             j = run_eval('eval_fotbcd', args, label, m, 'before', 'after', '50:70', 5,
                          os.path.join(out_dir, f'{stem}_s{args.seed}.json'))
             rows += [(label, method, r) for method, r in j['methods'].items()]
@@ -138,26 +154,29 @@ def main():
           f'{args.count} poses each, seed {args.seed}, altitude 50-70 m, tilt <= 5 deg, {PIXEL_M:.4f} m/px\n')
     print_table(rows, 'pair')
     print('\nOver all pairs (within 5 px and converged: the pairs\' mean; right: of every converged answer; '
-          'medians: over every pose)\n')
-    print('| method, pairs | within 5 px | converged | right | 3-D EPE m median | 2-D EPE px median | pairs at 90 % within 5 px |')
-    print('|---|---|---|---|---|---|---|')
+          'EPE medians: over every pose; NEES: of the converged answers, 5.35 at the median and 95 % inside '
+          'where the covariance is honest)\n')
+    print('| method, pairs | within 5 px | converged | right | 3-D EPE m median | 2-D EPE px median | pairs at 90 % within 5 px '
+          '| NEES median | inside its 95 % |')
+    print('|---|---|---|---|---|---|---|---|---|')
     methods = list(dict.fromkeys(method for _, method, _ in rows))
-    shared = {label for label, (_, _, q) in shifts.items() if q >= MIN_Q}
+    shared = {label for label, (_, _, q, _) in shifts.items() if q >= MIN_Q}
     for method in methods:
         for name, keep in (('all', lambda label: True), (f'q >= {MIN_Q:g}', lambda label: label in shared),
                            (f'q < {MIN_Q:g}', lambda label: label not in shared)):
             results = [r for label, m, r in rows if m == method and keep(label)]
             if not results or (method == 'init' and name != 'all'):
                 continue
-            within, converged, right, epe_m, epe_px, at_90 = pooled(results)
+            within, converged, right, epe_m, epe_px, at_90, nees_median, inside_95 = pooled(results)
             print(f'| {method}, {name} ({len(results)} pairs) | {percent(within)} | {percent(converged)} | {percent(right)} | '
-                  f'{epe_m:.2f} | {epe_px:.2f} | {at_90} of {len(results)} |')
+                  f'{epe_m:.2f} | {epe_px:.2f} | {at_90} of {len(results)} | '
+                  f'{"-" if nees_median is None else f"{nees_median:.1f}"} | {percent(inside_95)} |')
     print(f'\nThe campaigns against each other (whole-tile phase correlation of the grey panels; q >= {MIN_Q:g}: '
           f'a reliable shift, they share what it sees)\n')
-    print('| pair | the older campaign against the newer, east / north m | q |')
-    print('|---|---|---|')
-    for label, (east, north, q) in shifts.items():
-        print(f'| {label} | {east:+.2f} / {north:+.2f} | {q:.1f} |')
+    print(f'| pair | the older campaign against the newer, east / north m | q | {LOCAL_WINDOW_PX} px windows about it, RMS per axis m |')
+    print('|---|---|---|---|')
+    for label, (east, north, q, local_rms) in shifts.items():
+        print(f'| {label} | {east:+.2f} / {north:+.2f} | {q:.1f} | {"-" if local_rms is None else f"{local_rms:.2f}"} |')
 
 
 if __name__ == '__main__':
