@@ -13,16 +13,21 @@ tiles are half Christchurch's 205 m, so the camera flies at half its height: `--
 50:70 --tilt 5`, 752 x 480 (f 651 px: 0.08-0.11 m a pixel against the map's 0.2, a
 magnified map, as a UAV at that height sees).
 
+The campaigns are not registered on each other. Where a whole-tile phase correlation finds a
+reliable shift (q >= 12, scripts/local_coregistration.py's), the older tile is moved onto the
+newer (`--no-coregister`: not), and what the two still disagree on about that shift over 51 m
+windows becomes both layers' registration_sigma_m, so the covariance counts it.
+
 Prints a row per pair and method, then each method over all pairs: the share within 5 px and
 converged as the pairs' mean (every pair has the same count of poses), the converged answers'
 share within 5 px over all of them, the 3-D and 2-D EPE medians over all poses (a failed
-answer counted at its prior, as eval counts it), and how many pairs reach 90 % within 5 px; all
-pairs, then those whose two campaigns share enough for a whole-tile phase correlation to find
-a reliable shift (q >= 12, scripts/local_coregistration.py's) and the rest; last, each pair's
-shift and q.
+answer counted at its prior, as eval counts it), how many pairs reach 90 % within 5 px, and
+the converged answers' NEES; all pairs, then the registered ones and the rest; last, each
+pair's shift, q and local disagreement.
 
 usage: /usr/bin/python3 scripts/eval_fotbcd.py [--terralign BIN] [--shared DIR] [--count N]
-           [--seed S] [--methods LIST] [--json-dir DIR] [-- EVAL OPTIONS]
+           [--seed S] [--methods LIST] [--json-dir DIR] [--pairs LIST] [--no-coregister]
+           [-- EVAL OPTIONS]
 Needs numpy and PIL (Debian's python3-numpy, python3-pil)."""
 import argparse
 import glob
