@@ -182,13 +182,11 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
 }
 
 void DeepAligner::set_iterations(int n) {
-  std::visit(
-      [n](auto& t) {
-        auto o = t->options();
-        o.iterations = n;
-        t->set_options(o);
-      },
-      tracker_);
+  update_options([n](iclk::TrackerOptions& o) { o.iterations = n; });
+}
+
+void DeepAligner::set_ground_floor_m(double m) {
+  update_options([m](iclk::TrackerOptions& o) { o.ground_floor_m = m; });
 }
 
 void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out, int levels) {

@@ -101,6 +101,9 @@ class DeepAligner : public iclk::LevelWeights {
   const iclk::TrackResult<Warp>& refine(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
                                         const iclk::Pinhole<float>& K, int levels, bool learned_weights = true);
   void set_iterations(int n);
+  // The map's own error on the ground (iclk::TrackerOptions::ground_floor_m), for a caller
+  // that aligns to references of several layers, each with its own.
+  void set_ground_floor_m(double m);
   // The world's up in the reference camera (iclk::Tracker::set_up), for the tilt prior.
   void set_up(const Eigen::Vector3d& up_in_reference, const Eigen::Vector3d& tilt = Eigen::Vector3d::Zero()) {
     std::visit([&](auto& t) { t->set_up(up_in_reference, tilt); }, tracker_);
@@ -119,6 +122,17 @@ class DeepAligner : public iclk::LevelWeights {
   DeepAligner() = default;
   // Encodes the finest `levels` levels into out (the encoder stops at the last step they need).
   void encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out, int levels);
+  // Changes the tracker's options in place (whichever channel count it was built for).
+  template <class F>
+  void update_options(F change) {
+    std::visit(
+        [&](auto& t) {
+          auto o = t->options();
+          change(o);
+          t->set_options(o);
+        },
+        tracker_);
+  }
   int width_ = 0, height_ = 0, levels_ = 0, channels_ = 1;
   // One pool for the encoder, the M-estimators and the solver, which run one after another:
   // the caller's or own_pool_ (declared first: it outlives them).
