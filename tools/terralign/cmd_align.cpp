@@ -74,8 +74,10 @@ int run_align(const std::vector<std::string>& argv) {
     return fail(Error{args->get("image") + ": image is " + std::to_string(image->width()) + " x " +
                       std::to_string(image->height()) + ", the camera " + args->get("camera") + " is " +
                       std::to_string(cam->width) + " x " + std::to_string(cam->height)});
-  if (!map->find_layer(args->get("layer")))
-    return fail(Error{"no layer named '" + args->get("layer") + "' in " + args->get("map") + " (layers: " + map->layer_names() + ")"});
+  const std::vector<std::string> layers = split_commas(args->get("layer"));
+  for (const std::string& name : layers)
+    if (!map->find_layer(name))
+      return fail(Error{"--layer: no layer named '" + name + "' in " + args->get("map") + " (layers: " + map->layer_names() + ")"});
   ImageU8 live = cam->model == geo::DistortionModel::None ? std::move(image.value()) : undistort(image->view(), cam.value());
   iclk::TrackerOptions opt = topt.value();
   opt.iterations = iters.value();
@@ -86,7 +88,7 @@ int run_align(const std::vector<std::string>& argv) {
     if (!w.ok()) return fail(w.error());
     weights = std::move(w.value());
   }
-  auto loc = Localizer::create(map.value(), pinhole_of(cam.value()), args->get("layer"), opt, threads.value(),
+  auto loc = Localizer::create(map.value(), pinhole_of(cam.value()), layers, opt, threads.value(),
                                weights ? &*weights : nullptr);
   if (!loc.ok()) return fail(loc.error());
   refine->apply(*loc.value());
@@ -105,6 +107,8 @@ int run_align(const std::vector<std::string>& argv) {
   j["covariance_frame"] = "[dtheta_x, dtheta_y, dtheta_z (rad, world axes, left of R_W_C), dx, dy, dz (m, camera centre)]";
   j["converged"] = out->converged;
   j["reason"] = out->reason;
+  j["layer"] = layers[static_cast<std::size_t>(out->layer)];  // the answer's (where none converged, the first)
+  j["layers_tried"] = out->layers_tried;
   j["iterations"] = out->iterations;
   j["residual_final"] = out->residual_final;  // the last pass's (eval's JSON has it per pose too)
   // Re-rendered passes after the first (--refine), and of them the learned tracker's without

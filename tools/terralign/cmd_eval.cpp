@@ -95,6 +95,7 @@ struct Method {
   std::vector<Eigen::Vector3d> rotation_error;          // world-axis rotation, estimate -> truth (rad, angle x axis)
   std::vector<int> iterations_used;  // LM iterations over all levels
   std::vector<const char*> reason;
+  std::vector<int> layer;  // which of --ref-layer's answered (Localizer: the first that converged)
   int converged = 0;
 };
 
@@ -207,16 +208,23 @@ int run_eval(const std::vector<std::string>& argv) {
   auto cam_in = geo::load_camera(args->get("camera"));
   if (!cam_in.ok()) return fail(cam_in.error());
   const geo::CameraModel cam = pinhole_of(cam_in.value());
-  for (const char* k : {"ref-layer", "query-layer"})
-    if (!map->find_layer(args->get(k)))
-      return fail(Error{"--" + std::string(k) + ": no layer named '" + args->get(k) + "' (layers: " + map->layer_names() + ")"});
+  // --ref-layer A[,B,...]: the reference layers in order of preference (Localizer::create).
+  const std::vector<std::string> ref_layers = split_commas(args->get("ref-layer"));
+  for (const std::string& name : ref_layers)
+    if (!map->find_layer(name))
+      return fail(Error{"--ref-layer: no layer named '" + name + "' (layers: " + map->layer_names() + ")"});
+  if (!map->find_layer(args->get("query-layer")))
+    return fail(Error{"--query-layer: no layer named '" + args->get("query-layer") + "' (layers: " + map->layer_names() + ")"});
   {
     // The truth is the query layer's, over the same DEM: the answers are off it by what the
     // reference layer's registration and the query's disagree on (none where they are one
     // layer), and not by the DEM's error. The covariance counts that.
-    geo::Layer& ref = *map->find_layer(args->get("ref-layer"));
-    const geo::Layer& query = *map->find_layer(args->get("query-layer"));
-    ref.registration_sigma_m = &ref == &query ? 0.0 : std::hypot(ref.registration_sigma_m, query.registration_sigma_m);
+    const std::string query = args->get("query-layer");
+    const double query_sigma = map->find_layer(query)->registration_sigma_m;
+    for (const std::string& name : ref_layers) {
+      geo::Layer& ref = *map->find_layer(name);
+      ref.registration_sigma_m = name == query ? 0.0 : std::hypot(ref.registration_sigma_m, query_sigma);
+    }
     map->dem.vertical_sigma_m = 0;
   }
   const std::string overlays = args->get("overlays");
@@ -237,7 +245,7 @@ int run_eval(const std::vector<std::string>& argv) {
   iclk::TrackerOptions opt = topt.value();
   opt.robust = robust.value();
   opt.levels = levels.value();
-  auto loc = Localizer::create(map.value(), cam, args->get("ref-layer"), opt, threads.value());
+  auto loc = Localizer::create(map.value(), cam, ref_layers, opt, threads.value());
   if (!loc.ok()) return fail(loc.error());
   refine->apply(*loc.value());
   std::unique_ptr<Localizer> learned;
@@ -248,7 +256,7 @@ int run_eval(const std::vector<std::string>& argv) {
     // so its probe runs here whether or not the test is on (align and track skip it then).
     iclk::TrackerOptions lopt = opt;
     lopt.probe_px = iclk::DeepAligner::kProbePx;
-    auto l = Localizer::create(map.value(), cam, args->get("ref-layer"), lopt, threads.value(), &w.value(), sizes);
+    auto l = Localizer::create(map.value(), cam, ref_layers, lopt, threads.value(), &w.value(), sizes);
     if (!l.ok()) return fail(l.error());
     learned = std::move(l.value());
     refine->apply(*learned);
@@ -295,7 +303,7 @@ int run_eval(const std::vector<std::string>& argv) {
         }
         // The metrics use the classical (full-size) reference rendered at the prior: the
         // classical tracker's own, unless it refined (rendered again at its answer).
-        if (!m.learned) have_ref = out->refinements == 0;
+        if (!m.learned) have_ref = out->refinements == 0 && out->layer == 0;
         est = out->T_live_ref;
         ms = out->ms_encoder + out->ms_pyramid + out->ms_jacobian + out->ms_iterations;
         m.converged += out->converged;
@@ -316,6 +324,7 @@ int run_eval(const std::vector<std::string>& argv) {
         m.residual_correlation.push_back(out->residual_correlation);
         m.iterations_used.push_back(out->iterations);
         m.reason.push_back(out->reason);
+        m.layer.push_back(out->layer);
       } else {
         m.converged += 1;
         m.ok.push_back(1);
@@ -432,6 +441,7 @@ int run_eval(const std::vector<std::string>& argv) {
         sj["residual_correlation"] = m.residual_correlation[k];
         sj["iterations"] = m.iterations_used[k];
         sj["reason"] = m.reason[k];
+        sj["layer"] = ref_layers[static_cast<std::size_t>(m.layer[k])];
       }
       mj["samples"].push_back(sj);
     }
@@ -450,6 +460,22 @@ int run_eval(const std::vector<std::string>& argv) {
                 mm("epe_m").c_str(), mm("angle_deg").c_str(), mm("trans_m").c_str(), mm("epe_px").c_str(), 100.0 * ok1 / n,
                 100.0 * ok5 / n, 100.0 * m.converged / n, m.iterations ? 100.0 * conv5 / std::max(m.converged, 1) : 0.0,
                 t["mean"].get<double>(), t["median"].get<double>(), nees_cell);
+  }
+  // With several reference layers: which answered each converged alignment.
+  if (ref_layers.size() > 1) {
+    std::printf("\n");
+    for (const auto& m : methods) {
+      if (m.iterations == 0) continue;
+      std::vector<int> by(ref_layers.size(), 0);
+      int none = 0;
+      for (std::size_t k = 0; k < m.layer.size(); ++k) m.ok[k] ? ++by[static_cast<std::size_t>(m.layer[k])] : ++none;
+      std::printf("%s, converged answers by layer:", m.name.c_str());
+      for (std::size_t l = 0; l < by.size(); ++l) {
+        std::printf(" %s %d,", ref_layers[l].c_str(), by[l]);
+        j["methods"][m.name]["answered_by"][ref_layers[l]] = by[l];
+      }
+      std::printf(" none %d\n", none);
+    }
   }
   if (args->has("json")) {
     const std::string text = j.dump(2) + "\n";

@@ -186,7 +186,7 @@ int run_track(const std::vector<std::string>& argv) {
     weights = std::move(w.value());
   }
   auto loc =
-      Localizer::create(map.value(), cam, args->get("layer"), opt, threads.value(), weights ? &*weights : nullptr, sizes);
+      Localizer::create(map.value(), cam, split_commas(args->get("layer")), opt, threads.value(), weights ? &*weights : nullptr, sizes);
   if (!loc.ok()) return fail(loc.error());
   refine->apply(*loc.value());
   std::vector<geo::Pose> truth;

@@ -20,7 +20,7 @@ const std::vector<Command>& commands() {
        run_render},
       {"align", "align one camera image to the map from a prior pose; prints the pose as JSON",
        "usage: terralign align --map MAP.json --camera CAMERA.json --image IMG --prior \"x y z qw qx qy qz\"\n"
-       "                       --layer NAME [--method classic|nn] [--iterations N] [--robust none|huber|tukey]\n"
+       "                       --layer NAME[,NAME...] [--method classic|nn] [--iterations N] [--robust none|huber|tukey]\n"
        "                       [--threads N] [--weights FILE] [--tilt-prior DEG] [--registration-floor PX]\n"
        "                       [--registration-floor-per-residual PX] [--refine N] [--refine-uniform R]\n"
        "                       [--min-sharpness S] [--max-disagreement PX] [--coarse-search PX]\n"
@@ -31,6 +31,11 @@ const std::vector<Command>& commands() {
        "[dtheta (rad, world axes) ; dp (m, camera centre, world axes)]. A camera with distortion has\n"
        "its image undistorted to the same pinhole first. Exit code 3 when it did not converge (the\n"
        "pose printed is then the prior).\n"
+       "--layer A,B,...: layers in order of preference (the newest year first, say): where the\n"
+       "alignment to A does not converge, the image is aligned to B, and so on; the first converged\n"
+       "answer is printed with \"layer\" (its name) and \"layers_tried\", and \"ms\" and\n"
+       "\"iterations\" count every layer tried. A map of several years thus answers where its\n"
+       "newest year has changed too much (README, \"A map of several years\").\n"
        "--method nn: the learned tracker (encoder features, learned M-estimator, the same LM) at\n"
        "the weights' working size (half the camera's for the shipped weights); --weights FILE\n"
        "for weights other than the shipped weights/deep_iclk_s16w64.tlw (weights/deep_iclk_s16.tlw:\n"
@@ -59,7 +64,7 @@ const std::vector<Command>& commands() {
        "(the converged tests, the search before the coarsest level, the finest level's stop).\n",
        run_align},
       {"eval", "the paper's evaluation: sampled poses, rendered pairs, error tables per method",
-       "usage: terralign eval --map MAP.json --camera CAMERA.json --ref-layer A --query-layer B --count N\n"
+       "usage: terralign eval --map MAP.json --camera CAMERA.json --ref-layer A[,A2...] --query-layer B --count N\n"
        "                      --seed S --altitude LO:HI [--tilt DEG] [--methods init,classic:20,classic:50]\n"
        "                      [--robust none|huber|tukey] [--levels L] [--json OUT] [--overlays DIR]\n"
        "                      [--threads N] [--weights FILE] [--area MINX,MINY,MAXX,MAXY]\n"
@@ -76,7 +81,9 @@ const std::vector<Command>& commands() {
        "fraction, how many converged answers are within 5 px, and the alignment time (nn: with both\n"
        "encoders; neither includes rendering). Methods: init, classic:N, nn:N (the learned tracker,\n"
        "N iterations per level; --weights as for align). --area keeps every footprint inside a part\n"
-       "of the map (e.g. ground the learned tracker was not trained on). Converged tests report an\n"
+       "of the map (e.g. ground the learned tracker was not trained on). --ref-layer A,A2,...:\n"
+       "references in order of preference, as align's --layer; eval then prints which layer gave\n"
+       "the converged answers, and --json each answer's \"layer\". Converged tests report an\n"
        "answer as failed (the prior): --max-disagreement PX, the agreement test of both trackers\n"
        "(default: 0.95 classic; the weight file's '# max-disagreement-px', 1.25 for the shipped\n"
        "weights; negative: none), when a second start 2 working px away in u and v settles more\n"
@@ -122,7 +129,7 @@ const std::vector<Command>& commands() {
        "(drawn per frame from a second stream; the frames stay the same), for track's --attitude.\n",
        run_flight},
       {"track", "track a flight: each frame's prior predicted from the last answers (constant velocity)",
-       "usage: terralign track --map MAP.json --camera CAMERA.json --layer NAME --images LIST\n"
+       "usage: terralign track --map MAP.json --camera CAMERA.json --layer NAME[,NAME...] --images LIST\n"
        "                       --init \"x y z qw qx qy qz\" [--method classic|nn] [--out poses.csv]\n"
        "                       [--truth POSES] [--json SUMMARY] [--iterations N] [--threads N]\n"
        "                       [--weights FILE] [--attitude FILE] [--tilt-prior DEG]\n"

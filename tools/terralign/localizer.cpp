@@ -10,15 +10,30 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
                                                      const std::string& layer, const iclk::TrackerOptions& options,
                                                      int threads, const nn::WeightFile* weights,
                                                      const LocalizerSizes& sizes) {
+  return create(map, camera, std::vector<std::string>{layer}, options, threads, weights, sizes);
+}
+
+Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const geo::CameraModel& camera,
+                                                     const std::vector<std::string>& layers,
+                                                     const iclk::TrackerOptions& options, int threads,
+                                                     const nn::WeightFile* weights, const LocalizerSizes& sizes) {
   if (camera.model != geo::DistortionModel::None)
     return Error{"Localizer: the camera must be a pinhole (undistort the live image first)"};
+  if (layers.empty()) return Error{"Localizer: no reference layer given (layers: " + map.layer_names() + ")"};
   std::unique_ptr<Localizer> L(new Localizer);
+  for (std::size_t i = 0; i < layers.size(); ++i) {
+    const geo::Layer* ref_layer = map.find_layer(layers[i]);
+    if (!ref_layer) return Error{"Localizer: no layer named '" + layers[i] + "' (layers: " + map.layer_names() + ")"};
+    if (std::find(layers.begin(), layers.begin() + static_cast<std::ptrdiff_t>(i), layers[i]) !=
+        layers.begin() + static_cast<std::ptrdiff_t>(i))
+      return Error{"Localizer: layer '" + layers[i] + "' is given twice"};
+    // The reference layer's own error on the ground joins any the caller's options count.
+    L->ground_floor_m_.push_back(std::hypot(options.ground_floor_m, ref_layer->registration_sigma_m));
+  }
   L->camera_ = camera;
   L->work_ = camera;
-  // The reference layer's own error on the ground joins any the caller's options count.
-  const geo::Layer* ref_layer = map.find_layer(layer);
   iclk::TrackerOptions with_map = options;
-  with_map.ground_floor_m = std::hypot(options.ground_floor_m, ref_layer ? ref_layer->registration_sigma_m : 0.0);
+  with_map.ground_floor_m = L->ground_floor_m_[0];
   L->dem_variance_ = map.dem.vertical_sigma_m * map.dem.vertical_sigma_m;
   if (weights) {
     // The learned tracker renders and aligns at the size its network was trained at.
@@ -43,7 +58,10 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
   ro.threads = threads;
   if (sizes.max_triangles > 0) ro.max_triangles = sizes.max_triangles;
   TERRALIGN_TRY_ASSIGN(L->renderer_, raster::Renderer::create(map, L->work_, ro, L->pool_.get()));
-  TERRALIGN_TRY_ASSIGN(L->ref_, L->renderer_->make_output({layer}));
+  for (const std::string& layer : layers) {
+    TERRALIGN_TRY_ASSIGN(auto ref, L->renderer_->make_output({layer}));
+    L->refs_.push_back(std::move(ref));
+  }
   L->depth_.resize(L->work_.width, L->work_.height, 1);
   if (L->deep_) return L;
   L->ref_grey_.resize(camera.width, camera.height, 1);
@@ -101,18 +119,27 @@ void Localizer::set_refinement(int passes, int levels, double min_deg) {
   refine_min_deg_ = min_deg;
 }
 
+void Localizer::use_layer(std::size_t i) {
+  current_ = i;
+  if (deep_) return deep_->set_ground_floor_m(ground_floor_m_[i]);
+  auto o = tracker_->options();
+  o.ground_floor_m = ground_floor_m_[i];
+  tracker_->set_options(o);
+}
+
 Status Localizer::render_reference(const geo::Pose& at, LocalizeOutput& out) {
+  raster::RenderOutput& ref = refs_[current_];
   const auto t0 = std::chrono::steady_clock::now();
-  auto st = renderer_->render(at, ref_);
+  auto st = renderer_->render(at, ref);
   if (!st.ok()) return st.error();
   out.ms_render += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   // Depth where the reference layer has colour; NaN elsewhere (sky, off the layer).
   for (std::size_t k = 0; k < depth_.size(); ++k)
-    depth_.data()[k] = ref_.valid[0].data()[k] ? ref_.depth.data()[k] : NAN;
+    depth_.data()[k] = ref.valid[0].data()[k] ? ref.depth.data()[k] : NAN;
   if (deep_)
-    for (std::size_t k = 0; k < ref_rgb_.size(); ++k) ref_rgb_.data()[k] = ref_.rgb[0].data()[k];
+    for (std::size_t k = 0; k < ref_rgb_.size(); ++k) ref_rgb_.data()[k] = ref.rgb[0].data()[k];
   else
-    iclk::rgb_to_grey(ref_.rgb[0].view(), ref_grey_);
+    iclk::rgb_to_grey(ref.rgb[0].view(), ref_grey_);
   return Ok{};
 }
 
@@ -168,8 +195,37 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     return Error{"live image is " + std::to_string(live.width) + " x " + std::to_string(live.height) + " x " +
                  std::to_string(live.channels) + ", the camera is " + std::to_string(camera_.width) + " x " +
                  std::to_string(camera_.height) + " x 3"};
-  LocalizeOutput out;
+  // One output over the layers: each layer's passes add their time and iterations to it.
+  LocalizeOutput out, first;
+  for (std::size_t i = 0; i < refs_.size(); ++i) {
+    use_layer(i);
+    out.T_live_ref = iclk::SE3<double>::identity();
+    out.covariance.setZero();
+    out.uniform_refinements = 0;
+    // Every layer sees the same ground from the same prior: one that cannot be rendered
+    // there is an error of the first (the pose off the map, say).
+    if (auto st = localize_layer(live, prior, attitude, out); !st.ok()) return st.error();
+    out.layer = static_cast<int>(i);
+    out.layers_tried = static_cast<int>(i + 1);
+    if (out.converged) return out;
+    if (i == 0) first = out;
+  }
+  // None converged: the first layer's failure, with what every layer cost.
+  first.layers_tried = out.layers_tried;
+  first.iterations = out.iterations;
+  first.ms_render = out.ms_render;
+  first.ms_pyramid = out.ms_pyramid;
+  first.ms_jacobian = out.ms_jacobian;
+  first.ms_iterations = out.ms_iterations;
+  first.ms_encoder = out.ms_encoder;
+  first.ms_mestimator = out.ms_mestimator;
+  return first;
+}
+
+Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::Pose& prior,
+                                 const Eigen::Quaterniond* attitude, LocalizeOutput& out) {
   out.T_W_C = prior;
+  out.converged = false;
   geo::Pose ref_pose = prior;                                      // where the reference is rendered
   iclk::SE3<double> T_ref_prior = iclk::SE3<double>::identity();  // and its place against the prior
   for (int pass = 0; pass <= refine_passes_; ++pass) {
@@ -208,7 +264,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     out.covariance_inflation = r.covariance_inflation;
     out.refinements = pass;
     if (uniform) ++out.uniform_refinements;
-    if (!r.converged) return out;  // failure as data: the prior (T_W_C), no covariance
+    if (!r.converged) return Ok{};  // failure as data: the prior (T_W_C), no covariance
     // T_live_prior = T_live_ref T_ref_prior: the relative pose to the prior's reference.
     const iclk::SE3<double> T_live_ref = r.params.cast<double>();
     out.T_live_ref = T_live_ref * T_ref_prior;
@@ -226,7 +282,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     ref_pose = out.T_W_C;
     T_ref_prior = out.T_live_ref;
   }
-  return out;
+  return Ok{};
 }
 
 geo::CameraModel pinhole_of(const geo::CameraModel& camera) {

@@ -1,0 +1,156 @@
+// A localizer over several layers of one map (cli::Localizer::create with a list): the image is
+// aligned to the first layer, and to the next only where the alignment before did not
+// converge. Here the layer that cannot be aligned to is a featureless one ("blank": the
+// 2016 layer painted one grey), which no tracker converges on.
+#include <cstdlib>
+#include <string>
+#include <vector>
+
+#include <doctest/doctest.h>
+#include <nlohmann/json.hpp>
+
+#include <terralign/geo/map.hpp>
+#include <terralign/nn/weights.hpp>
+#include <terralign/raster/renderer.hpp>
+
+#include "localizer.hpp"
+#include "support.hpp"
+
+using namespace terralign;
+
+namespace {
+
+struct Scene {
+  geo::Map map;
+  geo::CameraModel cam;
+  geo::Pose truth, prior;
+  ImageU8 live;  // 2016 at the truth
+};
+
+// The sample camera 700 m over the NAIP sample's middle, seen in 2016, the prior 25 m off; the
+// map gains two featureless layers, "blank" and "blank2".
+Scene scene() {
+  auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
+  auto cam = geo::load_camera(test::source_path("data/cameras/uav_752x480.json"));
+  REQUIRE(map.ok());
+  REQUIRE(cam.ok());
+  Scene s{std::move(map.value()), cam.value(), {}, {}, {}};
+  for (const char* name : {"blank", "blank2"}) {
+    geo::Layer blank = *s.map.find_layer("2016");
+    blank.name = name;
+    for (std::size_t k = 0; k < blank.rgba.size(); k += 4)
+      for (std::size_t c = 0; c < 3; ++c) blank.rgba.data()[k + c] = 128;
+    s.map.layers.push_back(std::move(blank));
+  }
+  const geo::Extent e = s.map.common_extent();
+  const double x = 0.5 * (e.min_x + e.max_x), y = 0.5 * (e.min_y + e.max_y);
+  s.truth.t_W_C = Eigen::Vector3d(x, y, s.map.dem.height_at(x, y) + 700);
+  s.truth.q_W_C = Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ())) * Eigen::Quaterniond(0, 1, 0, 0);
+  s.prior = s.truth;
+  s.prior.t_W_C += Eigen::Vector3d(20, -15, 0);
+  auto r = raster::Renderer::create(s.map, s.cam);
+  REQUIRE(r.ok());
+  auto out = r.value()->make_output({"2016"});
+  REQUIRE(out.ok());
+  REQUIRE(r.value()->render(s.truth, out.value()).ok());
+  s.live = out->rgb[0];
+  return s;
+}
+
+cli::LocalizeOutput localize(const Scene& s, const std::vector<std::string>& layers, const nn::WeightFile* weights) {
+  auto loc = cli::Localizer::create(s.map, s.cam, layers, iclk::TrackerOptions{}, 2, weights);
+  REQUIRE(loc.ok());
+  CHECK(loc.value()->layer_count() == layers.size());
+  auto out = loc.value()->localize(s.live.view(), s.prior);
+  REQUIRE(out.ok());
+  return out.value();
+}
+
+}  // namespace
+
+TEST_CASE("layers: the next layer is tried only where the one before did not converge, and answers as it would alone") {
+  Scene s = scene();
+  // The answering layer's own registration sigma counts, not the first's: the blank layer
+  // states 5 m, which would widen the covariance by 25 m^2 an axis.
+  s.map.find_layer("blank")->registration_sigma_m = 5.0;
+  auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
+  REQUIRE(weights.ok());
+  const nn::WeightFile* learned = &weights.value();
+  for (const nn::WeightFile* w : {static_cast<const nn::WeightFile*>(nullptr), learned}) {
+    CAPTURE(w != nullptr);
+    const cli::LocalizeOutput alone = localize(s, {"2016"}, w);
+    REQUIRE(alone.converged);
+    CHECK(alone.layer == 0);
+    CHECK(alone.layers_tried == 1);
+    CHECK((alone.T_W_C.t_W_C - s.truth.t_W_C).norm() < 1.0);  // same year: centimetres (README)
+
+    const cli::LocalizeOutput blank = localize(s, {"blank"}, w);
+    CHECK_FALSE(blank.converged);
+
+    // The first layer converges: the second is never tried.
+    const cli::LocalizeOutput first = localize(s, {"2016", "blank"}, w);
+    REQUIRE(first.converged);
+    CHECK(first.layer == 0);
+    CHECK(first.layers_tried == 1);
+    CHECK(first.T_W_C.t_W_C == alone.T_W_C.t_W_C);
+    CHECK(first.iterations == alone.iterations);
+
+    // The first fails: the second answers, bit for bit as it does alone (its own options and
+    // sigma), and its iterations count both layers'.
+    const cli::LocalizeOutput second = localize(s, {"blank", "2016"}, w);
+    REQUIRE(second.converged);
+    CHECK(second.layer == 1);
+    CHECK(second.layers_tried == 2);
+    CHECK(second.T_W_C.t_W_C == alone.T_W_C.t_W_C);
+    CHECK(second.T_W_C.q_W_C.coeffs() == alone.T_W_C.q_W_C.coeffs());
+    CHECK(second.covariance == alone.covariance);
+    CHECK(second.disagreement_px == alone.disagreement_px);
+    CHECK(second.iterations == alone.iterations + blank.iterations);
+
+    // None converges: the first layer's failure, at the prior, with every layer's cost.
+    const cli::LocalizeOutput none = localize(s, {"blank", "blank2"}, w);
+    CHECK_FALSE(none.converged);
+    CHECK(none.layer == 0);
+    CHECK(none.layers_tried == 2);
+    CHECK(none.T_W_C.t_W_C == s.prior.t_W_C);
+    CHECK(none.reason == blank.reason);
+    CHECK(none.iterations >= blank.iterations);
+  }
+}
+
+TEST_CASE("layers: no layer, a name the map lacks and a name given twice are refused, naming it") {
+  const Scene s = scene();
+  auto refused = [&](const std::vector<std::string>& layers) {
+    auto loc = cli::Localizer::create(s.map, s.cam, layers, iclk::TrackerOptions{}, 1);
+    REQUIRE_FALSE(loc.ok());
+    return loc.error().message;
+  };
+  CHECK(refused({}).find("no reference layer") != std::string::npos);
+  CHECK(refused({"2016", "1999"}).find("'1999'") != std::string::npos);
+  CHECK(refused({"2016", ""}).find("''") != std::string::npos);
+  CHECK(refused({"2016", "2012", "2016"}).find("'2016' is given twice") != std::string::npos);
+}
+
+#if defined(TERRALIGN_CLI)  // built with the command-line program
+TEST_CASE("layers: align and eval take a list, report the answering layer, and refuse a name the map lacks") {
+  const std::string tl = TERRALIGN_CLI;
+  const std::string map = test::source_path("data/naip_west/map.json");
+  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
+  const std::string out = test::temp_dir() + "/eval_layers.json";
+  const std::string base = tl + " eval --map " + map + " --camera " + cam +
+                           " --query-layer 2016 --count 3 --seed 3 --altitude 700:900 --methods init,classic:20";
+  REQUIRE(std::system((base + " --ref-layer 2016,2012 --json " + out + " >/dev/null 2>&1").c_str()) == 0);
+  const auto j = nlohmann::json::parse(test::read_text(out));
+  CHECK(j["ref_layer"] == "2016,2012");
+  int by_first = 0;
+  for (const auto& sj : j["methods"]["classic:20"]["samples"]) {
+    CHECK((sj["layer"] == "2016" || sj["layer"] == "2012"));
+    by_first += sj["converged"].get<bool>() && sj["layer"] == "2016";
+  }
+  // Same year, the classical tracker converges on the first layer (README: 97-98 % within 5 px).
+  CHECK(by_first >= 2);
+  CHECK(j["methods"]["classic:20"]["answered_by"]["2016"].get<int>() == by_first);
+  CHECK(std::system((base + " --ref-layer 2016,1999 >/dev/null 2>&1").c_str()) != 0);
+  CHECK(std::system((base + " --ref-layer 2016, >/dev/null 2>&1").c_str()) != 0);
+}
+#endif  // TERRALIGN_CLI
