@@ -8,7 +8,9 @@
 #  4. runs the paper's evaluation on 20 poses, same year and across years (2016 -> 2017, and
 #     2009 -> 2020 with the learned tracker beside the classical one), printing the tables and
 #     writing the overlay figures (out/demo/overlays*: red the reference, green-blue the camera
-#     image seen through each method's pose).
+#     image seen through each method's pose);
+#  5. the map as a map of several years: 2020's images aligned to 2016, and to 2012 and then
+#     2009 only where the alignment before failed (eval prints which year answered).
 # Outputs go to out/demo (or the folder given as the first argument).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -38,3 +40,5 @@ $tl eval --map $naip --camera $cam --ref-layer 2016 --query-layer 2017 --count 2
 $tl eval --map $naip --camera $cam --ref-layer 2009 --query-layer 2020 --count 20 --seed 1 \
   --altitude 700:900 --tilt 10 --methods init,classic:20,classic:50,nn:20 --json "$out/eval_2009_2020.json" \
   --overlays "$out/overlays_2009_2020"
+$tl eval --map $naip --camera $cam --ref-layer 2016,2012,2009 --query-layer 2020 --count 20 --seed 1 \
+  --altitude 700:900 --tilt 10 --methods init,nn:20 --json "$out/eval_layers_2020.json"
