@@ -122,11 +122,11 @@ TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged an
   const auto rows = csv_rows(dir + "/poses.csv");
   REQUIRE(rows.size() == 12);
   for (std::size_t i = 0; i < rows.size(); ++i) {
-    // 15 columns, the 36 of the covariance, the answer's 7 and the gate's distance (a CSV
-    // line ending in an empty field has one cell fewer here).
+    // 15 columns, the 36 of the covariance, the answer's 7, the gate's distance and the layer
+    // (a CSV line ending in an empty field has one cell fewer here).
     CAPTURE(i);
-    REQUIRE(rows[i].size() >= 58);
-    CHECK(rows[i].size() <= 59);
+    REQUIRE(rows[i].size() >= 59);
+    CHECK(rows[i].size() <= 60);
     CHECK(rows[i][8] == (i == 6 ? "0" : "1"));
     // Frame 6 reports the filter's prediction with its covariance; no answer, no gate test.
     if (i == 6) {
@@ -134,8 +134,9 @@ TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged an
       CHECK(rows[i][51].empty());
     } else {
       CHECK(rows[i][51] == rows[i][1]);  // the frame reports the answer itself
-      REQUIRE(rows[i].size() == 59);
+      REQUIRE(rows[i].size() == 60);
       CHECK(std::stod(rows[i][58]) >= 0);
+      CHECK(rows[i][59] == "2016");
     }
   }
   // --registration-floor 1 (camera pixels, ten times the default): the same poses, and every

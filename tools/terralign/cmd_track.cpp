@@ -185,8 +185,8 @@ int run_track(const std::vector<std::string>& argv) {
     if (!w.ok()) return fail(w.error());
     weights = std::move(w.value());
   }
-  auto loc =
-      Localizer::create(map.value(), cam, split_commas(args->get("layer")), opt, threads.value(), weights ? &*weights : nullptr, sizes);
+  const std::vector<std::string> layers = split_commas(args->get("layer"));
+  auto loc = Localizer::create(map.value(), cam, layers, opt, threads.value(), weights ? &*weights : nullptr, sizes);
   if (!loc.ok()) return fail(loc.error());
   refine->apply(*loc.value());
   std::vector<geo::Pose> truth;
@@ -212,7 +212,8 @@ int run_track(const std::vector<std::string>& argv) {
     for (int c = 0; c < 6; ++c) csv += ",cov" + std::to_string(r) + std::to_string(c);
   // The aligner's own answer (empty where it did not converge) and, with the filter, the
   // squared Mahalanobis distance of its innovation that the gate tested.
-  csv += ",answer_x,answer_y,answer_z,answer_qw,answer_qx,answer_qy,answer_qz,gate_d2\n";
+  // The layer it aligned to (--layer A,B,...: the first that converged).
+  csv += ",answer_x,answer_y,answer_z,answer_qw,answer_qx,answer_qy,answer_qz,gate_d2,layer\n";
   // Without the filter, the last two converged estimates (`known` of them so far, at most 2):
   // the velocity. With --init-velocity (a GPS's last fix has one) the start is the newest, at
   // the first frame's time, and a point one second before it on that velocity the other.
@@ -250,6 +251,7 @@ int run_track(const std::vector<std::string>& argv) {
     Eigen::Matrix<double, 6, 6> cov =
         filter ? filter->pose_covariance() : Eigen::Matrix<double, 6, 6>::Zero().eval();
     std::optional<geo::Pose> answer;  // the aligner's, where it converged
+    const std::string* answer_layer = nullptr;  // and the layer it aligned to
     double gate_d2 = NAN;
     bool ok = false;
     std::string reason;
@@ -274,7 +276,10 @@ int run_track(const std::vector<std::string>& argv) {
           ok = out->converged;
           reason = out->reason;
           iterations = out->iterations;
-          if (ok) answer = out->T_W_C;
+          if (ok) {
+            answer = out->T_W_C;
+            answer_layer = &layers[static_cast<std::size_t>(out->layer)];
+          }
           // The filter takes an answer its gate accepts. The frame reports the answer as it is,
           // not the fused pose: consecutive frames see nearly the same ground, so their errors
           // across years are one error, not independent ones (lag-one correlation 0.84-0.98
@@ -359,6 +364,8 @@ int run_track(const std::vector<std::string>& argv) {
     } else {
       csv += ",";
     }
+    csv += ",";
+    if (answer_layer) csv += *answer_layer;
     csv += "\n";
   }
   const double total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
