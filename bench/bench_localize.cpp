@@ -7,15 +7,19 @@
 // ratio to the classical tracker.
 // Then the peak resident memory of `terralign align` on the sample map, classic and nn, each
 // a child process (getrusage of the children).
-//   build/release/bench/bench_localize [N] [--live-layer YEAR] [weights.tlw ...]
+//   build/release/bench/bench_localize [N] [--live-layer YEAR] [--layers A,B,...] [weights.tlw ...]
 // (default: 20 pairs, the 2017 camera images, the shipped weights). --live-layer 2016 renders
 // the camera images from the map's own year, where the refinement passes run (a converged
 // answer's final residual at most 1.0: same-year maps; across a year they seldom do).
+// --layers adds a learned row per weight file over those reference layers (Localizer: the
+// next is aligned to only where the one before did not converge), e.g. --live-layer 2020
+// --layers 2016,2012,2009; its "layers tried" is the mean alignments an image.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -43,9 +47,10 @@ double median(std::vector<double> v) {
 int main(int argc, char** argv) {
   const int n = argc > 1 ? std::max(1, std::atoi(argv[1])) : 20;
   std::vector<std::string> files;
-  std::string live_layer = "2017";
+  std::string live_layer = "2017", layer_list;
   for (int i = 2; i < argc; ++i) {
     if (std::string(argv[i]) == "--live-layer" && i + 1 < argc) live_layer = argv[++i];
+    else if (std::string(argv[i]) == "--layers" && i + 1 < argc) layer_list = argv[++i];
     else files.push_back(argv[i]);
   }
   if (files.empty()) files.push_back(TERRALIGN_DEFAULT_WEIGHTS);
@@ -75,7 +80,7 @@ int main(int argc, char** argv) {
     std::string name;
     std::unique_ptr<cli::Localizer> loc;
     std::vector<double> render, encoder, mest, setup, iterations, total;
-    int converged = 0, refined = 0;
+    int converged = 0, refined = 0, tried = 0;
   };
   std::vector<nn::WeightFile> weights;
   weights.reserve(files.size());
@@ -88,21 +93,31 @@ int main(int argc, char** argv) {
     weights.push_back(std::move(w.value()));
   }
   std::vector<Method> methods;
+  // The learned: also with one refinement pass, and over --layers (variant 2).
+  const int variants = layer_list.empty() ? 2 : 3;
   for (std::size_t m = 0; m <= files.size(); ++m)
-    for (int refine = 0; refine <= (m == 0 ? 0 : 1); ++refine) {  // the learned: also with one refinement pass
+    for (int variant = 0; variant < (m == 0 ? 1 : variants); ++variant) {
+      const int refine = variant == 1;
       const std::size_t slash = m == 0 ? 0 : files[m - 1].find_last_of('/');
       const std::string name = m == 0 ? "classic:20"
-                                      : std::string(refine ? "nn:20 --refine 1 " : "nn:20 ") +
+                                      : std::string(variant == 0 ? "nn:20 " : variant == 1 ? "nn:20 --refine 1 "
+                                                                            : "nn:20 --layer " + layer_list + " ") +
                                             files[m - 1].substr(slash == std::string::npos ? 0 : slash + 1);
       iclk::TrackerOptions opt;
       opt.iterations = 20;
-      auto loc = cli::Localizer::create(map.value(), cam.value(), "2016", opt, 2, m == 0 ? nullptr : &weights[m - 1]);
+      std::vector<std::string> layers{"2016"};
+      if (variant == 2) {
+        layers.clear();
+        std::stringstream list(layer_list);
+        for (std::string layer; std::getline(list, layer, ',');) layers.push_back(layer);
+      }
+      auto loc = cli::Localizer::create(map.value(), cam.value(), layers, opt, 2, m == 0 ? nullptr : &weights[m - 1]);
       if (!loc.ok()) {
         std::fprintf(stderr, "bench_localize: %s: %s\n", name.c_str(), loc.error().message.c_str());
         return 1;
       }
       loc.value()->set_refinement(refine);
-      methods.push_back({name, std::move(loc.value()), {}, {}, {}, {}, {}, {}, 0});
+      methods.push_back({name, std::move(loc.value()), {}, {}, {}, {}, {}, {}, 0, 0, 0});
     }
   for (int rep = 0; rep < 2; ++rep)  // the first pass warms caches; the second is measured
     for (std::size_t i = 0; i < live.size(); ++i)
@@ -119,16 +134,18 @@ int main(int argc, char** argv) {
         M.total.push_back(ms);
         M.converged += out->converged;
         M.refined += out->refinements > 0;
+        M.tried += out->layers_tried;
       }
   std::printf("752x480 camera, NAIP 2016 map, %s images, %d pairs, 2 threads, medians in ms\n\n", live_layer.c_str(), n);
-  std::printf("| method | render | encoders | M-estimator | solver set-up | solver iterations | total | frames/s | x classic | converged | refined |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|---|\n");
+  std::printf("| method | render | encoders | M-estimator | solver set-up | solver iterations | total | frames/s | x classic | converged | refined | layers tried |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   const double classic_total = median(methods[0].total);
   for (const Method& M : methods) {
     const double total = median(M.total);
-    std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.0f | %.2f | %d/%d | %d/%d |\n", M.name.c_str(),
+    std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.0f | %.2f | %d/%d | %d/%d | %.2f |\n", M.name.c_str(),
                 median(M.render), median(M.encoder), median(M.mest), median(M.setup), median(M.iterations), total,
-                1000.0 / total, total / classic_total, M.converged, n, M.refined, n);
+                1000.0 / total, total / classic_total, M.converged, n, M.refined, n,
+                static_cast<double>(M.tried) / static_cast<double>(std::max<std::size_t>(M.total.size(), 1)));
   }
 #if defined(TERRALIGN_CLI)
   // Peak RSS of the command-line program on one localisation (the first pair), each method in
