@@ -14,27 +14,18 @@
 #include <terralign/raster/renderer.hpp>
 
 #include "localizer.hpp"
+#include "nadir_scene.hpp"
 #include "support.hpp"
 
 using namespace terralign;
 
 namespace {
 
-struct Scene {
-  geo::Map map;
-  geo::CameraModel cam;
-  geo::Pose truth, prior;
-  ImageU8 live;  // 2016 at the truth
-};
+using test::Scene;
 
-// The sample camera 700 m over the NAIP sample's middle, seen in 2016, the prior 25 m off; the
-// map gains two featureless layers, "blank" and "blank2".
+// The shared scene (nadir_scene.hpp) with two featureless layers more, "blank" and "blank2".
 Scene scene() {
-  auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
-  auto cam = geo::load_camera(test::source_path("data/cameras/uav_752x480.json"));
-  REQUIRE(map.ok());
-  REQUIRE(cam.ok());
-  Scene s{std::move(map.value()), cam.value(), {}, {}, {}};
+  Scene s = test::scene();
   for (const char* name : {"blank", "blank2"}) {
     geo::Layer blank = *s.map.find_layer("2016");
     blank.name = name;
@@ -42,18 +33,6 @@ Scene scene() {
       for (std::size_t c = 0; c < 3; ++c) blank.rgba.data()[k + c] = 128;
     s.map.layers.push_back(std::move(blank));
   }
-  const geo::Extent e = s.map.common_extent();
-  const double x = 0.5 * (e.min_x + e.max_x), y = 0.5 * (e.min_y + e.max_y);
-  s.truth.t_W_C = Eigen::Vector3d(x, y, s.map.dem.height_at(x, y) + 700);
-  s.truth.q_W_C = Eigen::Quaterniond(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ())) * Eigen::Quaterniond(0, 1, 0, 0);
-  s.prior = s.truth;
-  s.prior.t_W_C += Eigen::Vector3d(20, -15, 0);
-  auto r = raster::Renderer::create(s.map, s.cam);
-  REQUIRE(r.ok());
-  auto out = r.value()->make_output({"2016"});
-  REQUIRE(out.ok());
-  REQUIRE(r.value()->render(s.truth, out.value()).ok());
-  s.live = out->rgb[0];
   return s;
 }
 
@@ -64,6 +43,13 @@ cli::LocalizeOutput localize(const Scene& s, const std::vector<std::string>& lay
   auto out = loc.value()->localize(s.live.view(), s.prior);
   REQUIRE(out.ok());
   return out.value();
+}
+
+// Whether it converged, which layer answered and how many were tried.
+void check_answer(const cli::LocalizeOutput& out, bool converged, int layer, int tried) {
+  CHECK(out.converged == converged);
+  CHECK(out.layer == layer);
+  CHECK(out.layers_tried == tried);
 }
 
 }  // namespace
@@ -80,38 +66,31 @@ TEST_CASE("layers: the next layer is tried only where the one before did not con
     CAPTURE(w != nullptr);
     const cli::LocalizeOutput alone = localize(s, {"2016"}, w);
     REQUIRE(alone.converged);
-    CHECK(alone.layer == 0);
-    CHECK(alone.layers_tried == 1);
+    check_answer(alone, true, 0, 1);
     CHECK((alone.T_W_C.t_W_C - s.truth.t_W_C).norm() < 1.0);  // same year: centimetres (README)
 
     const cli::LocalizeOutput blank = localize(s, {"blank"}, w);
-    CHECK_FALSE(blank.converged);
+    check_answer(blank, false, 0, 1);
 
     // The first layer converges: the second is never tried.
     const cli::LocalizeOutput first = localize(s, {"2016", "blank"}, w);
-    REQUIRE(first.converged);
-    CHECK(first.layer == 0);
-    CHECK(first.layers_tried == 1);
+    check_answer(first, true, 0, 1);
     CHECK(first.T_W_C.t_W_C == alone.T_W_C.t_W_C);
     CHECK(first.iterations == alone.iterations);
 
     // The first fails: the second answers, bit for bit as it does alone (its own options and
     // sigma), and its iterations count both layers'.
     const cli::LocalizeOutput second = localize(s, {"blank", "2016"}, w);
-    REQUIRE(second.converged);
-    CHECK(second.layer == 1);
-    CHECK(second.layers_tried == 2);
+    check_answer(second, true, 1, 2);
     CHECK(second.T_W_C.t_W_C == alone.T_W_C.t_W_C);
     CHECK(second.T_W_C.q_W_C.coeffs() == alone.T_W_C.q_W_C.coeffs());
     CHECK(second.covariance == alone.covariance);
     CHECK(second.disagreement_px == alone.disagreement_px);
     CHECK(second.iterations == alone.iterations + blank.iterations);
 
-    // None converges: the first layer's failure, at the prior, with every layer's cost.
+    // None converges: the last layer's failure, at the prior, with every layer's cost.
     const cli::LocalizeOutput none = localize(s, {"blank", "blank2"}, w);
-    CHECK_FALSE(none.converged);
-    CHECK(none.layer == 0);
-    CHECK(none.layers_tried == 2);
+    check_answer(none, false, 1, 2);
     CHECK(none.T_W_C.t_W_C == s.prior.t_W_C);
     CHECK(none.reason == blank.reason);
     CHECK(none.iterations == 2 * blank.iterations);  // blank2 is blank's twin

@@ -107,7 +107,7 @@ int run_align(const std::vector<std::string>& argv) {
   j["covariance_frame"] = "[dtheta_x, dtheta_y, dtheta_z (rad, world axes, left of R_W_C), dx, dy, dz (m, camera centre)]";
   j["converged"] = out->converged;
   j["reason"] = out->reason;
-  j["layer"] = layers[static_cast<std::size_t>(out->layer)];  // the answer's (where none converged, the first)
+  j["layer"] = layers[static_cast<std::size_t>(out->layer)];  // the answer's (where none converged, the last tried)
   j["layers_tried"] = out->layers_tried;
   j["iterations"] = out->iterations;
   j["residual_final"] = out->residual_final;  // the last pass's (eval's JSON has it per pose too)

@@ -195,8 +195,9 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     return Error{"live image is " + std::to_string(live.width) + " x " + std::to_string(live.height) + " x " +
                  std::to_string(live.channels) + ", the camera is " + std::to_string(camera_.width) + " x " +
                  std::to_string(camera_.height) + " x 3"};
-  // One output over the layers: each layer's passes add their time and iterations to it.
-  LocalizeOutput out, first;
+  // One output over the layers: each layer's passes add their time and iterations to it. Where
+  // none converges, the last layer's failure is reported (its measures and reason).
+  LocalizeOutput out;
   for (std::size_t i = 0; i < refs_.size(); ++i) {
     use_layer(i);
     out.T_live_ref = iclk::SE3<double>::identity();
@@ -207,19 +208,9 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     if (auto st = localize_layer(live, prior, attitude, out); !st.ok()) return st.error();
     out.layer = static_cast<int>(i);
     out.layers_tried = static_cast<int>(i + 1);
-    if (out.converged) return out;
-    if (i == 0) first = out;
+    if (out.converged) break;
   }
-  // None converged: the first layer's failure, with what every layer cost.
-  first.layers_tried = out.layers_tried;
-  first.iterations = out.iterations;
-  first.ms_render = out.ms_render;
-  first.ms_pyramid = out.ms_pyramid;
-  first.ms_jacobian = out.ms_jacobian;
-  first.ms_iterations = out.ms_iterations;
-  first.ms_encoder = out.ms_encoder;
-  first.ms_mestimator = out.ms_mestimator;
-  return first;
+  return out;
 }
 
 Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::Pose& prior,

@@ -40,8 +40,8 @@ struct LocalizeOutput {
   double disagreement_px = 0;                    // iclk::TrackResult
   double residual_correlation = 0, covariance_inflation = 1;  // see iclk::TrackResult
   // Which of the localizer's layers answered (the first whose alignment converged; where none
-  // did, the first, whose measures these are), and how many were tried; every field of time
-  // and iterations sums them all.
+  // did, the last, whose failure and measures these are), and how many were tried; every
+  // field of time and iterations sums them all.
   int layer = 0, layers_tried = 0;
   int refinements = 0;  // re-rendered passes after the first that converged (Localizer::set_refinement)
   int uniform_refinements = 0;  // of them, the learned tracker's without its M-estimator (set_uniform_refinement)
