@@ -3,6 +3,7 @@
 // converge. Here the layer that cannot be aligned to is a featureless one ("blank": the
 // 2016 layer painted one grey), which no tracker converges on.
 #include <cstdlib>
+#include <cstring>
 #include <string>
 #include <vector>
 
@@ -13,6 +14,7 @@
 #include <terralign/nn/weights.hpp>
 #include <terralign/raster/renderer.hpp>
 
+#include "alloc_counter.hpp"
 #include "localizer.hpp"
 #include "nadir_scene.hpp"
 #include "support.hpp"
@@ -95,6 +97,28 @@ TEST_CASE("layers: the next layer is tried only where the one before did not con
     CHECK(none.reason == blank.reason);
     CHECK(none.iterations == 2 * blank.iterations);  // blank2 is blank's twin
   }
+}
+
+TEST_CASE("layers: a fallback allocates nothing, and gives the same bytes on 1 and 2 threads") {
+  const Scene s = scene();
+  auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
+  REQUIRE(weights.ok());
+  cli::LocalizeOutput answers[2];
+  for (int threads : {1, 2}) {
+    const std::vector<std::string> layers{"blank", "2016"};
+    auto loc = cli::Localizer::create(s.map, s.cam, layers, iclk::TrackerOptions{}, threads, &weights.value());
+    REQUIRE(loc.ok());
+    REQUIRE(loc.value()->localize(s.live.view(), s.prior).ok());  // the first call may size lazily
+    test::AllocationCounter count;
+    auto out = loc.value()->localize(s.live.view(), s.prior);
+    const long allocations = count.allocations();
+    REQUIRE(out.ok());
+    CHECK(allocations == 0);
+    answers[threads - 1] = out.value();
+  }
+  check_answer(answers[0], true, 1, 2);
+  CHECK(std::memcmp(answers[0].T_W_C.t_W_C.data(), answers[1].T_W_C.t_W_C.data(), sizeof(double) * 3) == 0);
+  CHECK(std::memcmp(answers[0].T_W_C.q_W_C.coeffs().data(), answers[1].T_W_C.q_W_C.coeffs().data(), sizeof(double) * 4) == 0);
 }
 
 TEST_CASE("layers: no layer, a name the map lacks and a name given twice are refused, naming it") {
