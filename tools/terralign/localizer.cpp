@@ -120,6 +120,9 @@ void Localizer::set_refinement(int passes, int levels, double min_deg) {
 }
 
 void Localizer::use_layer(std::size_t i) {
+  // The options hold the current layer's floor (the first's from create()): a localizer of one
+  // layer never changes them.
+  if (i == current_) return;
   current_ = i;
   if (deep_) return deep_->set_ground_floor_m(ground_floor_m_[i]);
   auto o = tracker_->options();
