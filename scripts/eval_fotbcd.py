@@ -1,8 +1,9 @@
 #!/usr/bin/python3
 """Cross-date pairs from France: `terralign eval` on the 30 FOTBCD figures, each an IGN BD
 ORTHO window of 102.4 m at 0.2 m from two campaigns a few years apart (FOTBCD covers 28
-French departements; CC BY-NC-SA 4.0: read in place from ../shared/data, cropped into a temporary directory that is
-removed afterwards; evaluation only, nothing trained on or tuned to them).
+French departements; CC BY-NC-SA 4.0: read in place from ../shared/data, cropped into a
+temporary directory that is removed afterwards; evaluation only, nothing trained on or tuned
+to them).
 
 Each figure is a matplotlib panel of the two campaigns' tiles, resampled from 512 to 515 pixels
 (so 102.4 / 515 = 0.1988 m a pixel): "before" at columns 15-529, "after" at 758-1272, rows
