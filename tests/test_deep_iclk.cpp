@@ -220,6 +220,40 @@ TEST_CASE("learned tracker: same bytes on 1 and 2 threads, and no heap allocatio
   CHECK(a.iterations == b.iterations);
 }
 
+TEST_CASE("learned tracker: align_to aligns the last live image to another reference as align() would, allocating nothing") {
+  // What a map of several layers does (cli::Localizer): the live image is encoded once, for the
+  // first layer's reference; the next layer's reference is aligned to those features. Pair 1's
+  // reference stands for the first layer, a refine() against it in between (it runs fewer
+  // levels and must leave the live features of the others alone), then pair 0's reference.
+  const nn::WeightFile weights = shipped_weights();
+  const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
+  const Pair p = pair_of(vectors, 0), other = pair_of(vectors, 1);
+  REQUIRE(other.ref.width() == p.ref.width());
+  REQUIRE(other.ref.height() == p.ref.height());
+  auto fresh = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 2);
+  auto kept = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), options(), 2);
+  REQUIRE(fresh.ok());
+  REQUIRE(kept.ok());
+  const auto a = fresh.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
+  REQUIRE(a.converged);  // a pair PyTorch aligns: a comparison of answers, not of two failures
+  kept.value()->align(other.ref.view(), other.depth.view(), p.live.view(), other.K, iclk::SE3<float>::identity());
+  kept.value()->refine(other.ref.view(), other.depth.view(), other.K, 2);
+  long allocations = 0;
+  iclk::TrackResult<iclk::DeepAligner::Warp> b;
+  {
+    test::AllocationCounter count;
+    b = kept.value()->align_to(p.ref.view(), p.depth.view(), p.K, iclk::SE3<float>::identity());
+    allocations = count.allocations();
+  }
+  CHECK(allocations == 0);
+  CHECK(b.converged);
+  CHECK(std::memcmp(a.params.R.data(), b.params.R.data(), sizeof(float) * 9) == 0);
+  CHECK(std::memcmp(a.params.t.data(), b.params.t.data(), sizeof(float) * 3) == 0);
+  CHECK(a.iterations == b.iterations);
+  CHECK(a.cost_final == b.cost_final);
+  CHECK(a.covariance == b.covariance);
+}
+
 TEST_CASE("learned tracker: refuses a size too small for its levels and another network's weights") {
   const nn::WeightFile weights = shipped_weights();
   auto small = iclk::DeepAligner::create(weights, 188, 100, options(), 1);

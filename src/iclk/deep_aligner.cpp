@@ -250,17 +250,37 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align(ImageView<const f
                                                                ImageView<const float> live_rgb,
                                                                const iclk::Pinhole<float>& K,
                                                                const iclk::SE3<float>& init) {
-  TERRALIGN_ASSERT(ref_rgb.width == width_ && ref_rgb.height == height_ && live_rgb.width == width_ &&
-                       live_rgb.height == height_ && ref_rgb.channels == 3 && live_rgb.channels == 3,
-                   "DeepAligner::align: images of another size than the aligner was built for");
+  TERRALIGN_ASSERT(live_rgb.width == width_ && live_rgb.height == height_ && live_rgb.channels == 3,
+                   "DeepAligner::align: a live image of another size than the aligner was built for");
+  return align_all(ref_rgb, ref_depth, &live_rgb, K, init);
+}
+
+const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align_to(ImageView<const float> ref_rgb,
+                                                                  ImageView<const float> ref_depth,
+                                                                  const iclk::Pinhole<float>& K,
+                                                                  const iclk::SE3<float>& init) {
+  TERRALIGN_ASSERT(live_encoded_, "DeepAligner::align_to: no align() has encoded a live image yet");
+  return align_all(ref_rgb, ref_depth, nullptr, K, init);
+}
+
+const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align_all(ImageView<const float> ref_rgb,
+                                                                   ImageView<const float> ref_depth,
+                                                                   const ImageView<const float>* live_rgb,
+                                                                   const iclk::Pinhole<float>& K,
+                                                                   const iclk::SE3<float>& init) {
+  TERRALIGN_ASSERT(ref_rgb.width == width_ && ref_rgb.height == height_ && ref_rgb.channels == 3,
+                   "DeepAligner::align: a reference of another size than the aligner was built for");
   const auto t0 = std::chrono::steady_clock::now();
   encode(ref_rgb, ref_f_, levels_);
-  encode(live_rgb, live_f_, levels_);
+  if (live_rgb) encode(*live_rgb, live_f_, levels_);
+  live_encoded_ = true;
   ms_encoder_ = elapsed_ms(t0);
   ms_mest_ = 0;
   return std::visit(
       [&](auto& t) -> const iclk::TrackResult<Warp>& {
-        return t->align_levels(ref_v_.data(), ref_depth, live_v_.data(), K, init, this);
+        // Without a live image the solver keeps the live levels of its last alignment, which
+        // are live_f_'s: a refine() in between runs fewer levels and leaves them alone.
+        return t->align_levels(ref_v_.data(), ref_depth, live_rgb ? live_v_.data() : nullptr, K, init, this);
       },
       tracker_);
 }

@@ -88,6 +88,12 @@ class DeepAligner : public iclk::LevelWeights {
   const iclk::TrackResult<Warp>& align(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
                                        ImageView<const float> live_rgb, const iclk::Pinhole<float>& K,
                                        const iclk::SE3<float>& init);
+  // Aligns the last align()'s live image to another reference (another layer of the map, from
+  // the same start): as align(), but the live image's features are the last align()'s, not
+  // encoded again, which is the live half of the encoder's time. The answer is align()'s with
+  // that live image, bit for bit.
+  const iclk::TrackResult<Warp>& align_to(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
+                                          const iclk::Pinhole<float>& K, const iclk::SE3<float>& init);
   // Aligns again from a reference rendered where the last align() or refine() ended (its
   // depth and the same K): the reference is encoded anew, the live image's features are the
   // last align()'s, and only the finest `levels` levels run, from the identity, with no coarse
@@ -122,6 +128,11 @@ class DeepAligner : public iclk::LevelWeights {
   DeepAligner() = default;
   // Encodes the finest `levels` levels into out (the encoder stops at the last step they need).
   void encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out, int levels);
+  // align()'s and align_to()'s solve over every level; live_rgb null: the last live features.
+  const iclk::TrackResult<Warp>& align_all(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
+                                           const ImageView<const float>* live_rgb, const iclk::Pinhole<float>& K,
+                                           const iclk::SE3<float>& init);
+  bool live_encoded_ = false;  // an align() has encoded a live image (align_to() may run)
   // Changes the tracker's options in place (whichever channel count it was built for).
   template <class F>
   void update_options(F change) {
