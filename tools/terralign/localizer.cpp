@@ -164,7 +164,8 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
   if (!deep_) {
     tracker_->set_up(up, tilt);
     if (first) {
-      iclk::rgb_to_grey(live, live_grey_);
+      if (!live_kept_) iclk::rgb_to_grey(live, live_grey_);
+      live_kept_ = true;
       return tracker_->align(ref_grey_.view(), depth_.view(), live_grey_.view(), K, iclk::SE3<float>::identity());
     }
     const iclk::TrackerOptions keep = tracker_->options();
@@ -175,6 +176,9 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
   }
   deep_->set_up(up, tilt);
   if (!first) return deep_->refine(ref_rgb_.view(), depth_.view(), K, refine_levels_, learned_weights);
+  // A later layer: the live image's features are those the first layer's alignment encoded.
+  if (live_kept_) return deep_->align_to(ref_rgb_.view(), depth_.view(), K, iclk::SE3<float>::identity());
+  live_kept_ = true;
   // The live image box-averaged down to the working size.
   const int f = camera_.width / work_.width;
   const float inv = 1.0f / static_cast<float>(f * f);
@@ -201,6 +205,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   // One output over the layers: each layer's passes add their time and iterations to it. Where
   // none converges, the last layer's failure is reported (its measures and reason).
   LocalizeOutput out;
+  live_kept_ = false;
   for (std::size_t i = 0; i < refs_.size(); ++i) {
     use_layer(i);
     out.T_live_ref = iclk::SE3<double>::identity();

@@ -192,6 +192,9 @@ class Localizer {
   std::vector<raster::RenderOutput> refs_;  // one a layer, rendered where that layer is tried
   std::vector<double> ground_floor_m_;      // each layer's (TrackerOptions::ground_floor_m)
   std::size_t current_ = 0;
+  // The live image of this localize() call is in the tracker already (converted, and for the
+  // learned tracker encoded): a later layer's first pass aligns it to its own reference.
+  bool live_kept_ = false;
   ImageF ref_grey_, live_grey_, depth_;
   std::unique_ptr<iclk::Tracker<float, iclk::SE3DepthWarp<float>, 1>> tracker_;
 };
