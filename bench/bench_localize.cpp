@@ -13,7 +13,8 @@
 // answer's final residual at most 1.0: same-year maps; across a year they seldom do).
 // --layers adds a learned row per weight file over those reference layers (Localizer: the
 // next is aligned to only where the one before did not converge), e.g. --live-layer 2020
-// --layers 2016,2012,2009; its "layers tried" is the mean alignments an image.
+// --layers 2016,2012,2009; its "layers tried" is the mean alignments an image, and "fallback
+// frames" the count and median total ms of the images aligned to more than one layer.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -80,6 +81,7 @@ int main(int argc, char** argv) {
     std::string name;
     std::unique_ptr<cli::Localizer> loc;
     std::vector<double> render, encoder, mest, setup, iterations, total;
+    std::vector<double> fallback;  // total ms of the frames aligned to more than one layer
     int converged = 0, refined = 0, tried = 0;
   };
   std::vector<nn::WeightFile> weights;
@@ -117,7 +119,7 @@ int main(int argc, char** argv) {
         return 1;
       }
       loc.value()->set_refinement(refine);
-      methods.push_back({name, std::move(loc.value()), {}, {}, {}, {}, {}, {}, 0, 0, 0});
+      methods.push_back({name, std::move(loc.value()), {}, {}, {}, {}, {}, {}, {}, 0, 0, 0});
     }
   for (int rep = 0; rep < 2; ++rep)  // the first pass warms caches; the second is measured
     for (std::size_t i = 0; i < live.size(); ++i)
@@ -135,17 +137,20 @@ int main(int argc, char** argv) {
         M.converged += out->converged;
         M.refined += out->refinements > 0;
         M.tried += out->layers_tried;
+        if (out->layers_tried > 1) M.fallback.push_back(ms);
       }
   std::printf("752x480 camera, NAIP 2016 map, %s images, %d pairs, 2 threads, medians in ms\n\n", live_layer.c_str(), n);
-  std::printf("| method | render | encoders | M-estimator | solver set-up | solver iterations | total | frames/s | x classic | converged | refined | layers tried |\n");
-  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+  std::printf("| method | render | encoders | M-estimator | solver set-up | solver iterations | total | frames/s | x classic | converged | refined | layers tried | fallback frames: median |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   const double classic_total = median(methods[0].total);
   for (const Method& M : methods) {
     const double total = median(M.total);
-    std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.0f | %.2f | %d/%d | %d/%d | %.2f |\n", M.name.c_str(),
+    char fallback[64] = "-";
+    if (!M.fallback.empty()) std::snprintf(fallback, sizeof fallback, "%zu: %.1f", M.fallback.size(), median(M.fallback));
+    std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.0f | %.2f | %d/%d | %d/%d | %.2f | %s |\n", M.name.c_str(),
                 median(M.render), median(M.encoder), median(M.mest), median(M.setup), median(M.iterations), total,
                 1000.0 / total, total / classic_total, M.converged, n, M.refined, n,
-                static_cast<double>(M.tried) / static_cast<double>(std::max<std::size_t>(M.total.size(), 1)));
+                static_cast<double>(M.tried) / static_cast<double>(std::max<std::size_t>(M.total.size(), 1)), fallback);
   }
 #if defined(TERRALIGN_CLI)
   // Peak RSS of the command-line program on one localisation (the first pair), each method in
