@@ -14,7 +14,8 @@
 // --layers adds a learned row per weight file over those reference layers (Localizer: the
 // next is aligned to only where the one before did not converge), e.g. --live-layer 2020
 // --layers 2016,2012,2009; its "layers tried" is the mean alignments an image, and "fallback
-// frames" the count and median total ms of the images aligned to more than one layer.
+// frames" the count, median total ms and median encoder ms of the images aligned to more than
+// one layer.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -81,7 +82,7 @@ int main(int argc, char** argv) {
     std::string name;
     std::unique_ptr<cli::Localizer> loc;
     std::vector<double> render, encoder, mest, setup, iterations, total;
-    std::vector<double> fallback;  // total ms of the frames aligned to more than one layer
+    std::vector<double> fallback, fallback_encoder;  // ms of the frames aligned to more than one layer
     int converged = 0, refined = 0, tried = 0;
   };
   std::vector<nn::WeightFile> weights;
@@ -119,7 +120,7 @@ int main(int argc, char** argv) {
         return 1;
       }
       loc.value()->set_refinement(refine);
-      methods.push_back({name, std::move(loc.value()), {}, {}, {}, {}, {}, {}, {}, 0, 0, 0});
+      methods.push_back({name, std::move(loc.value()), {}, {}, {}, {}, {}, {}, {}, {}, 0, 0, 0});
     }
   for (int rep = 0; rep < 2; ++rep)  // the first pass warms caches; the second is measured
     for (std::size_t i = 0; i < live.size(); ++i)
@@ -137,16 +138,21 @@ int main(int argc, char** argv) {
         M.converged += out->converged;
         M.refined += out->refinements > 0;
         M.tried += out->layers_tried;
-        if (out->layers_tried > 1) M.fallback.push_back(ms);
+        if (out->layers_tried > 1) {
+          M.fallback.push_back(ms);
+          M.fallback_encoder.push_back(out->ms_encoder);
+        }
       }
   std::printf("752x480 camera, NAIP 2016 map, %s images, %d pairs, 2 threads, medians in ms\n\n", live_layer.c_str(), n);
-  std::printf("| method | render | encoders | M-estimator | solver set-up | solver iterations | total | frames/s | x classic | converged | refined | layers tried | fallback frames: median |\n");
+  std::printf("| method | render | encoders | M-estimator | solver set-up | solver iterations | total | frames/s | x classic | converged | refined | layers tried | fallback frames: median total (encoders) |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   const double classic_total = median(methods[0].total);
   for (const Method& M : methods) {
     const double total = median(M.total);
     char fallback[64] = "-";
-    if (!M.fallback.empty()) std::snprintf(fallback, sizeof fallback, "%zu: %.1f", M.fallback.size(), median(M.fallback));
+    if (!M.fallback.empty())
+      std::snprintf(fallback, sizeof fallback, "%zu: %.1f (%.1f)", M.fallback.size(), median(M.fallback),
+                    median(M.fallback_encoder));
     std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.0f | %.2f | %d/%d | %d/%d | %.2f | %s |\n", M.name.c_str(),
                 median(M.render), median(M.encoder), median(M.mest), median(M.setup), median(M.iterations), total,
                 1000.0 / total, total / classic_total, M.converged, n, M.refined, n,
