@@ -38,12 +38,15 @@ Scene scene() {
   return s;
 }
 
-cli::LocalizeOutput localize(const Scene& s, const std::vector<std::string>& layers, const nn::WeightFile* weights) {
+// attempts: where given, the localizer's attempts() of the layers tried.
+cli::LocalizeOutput localize(const Scene& s, const std::vector<std::string>& layers, const nn::WeightFile* weights,
+                             std::vector<cli::LayerAttempt>* attempts = nullptr) {
   auto loc = cli::Localizer::create(s.map, s.cam, layers, iclk::TrackerOptions{}, 2, weights);
   REQUIRE(loc.ok());
   CHECK(loc.value()->layer_count() == layers.size());
   auto out = loc.value()->localize(s.live.view(), s.prior);
   REQUIRE(out.ok());
+  if (attempts) attempts->assign(loc.value()->attempts(), loc.value()->attempts() + out->layers_tried);
   return out.value();
 }
 
@@ -82,13 +85,25 @@ TEST_CASE("layers: the next layer is tried only where the one before did not con
 
     // The first fails: the second answers, bit for bit as it does alone (its own options and
     // sigma), and its iterations count both layers'.
-    const cli::LocalizeOutput second = localize(s, {"blank", "2016"}, w);
+    std::vector<cli::LayerAttempt> attempts;
+    const cli::LocalizeOutput second = localize(s, {"blank", "2016"}, w, &attempts);
     check_answer(second, true, 1, 2);
     CHECK(second.T_W_C.t_W_C == alone.T_W_C.t_W_C);
     CHECK(second.T_W_C.q_W_C.coeffs() == alone.T_W_C.q_W_C.coeffs());
     CHECK(second.covariance == alone.covariance);
     CHECK(second.disagreement_px == alone.disagreement_px);
     CHECK(second.iterations == alone.iterations + blank.iterations);
+    // Each layer's attempt says what it said alone: the blank layer's failure and why, then
+    // the answer.
+    REQUIRE(attempts.size() == 2);
+    CHECK_FALSE(attempts[0].converged);
+    CHECK(std::string(attempts[0].reason) == blank.reason);
+    CHECK(attempts[0].iterations == blank.iterations);
+    CHECK(attempts[0].residual_final == blank.residual_final);
+    CHECK(attempts[1].converged);
+    CHECK(std::string(attempts[1].reason) == alone.reason);
+    CHECK(attempts[1].iterations == alone.iterations);
+    CHECK(attempts[1].disagreement_px == alone.disagreement_px);
 
     // None converges: the last layer's failure, at the prior, with every layer's cost.
     const cli::LocalizeOutput none = localize(s, {"blank", "blank2"}, w);

@@ -30,6 +30,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
     // The reference layer's own error on the ground joins any the caller's options count.
     L->ground_floor_m_.push_back(std::hypot(options.ground_floor_m, ref_layer->registration_sigma_m));
   }
+  L->attempts_.resize(layers.size());
   L->camera_ = camera;
   L->work_ = camera;
   iclk::TrackerOptions with_map = options;
@@ -211,11 +212,14 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     out.T_live_ref = iclk::SE3<double>::identity();
     out.covariance.setZero();
     out.uniform_refinements = 0;
+    const int iterations_before = out.iterations;
     // Every layer sees the same ground from the same prior: one that cannot be rendered
     // there is an error of the first (the pose off the map, say).
     if (auto st = localize_layer(live, prior, attitude, out); !st.ok()) return st.error();
     out.layer = static_cast<int>(i);
     out.layers_tried = static_cast<int>(i + 1);
+    attempts_[i] = {out.converged,      out.reason,          out.iterations - iterations_before,
+                    out.residual_final, out.disagreement_px, out.sharpness};
     if (out.converged) break;
   }
   return out;

@@ -49,6 +49,15 @@ struct LocalizeOutput {
   double ms_encoder = 0, ms_mestimator = 0;  // learned: both encoders; the M-estimator (inside ms_jacobian)
 };
 
+// One layer's alignment within a localize() call (Localizer::attempts): whether it converged,
+// and where not, why (the tracker's reason and the converged tests' measures).
+struct LayerAttempt {
+  bool converged = false;
+  const char* reason = "not run";  // a static string, as LocalizeOutput::reason
+  int iterations = 0;              // this layer's, its refinement passes included
+  double residual_final = 0, disagreement_px = 0, sharpness = 0;
+};
+
 // Sizes for a small target (the firmware: a 188 x 120 camera runs the network at full size
 // on four levels, and the renderer needs room for few triangles); 0 keeps the default.
 struct LocalizerSizes {
@@ -151,6 +160,9 @@ class Localizer {
   // ended at a final residual of at most `max_residual` (kRefineUniformMaxResidual: session
   // 37's rule); kRefineUniformOff (the default): every pass with it.
   void set_uniform_refinement(double max_residual) { refine_uniform_max_residual_ = max_residual; }
+  // The last localize()'s alignments, one a layer tried, in the order tried (its
+  // LocalizeOutput::layers_tried of them; sized at create(): no allocation a frame).
+  const LayerAttempt* attempts() const { return attempts_.data(); }
   // Renders the first layer's reference at `at` without aligning (the metrics' and figures'
   // reference).
   Status render_at(const geo::Pose& at) {
@@ -195,6 +207,7 @@ class Localizer {
   // The live image of this localize() call is in the tracker already (converted, and for the
   // learned tracker encoded): a later layer's first pass aligns it to its own reference.
   bool live_kept_ = false;
+  std::vector<LayerAttempt> attempts_;  // one a layer (attempts())
   ImageF ref_grey_, live_grey_, depth_;
   std::unique_ptr<iclk::Tracker<float, iclk::SE3DepthWarp<float>, 1>> tracker_;
 };
