@@ -240,6 +240,24 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
     CHECK((rc == 0) == (*agree == 0));
     if (*agree) CHECK(a["reason"].get<std::string>().find("ambiguous: a start nearby") != std::string::npos);
   }
+  // Over two layers that both fail so, "attempts" says why each was not taken, in order, and
+  // their iterations add up to the answer's.
+  const std::string two = tl + " align --method nn --map " + map + " --camera " + cam + " --layer 2016,2017 --image " + dir +
+                          "/frames/000000.png --prior \"" + first_truth_pose(dir) + "\" --max-disagreement 1e-9";
+  CHECK(std::system((two + " >" + dir + "/align2.json 2>/dev/null").c_str()) != 0);
+  const nlohmann::json a2 = nlohmann::json::parse(test::read_text(dir + "/align2.json"));
+  CHECK(a2["layer"] == "2017");
+  CHECK(a2["layers_tried"] == 2);
+  REQUIRE(a2["attempts"].size() == 2);
+  int iterations = 0;
+  for (int i = 0; i < 2; ++i) {
+    const nlohmann::json& t = a2["attempts"][static_cast<std::size_t>(i)];
+    CHECK(t["layer"] == (i == 0 ? "2016" : "2017"));
+    CHECK_FALSE(t["converged"].get<bool>());
+    CHECK(t["reason"].get<std::string>().find("ambiguous: a start nearby") != std::string::npos);
+    iterations += t["iterations"].get<int>();
+  }
+  CHECK(iterations == a2["iterations"].get<int>());
   check_refused(align + "--max-disagreement -1001", dir + "/err.txt", "--max-disagreement '-1001' must be in [-1000, 1000]");
 }
 

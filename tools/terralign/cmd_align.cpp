@@ -109,6 +109,20 @@ int run_align(const std::vector<std::string>& argv) {
   j["reason"] = out->reason;
   j["layer"] = layers[static_cast<std::size_t>(out->layer)];  // the answer's (where none converged, the last tried)
   j["layers_tried"] = out->layers_tried;
+  // Each layer tried, in order: where the answer is a later layer's, why the ones before it
+  // were not taken.
+  nlohmann::json attempts = nlohmann::json::array();
+  for (int i = 0; i < out->layers_tried; ++i) {
+    const LayerAttempt& a = loc.value()->attempts()[i];
+    attempts.push_back({{"layer", layers[static_cast<std::size_t>(i)]},
+                        {"converged", a.converged},
+                        {"reason", a.reason},
+                        {"iterations", a.iterations},
+                        {"residual_final", a.residual_final},
+                        {"disagreement_px", a.disagreement_px},
+                        {"sharpness", a.sharpness}});
+  }
+  j["attempts"] = attempts;
   j["iterations"] = out->iterations;
   j["residual_final"] = out->residual_final;  // the last pass's (eval's JSON has it per pose too)
   // Re-rendered passes after the first (--refine), and of them the learned tracker's without
