@@ -269,7 +269,7 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align_all(ImageView<con
                                                                    const iclk::Pinhole<float>& K,
                                                                    const iclk::SE3<float>& init) {
   TERRALIGN_ASSERT(ref_rgb.width == width_ && ref_rgb.height == height_ && ref_rgb.channels == 3,
-                   "DeepAligner::align: a reference of another size than the aligner was built for");
+                   "DeepAligner::align, align_to: a reference of another size than the aligner was built for");
   const auto t0 = std::chrono::steady_clock::now();
   encode(ref_rgb, ref_f_, levels_);
   if (live_rgb) encode(*live_rgb, live_f_, levels_);
