@@ -963,6 +963,44 @@ TEST_CASE("the Jacobian kernel: the warp's d_warp_d_xi with a Sobel / 8 gradient
   }
 }
 
+TEST_CASE("align_to aligns the last live image to another reference as align() would, allocating nothing") {
+  // What a map of several layers does (cli::Localizer): the live pyramid is built once, by the
+  // first layer's alignment (here 2012's reference); a refinement pass on one level against it
+  // (which must leave the coarser live levels alone), then 2016's reference aligned to it.
+  auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(map.ok());
+  const geo::CameraModel cam = test::paper_camera();
+  const geo::Pose truth = geo::pose_from_ypr({487450, 5207437, 570 + 800}, 30, 2, -3);
+  const geo::Pose prior = geo::pose_from_ypr({487450 + 12, 5207437 - 9, 570 + 806}, 31.5, 1, -2);
+  const Pair p = render_pair(map.value(), cam, prior, truth, "2016", "2016");
+  const Pair other = render_pair(map.value(), cam, prior, truth, "2012", "2016");
+  REQUIRE(std::memcmp(p.live_grey.data(), other.live_grey.data(), sizeof(float) * p.live_grey.size()) == 0);
+  TrackerOptions opt;
+  opt.threads = 2;
+  const Pinhole<float> K{float(p.K.fx), float(p.K.fy), float(p.K.cx), float(p.K.cy)};
+  Tracker<float, SE3DepthWarp<float>, 1> fresh(cam.width, cam.height, opt), kept(cam.width, cam.height, opt);
+  const auto a = fresh.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), K, SE3<float>::identity());
+  REQUIRE(a.converged);  // a comparison of answers, not of two failures
+  kept.align(other.ref_grey.view(), other.depth.view(), other.live_grey.view(), K, SE3<float>::identity());
+  kept.set_options(refinement_options(opt, 1));
+  kept.align_to(other.ref_grey.view(), other.depth.view(), K, SE3<float>::identity());
+  kept.set_options(opt);
+  long allocations = 0;
+  TrackResult<SE3DepthWarp<float>> b;
+  {
+    test::AllocationCounter count;
+    b = kept.align_to(p.ref_grey.view(), p.depth.view(), K, SE3<float>::identity());
+    allocations = count.allocations();
+  }
+  CHECK(allocations == 0);
+  CHECK(b.converged);
+  CHECK(std::memcmp(a.params.R.data(), b.params.R.data(), sizeof(float) * 9) == 0);
+  CHECK(std::memcmp(a.params.t.data(), b.params.t.data(), sizeof(float) * 3) == 0);
+  CHECK(a.iterations == b.iterations);
+  CHECK(a.cost_final == b.cost_final);
+  CHECK(a.covariance == b.covariance);
+}
+
 TEST_CASE("an alignment allocates nothing after set-up") {
   auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
   REQUIRE(map.ok());

@@ -171,14 +171,24 @@ void Tracker<S, Warp, C>::set_options(const TrackerOptions& o) {
 
 template <class S, class Warp, int C>
 void Tracker<S, Warp, C>::build_pyramids(ImageView<const float> ref, ImageView<const float> depth,
-                                         ImageView<const float> live) {
+                                         const ImageView<const float>* live) {
   Level& L0 = levels_[0];
   for (int y = 0; y < L0.h; ++y) {
     std::copy(ref.row(y), ref.row(y) + L0.w * C, &L0.ref.at(0, y, 0));
-    std::copy(live.row(y), live.row(y) + L0.w * C, &L0.live.at(0, y, 0));
+    if (live) std::copy(live->row(y), live->row(y) + L0.w * C, &L0.live.at(0, y, 0));
     std::copy(depth.row(y), depth.row(y) + L0.w, &L0.depth.at(0, y, 0));
   }
   build_depth_pyramid();
+  if (live)
+    downsample_levels<true>();
+  else
+    downsample_levels<false>();
+  normalize_levels(live != nullptr);
+}
+
+template <class S, class Warp, int C>
+template <bool kLive>
+void Tracker<S, Warp, C>::downsample_levels() {
   for (std::size_t l = 1; l < levels_in_use(); ++l) {
     const Level& A = levels_[l - 1];
     Level& B = levels_[l];
@@ -189,18 +199,18 @@ void Tracker<S, Warp, C>::build_pyramids(ImageView<const float> ref, ImageView<c
         float f[C] = {}, g[C] = {};
         for (int k = 0; k < 4; ++k) {
           const int sx = std::min(2 * x + (k & 1), A.w - 1), sy = std::min(2 * y + (k >> 1), A.h - 1);
-          for (int c = 0; c < C; ++c) g[c] += A.live.at(sx, sy, c);
+          if constexpr (kLive)
+            for (int c = 0; c < C; ++c) g[c] += A.live.at(sx, sy, c);
           if (!std::isfinite(A.depth.at(sx, sy))) continue;
           ++nd;
           for (int c = 0; c < C; ++c) f[c] += A.ref.at(sx, sy, c);
         }
         for (int c = 0; c < C; ++c) {
           B.ref.at(x, y, c) = nd ? f[c] / static_cast<float>(nd) : 0.0f;
-          B.live.at(x, y, c) = g[c] * 0.25f;
+          if constexpr (kLive) B.live.at(x, y, c) = g[c] * 0.25f;
         }
       }
   }
-  normalize_levels();
 }
 
 template <class S, class Warp, int C>
@@ -690,7 +700,25 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::align(ImageView<const float> ref, 
                    "Tracker::align: image size differs from the size the tracker was built for");
   TERRALIGN_ASSERT(ref.channels == C && live.channels == C && ref_depth.channels == 1, "Tracker::align: channels");
   const auto t0 = Clock::now();
-  build_pyramids(ref, ref_depth, live);
+  build_pyramids(ref, ref_depth, &live);
+  R.ms_pyramid = ms(t0, Clock::now());
+  return solve(K0, init, weights, nullptr);
+}
+
+template <class S, class Warp, int C>
+const TrackResult<Warp>& Tracker<S, Warp, C>::align_to(ImageView<const float> ref, ImageView<const float> ref_depth,
+                                                        const Pinhole<S>& K0, const Params& init,
+                                                        const ImageView<const float>* weights) {
+  TrackResult<Warp>& R = result_;
+  R = TrackResult<Warp>{};
+  R.params = init;
+  TERRALIGN_ASSERT(ref.width == width_ && ref.height == height_ && ref_depth.width == width_ &&
+                       ref_depth.height == height_,
+                   "Tracker::align_to: image size differs from the size the tracker was built for");
+  TERRALIGN_ASSERT(ref.channels == C && ref_depth.channels == 1, "Tracker::align_to: channels");
+  TERRALIGN_ASSERT(live_ready_ >= levels_in_use(), "Tracker::align_to: no earlier alignment's live levels to keep");
+  const auto t0 = Clock::now();
+  build_pyramids(ref, ref_depth, nullptr);
   R.ms_pyramid = ms(t0, Clock::now());
   return solve(K0, init, weights, nullptr);
 }

@@ -164,14 +164,17 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
   const Eigen::Vector3d tilt = a.angle() * a.axis();
   if (!deep_) {
     tracker_->set_up(up, tilt);
-    if (first) {
-      if (!live_kept_) iclk::rgb_to_grey(live, live_grey_);
+    // The live image's pyramid is built once a frame, by the first layer's alignment; a later
+    // layer and a refinement pass align their reference to it.
+    if (first && !live_kept_) {
+      iclk::rgb_to_grey(live, live_grey_);
       live_kept_ = true;
       return tracker_->align(ref_grey_.view(), depth_.view(), live_grey_.view(), K, iclk::SE3<float>::identity());
     }
+    if (first) return tracker_->align_to(ref_grey_.view(), depth_.view(), K, iclk::SE3<float>::identity());
     const iclk::TrackerOptions keep = tracker_->options();
     tracker_->set_options(iclk::refinement_options(keep, refine_levels_));
-    const auto& r = tracker_->align(ref_grey_.view(), depth_.view(), live_grey_.view(), K, iclk::SE3<float>::identity());
+    const auto& r = tracker_->align_to(ref_grey_.view(), depth_.view(), K, iclk::SE3<float>::identity());
     tracker_->set_options(keep);
     return r;
   }

@@ -270,6 +270,13 @@ class Tracker {
                                  ImageView<const float> live, const Pinhole<S>& K0,
                                  const Params& init, const ImageView<const float>* weights = nullptr);
 
+  // Aligns the last align()'s live image to another reference (another layer of the map, or
+  // a reference rendered again where an answer ended): as align(), but the live pyramid is
+  // the last alignment's, not built again. The answer is align()'s with that live image, bit
+  // for bit. The last alignment must have run at least as many levels as the options run now.
+  const TrackResult<Warp>& align_to(ImageView<const float> ref, ImageView<const float> ref_depth, const Pinhole<S>& K0,
+                                    const Params& init, const ImageView<const float>* weights = nullptr);
+
   // Pyramids from outside (learned features): ref_levels and live_levels hold
   // options().levels views each, finest first, level l of size (w >> l, h >> l) (floor);
   // the depth pyramid is built from the full-resolution ref_depth. `weights` (optional) is
@@ -303,7 +310,10 @@ class Tracker {
   // The levels the options run (set_options may run fewer than were built: a refinement
   // pass); only these are built, copied and normalised for an alignment.
   std::size_t levels_in_use() const { return static_cast<std::size_t>(opt_.levels); }
-  void build_pyramids(ImageView<const float> ref, ImageView<const float> depth, ImageView<const float> live);
+  // live null: the reference's and depth's pyramids alone (the live levels are kept).
+  void build_pyramids(ImageView<const float> ref, ImageView<const float> depth, const ImageView<const float>* live);
+  template <bool kLive>
+  void downsample_levels();  // levels 1.. of the reference (and of the live image) from the finest
   void build_depth_pyramid();
   void normalize_levels(bool live = true);  // live: also the live levels (else they are kept)
   std::size_t live_ready_ = 0;  // levels whose live images the last alignment normalised
