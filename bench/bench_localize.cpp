@@ -11,11 +11,11 @@
 // (default: 20 pairs, the 2017 camera images, the shipped weights). --live-layer 2016 renders
 // the camera images from the map's own year, where the refinement passes run (a converged
 // answer's final residual at most 1.0: same-year maps; across a year they seldom do).
-// --layers adds a learned row per weight file over those reference layers (Localizer: the
-// next is aligned to only where the one before did not converge), e.g. --live-layer 2020
-// --layers 2016,2012,2009; its "layers tried" is the mean alignments an image, and "fallback
-// frames" the count, median total ms and median encoder ms of the images aligned to more than
-// one layer.
+// --layers adds a row over those reference layers (Localizer: the next is aligned to only
+// where the one before did not converge) for the classical tracker and each weight file, e.g.
+// --live-layer 2020 --layers 2016,2012,2009; its "layers tried" is the mean alignments an
+// image, and "fallback frames" the count, median total ms, median encoder ms and median
+// pyramid ms (the solver's levels built or copied) of the images aligned to more than one layer.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -82,7 +82,7 @@ int main(int argc, char** argv) {
     std::string name;
     std::unique_ptr<cli::Localizer> loc;
     std::vector<double> render, encoder, mest, setup, iterations, total;
-    std::vector<double> fallback, fallback_encoder;  // ms of the frames aligned to more than one layer
+    std::vector<double> fallback, fallback_encoder, fallback_pyramid;  // ms of the frames aligned to more than one layer
     int converged = 0, refined = 0, tried = 0;
   };
   std::vector<nn::WeightFile> weights;
@@ -96,20 +96,22 @@ int main(int argc, char** argv) {
     weights.push_back(std::move(w.value()));
   }
   std::vector<Method> methods;
-  // The learned: also with one refinement pass, and over --layers (variant 2).
-  const int variants = layer_list.empty() ? 2 : 3;
+  // Each tracker alone; the learned also with one refinement pass; both over --layers.
+  enum Variant { kAlone, kRefined, kLayers };
   for (std::size_t m = 0; m <= files.size(); ++m)
-    for (int variant = 0; variant < (m == 0 ? 1 : variants); ++variant) {
-      const int refine = variant == 1;
+    for (const Variant variant : {kAlone, kRefined, kLayers}) {
+      if ((variant == kRefined && m == 0) || (variant == kLayers && layer_list.empty())) continue;
+      const int refine = variant == kRefined;
       const std::size_t slash = m == 0 ? 0 : files[m - 1].find_last_of('/');
-      const std::string name = m == 0 ? "classic:20"
-                                      : std::string(variant == 0 ? "nn:20 " : variant == 1 ? "nn:20 --refine 1 "
-                                                                            : "nn:20 --layer " + layer_list + " ") +
-                                            files[m - 1].substr(slash == std::string::npos ? 0 : slash + 1);
+      const std::string tracker =
+          m == 0 ? "classic:20" : "nn:20 " + files[m - 1].substr(slash == std::string::npos ? 0 : slash + 1);
+      const std::string name = variant == kAlone     ? tracker
+                               : variant == kRefined ? tracker + " --refine 1"
+                                                     : tracker + " --layer " + layer_list;
       iclk::TrackerOptions opt;
       opt.iterations = 20;
       std::vector<std::string> layers{"2016"};
-      if (variant == 2) {
+      if (variant == kLayers) {
         layers.clear();
         std::stringstream list(layer_list);
         for (std::string layer; std::getline(list, layer, ',');) layers.push_back(layer);
@@ -120,7 +122,10 @@ int main(int argc, char** argv) {
         return 1;
       }
       loc.value()->set_refinement(refine);
-      methods.push_back({name, std::move(loc.value()), {}, {}, {}, {}, {}, {}, {}, {}, 0, 0, 0});
+      Method M;
+      M.name = name;
+      M.loc = std::move(loc.value());
+      methods.push_back(std::move(M));
     }
   for (int rep = 0; rep < 2; ++rep)  // the first pass warms caches; the second is measured
     for (std::size_t i = 0; i < live.size(); ++i)
@@ -141,18 +146,19 @@ int main(int argc, char** argv) {
         if (out->layers_tried > 1) {
           M.fallback.push_back(ms);
           M.fallback_encoder.push_back(out->ms_encoder);
+          M.fallback_pyramid.push_back(out->ms_pyramid);
         }
       }
   std::printf("752x480 camera, NAIP 2016 map, %s images, %d pairs, 2 threads, medians in ms\n\n", live_layer.c_str(), n);
-  std::printf("| method | render | encoders | M-estimator | solver set-up | solver iterations | total | frames/s | x classic | converged | refined | layers tried | fallback frames: median total (encoders) |\n");
+  std::printf("| method | render | encoders | M-estimator | solver set-up | solver iterations | total | frames/s | x classic | converged | refined | layers tried | fallback frames: median total (encoders, pyramids) |\n");
   std::printf("|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
   const double classic_total = median(methods[0].total);
   for (const Method& M : methods) {
     const double total = median(M.total);
     char fallback[64] = "-";
     if (!M.fallback.empty())
-      std::snprintf(fallback, sizeof fallback, "%zu: %.1f (%.1f)", M.fallback.size(), median(M.fallback),
-                    median(M.fallback_encoder));
+      std::snprintf(fallback, sizeof fallback, "%zu: %.1f (%.1f, %.1f)", M.fallback.size(), median(M.fallback),
+                    median(M.fallback_encoder), median(M.fallback_pyramid));
     std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.0f | %.2f | %d/%d | %d/%d | %.2f | %s |\n", M.name.c_str(),
                 median(M.render), median(M.encoder), median(M.mest), median(M.setup), median(M.iterations), total,
                 1000.0 / total, total / classic_total, M.converged, n, M.refined, n,
