@@ -692,33 +692,33 @@ template <class S, class Warp, int C>
 const TrackResult<Warp>& Tracker<S, Warp, C>::align(ImageView<const float> ref, ImageView<const float> ref_depth,
                                                      ImageView<const float> live, const Pinhole<S>& K0,
                                                      const Params& init, const ImageView<const float>* weights) {
-  TrackResult<Warp>& R = result_;
-  R = TrackResult<Warp>{};
-  R.params = init;
-  TERRALIGN_ASSERT(ref.width == width_ && ref.height == height_ && live.width == width_ && live.height == height_ &&
-                       ref_depth.width == width_ && ref_depth.height == height_,
-                   "Tracker::align: image size differs from the size the tracker was built for");
-  TERRALIGN_ASSERT(ref.channels == C && live.channels == C && ref_depth.channels == 1, "Tracker::align: channels");
-  const auto t0 = Clock::now();
-  build_pyramids(ref, ref_depth, &live);
-  R.ms_pyramid = ms(t0, Clock::now());
-  return solve(K0, init, weights, nullptr);
+  TERRALIGN_ASSERT(live.width == width_ && live.height == height_ && live.channels == C,
+                   "Tracker::align: the live image's size or channels differ from the tracker's");
+  return build_and_solve(ref, ref_depth, &live, K0, init, weights);
 }
 
 template <class S, class Warp, int C>
 const TrackResult<Warp>& Tracker<S, Warp, C>::align_to(ImageView<const float> ref, ImageView<const float> ref_depth,
                                                         const Pinhole<S>& K0, const Params& init,
                                                         const ImageView<const float>* weights) {
+  TERRALIGN_ASSERT(live_ready_ >= levels_in_use(), "Tracker::align_to: no earlier alignment's live levels to keep");
+  return build_and_solve(ref, ref_depth, nullptr, K0, init, weights);
+}
+
+template <class S, class Warp, int C>
+const TrackResult<Warp>& Tracker<S, Warp, C>::build_and_solve(ImageView<const float> ref,
+                                                               ImageView<const float> ref_depth,
+                                                               const ImageView<const float>* live,
+                                                               const Pinhole<S>& K0, const Params& init,
+                                                               const ImageView<const float>* weights) {
   TrackResult<Warp>& R = result_;
   R = TrackResult<Warp>{};
   R.params = init;
   TERRALIGN_ASSERT(ref.width == width_ && ref.height == height_ && ref_depth.width == width_ &&
-                       ref_depth.height == height_,
-                   "Tracker::align_to: image size differs from the size the tracker was built for");
-  TERRALIGN_ASSERT(ref.channels == C && ref_depth.channels == 1, "Tracker::align_to: channels");
-  TERRALIGN_ASSERT(live_ready_ >= levels_in_use(), "Tracker::align_to: no earlier alignment's live levels to keep");
+                       ref_depth.height == height_ && ref.channels == C && ref_depth.channels == 1,
+                   "Tracker::align, align_to: the reference's or depth's size or channels differ from the tracker's");
   const auto t0 = Clock::now();
-  build_pyramids(ref, ref_depth, nullptr);
+  build_pyramids(ref, ref_depth, live);
   R.ms_pyramid = ms(t0, Clock::now());
   return solve(K0, init, weights, nullptr);
 }

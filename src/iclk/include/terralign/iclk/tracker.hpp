@@ -310,6 +310,10 @@ class Tracker {
   // The levels the options run (set_options may run fewer than were built: a refinement
   // pass); only these are built, copied and normalised for an alignment.
   std::size_t levels_in_use() const { return static_cast<std::size_t>(opt_.levels); }
+  // align()'s and align_to()'s pyramids and solve; live null: the last alignment's live levels.
+  const TrackResult<Warp>& build_and_solve(ImageView<const float> ref, ImageView<const float> ref_depth,
+                                           const ImageView<const float>* live, const Pinhole<S>& K0,
+                                           const Params& init, const ImageView<const float>* weights);
   // live null: the reference's and depth's pyramids alone (the live levels are kept).
   void build_pyramids(ImageView<const float> ref, ImageView<const float> depth, const ImageView<const float>* live);
   template <bool kLive>
