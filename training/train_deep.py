@@ -273,6 +273,10 @@ def main():
     p.add_argument("--out", required=True)
     p.add_argument("--size", default="s16", choices=sorted(D.SIZES))
     p.add_argument("--steps", type=int, default=3000)
+    p.add_argument("--stop-at", type=int, default=0,
+                   help="end the run after this step, validated and checkpointed, its learning-rate schedule still "
+                        "that of --steps (a run planned for --steps and stopped for time, as several in "
+                        "training/README.md were; 0: run all --steps)")
     p.add_argument("--batch", type=int, default=4)
     p.add_argument("--iterations", type=int, default=5)
     p.add_argument("--lr", type=float, default=5e-4)
@@ -356,6 +360,11 @@ def main():
         opt.load_state_dict(ck["opt"])
         sched.load_state_dict(ck["sched"])
         step, best = ck["step"], ck["best"]
+        # The log's lines after the checkpoint (a run killed between checkpoints) are logged again.
+        with open(log_path) as f:
+            lines = f.readlines()
+        with open(log_path, "w") as f:
+            f.writelines(lines[:1] + [ln for ln in lines[1:] if int(ln.split(",")[1]) <= step])
         rng.setstate(ck["rng"])
         torch.set_rng_state(ck["torch_rng"])
         if "aug_rng" in ck:
@@ -379,8 +388,9 @@ def main():
             f.write("kind,step,loss,init_mean,init_median,final_mean,final_median,seconds\n")
         with open(os.path.join(a.out, "config.txt"), "w") as f:
             f.write(" ".join(sys.argv) + "\n")
+    end = min(a.steps, a.stop_at) if a.stop_at > 0 else a.steps
     t0, acc, nacc = time.time(), 0.0, 0
-    while step < a.steps:
+    while step < end:
         src, weight = train, 1.0
         if extra is not None and rng.random() < a.extra_p:
             src, weight = extra, extra_weight
@@ -416,7 +426,8 @@ def main():
                 f.write(f"train,{step},{acc / nacc:.4f},,,,,{time.time() - t0:.0f}\n")
             print(f"step {step} loss {acc / nacc:.3f} ({time.time() - t0:.0f} s)", flush=True)
             acc, nacc = 0.0, 0
-        if step % a.val_every == 0 or step == a.steps:
+        validating = step % a.val_every == 0 or step == a.steps
+        if validating:
             def validation(kind, pairs, items):  # 20 iterations, as at test time; logged and printed
                 model.iterations = 20
                 im, imed, fm, fmed = validate(model, pairs, items)
@@ -432,11 +443,14 @@ def main():
                 validation("val_far", val, far_items)
             if extra is not None:
                 validation("val_extra", extra_val, extra_items)
+        # A run stopped by --stop-at between validations checkpoints without one: resumed, it
+        # goes on as the run that was not stopped (validation draws no random numbers).
+        if validating or step == end:
             state = {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "step": step,
-                     "best": min(best, fmed), "rng": rng.getstate(), "torch_rng": torch.get_rng_state(), "size": a.size,
-                     "channels": a.channels,
+                     "best": min(best, fmed) if validating else best, "rng": rng.getstate(),
+                     "torch_rng": torch.get_rng_state(), "size": a.size, "channels": a.channels,
                      "aug_rng": gen.get_state()}
-            if fmed < best:
+            if validating and fmed < best:
                 best = fmed
                 torch.save(state, os.path.join(a.out, "best.pt.tmp"))
                 os.replace(os.path.join(a.out, "best.pt.tmp"), os.path.join(a.out, "best.pt"))
