@@ -234,6 +234,21 @@ def validate(model, val, items, batch=8):
     return float(np.mean(init)), float(np.median(init)), float(np.mean(np.minimum(f, 1e3))), float(np.median(f))
 
 
+def keep_log_until(path, step):
+    """Drops the log's lines after `step` (written after the checkpoint a run resumes from, by a
+    run killed between checkpoints, or cut off mid-line): the resumed run logs them again."""
+    with open(path) as f:
+        lines = f.readlines()
+    keep = lines[:1]
+    for line in lines[1:]:
+        fields = line.rstrip("\n").split(",")
+        if line.endswith("\n") and len(fields) == 8 and fields[1].isdigit() and int(fields[1]) <= step:
+            keep.append(line)
+    with open(path + ".tmp", "w") as f:
+        f.writelines(keep)
+    os.replace(path + ".tmp", path)
+
+
 def plot(out):
     rows = list(csv.DictReader(open(os.path.join(out, "log.csv"))))
     if not rows:
@@ -274,9 +289,9 @@ def main():
     p.add_argument("--size", default="s16", choices=sorted(D.SIZES))
     p.add_argument("--steps", type=int, default=3000)
     p.add_argument("--stop-at", type=int, default=0,
-                   help="end the run after this step, validated and checkpointed, its learning-rate schedule still "
-                        "that of --steps (a run planned for --steps and stopped for time, as several in "
-                        "training/README.md were; 0: run all --steps)")
+                   help="end the run after this step with a checkpoint (validated only where --val-every falls), "
+                        "its learning-rate schedule still that of --steps: a run planned for --steps and stopped "
+                        "for time, as several in training/README.md were, which --resume continues; 0: all --steps")
     p.add_argument("--batch", type=int, default=4)
     p.add_argument("--iterations", type=int, default=5)
     p.add_argument("--lr", type=float, default=5e-4)
@@ -350,7 +365,7 @@ def main():
     model.tilt_sigma = a.tilt_prior * np.pi / 180
     opt = torch.optim.Adam(model.parameters(), lr=a.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=a.steps, eta_min=a.lr * 0.05)
-    step, best = 0, float("inf")
+    step, best, acc, nacc = 0, float("inf"), 0.0, 0
     rng = random.Random(a.seed)
     gen = torch.Generator().manual_seed(a.seed)
     log_path = os.path.join(a.out, "log.csv")
@@ -360,11 +375,8 @@ def main():
         opt.load_state_dict(ck["opt"])
         sched.load_state_dict(ck["sched"])
         step, best = ck["step"], ck["best"]
-        # The log's lines after the checkpoint (a run killed between checkpoints) are logged again.
-        with open(log_path) as f:
-            lines = f.readlines()
-        with open(log_path, "w") as f:
-            f.writelines(lines[:1] + [ln for ln in lines[1:] if int(ln.split(",")[1]) <= step])
+        acc, nacc = ck.get("acc", 0.0), ck.get("nacc", 0)  # a stop between two of the loss's log lines
+        keep_log_until(log_path, step)
         rng.setstate(ck["rng"])
         torch.set_rng_state(ck["torch_rng"])
         if "aug_rng" in ck:
@@ -389,7 +401,7 @@ def main():
         with open(os.path.join(a.out, "config.txt"), "w") as f:
             f.write(" ".join(sys.argv) + "\n")
     end = min(a.steps, a.stop_at) if a.stop_at > 0 else a.steps
-    t0, acc, nacc = time.time(), 0.0, 0
+    t0 = time.time()
     while step < end:
         src, weight = train, 1.0
         if extra is not None and rng.random() < a.extra_p:
@@ -449,7 +461,7 @@ def main():
             state = {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "step": step,
                      "best": min(best, fmed) if validating else best, "rng": rng.getstate(),
                      "torch_rng": torch.get_rng_state(), "size": a.size, "channels": a.channels,
-                     "aug_rng": gen.get_state()}
+                     "aug_rng": gen.get_state(), "acc": acc, "nacc": nacc}
             if validating and fmed < best:
                 best = fmed
                 torch.save(state, os.path.join(a.out, "best.pt.tmp"))
