@@ -21,7 +21,7 @@
 # python3-torch and python3-matplotlib (`apt-get install python3-torch python3-matplotlib`;
 # /usr/bin/python3, not a pyenv python3) and ../shared/data beside the checkout. On two cores:
 # about 5 minutes of data, 2.6 hours of training (session 38: 2475, 3360 and 3441 s), 5 minutes
-# of calibration; 3.5 GB of data. The whole chain from a network's first step is not
+# of calibration; 3.7 GB of data. The whole chain from a network's first step is not
 # reproducible by one command: the first runs (sessions 3-33, training/README.md steps 2-20)
 # were trained by earlier versions of train_deep.py (four levels at first, one feature channel
 # until session 28), each from the file the session before had committed.
@@ -118,5 +118,9 @@ EOF
 $py training/export_deep.py "$work/runs/s16w64c/last.pt" "$out.part" --note "$note"
 python3 training/calibrate_sharpness.py --test agreement --count 200 --only "$out.part"
 mv "$out.part" "$out"
-$py training/same_tensors.py "$out" weights/deep_iclk_s16w64.tlw && cmp "$out" weights/deep_iclk_s16w64.tlw &&
+if $py training/same_tensors.py "$out" weights/deep_iclk_s16w64.tlw && cmp "$out" weights/deep_iclk_s16w64.tlw; then
   echo "reproduced: $out is weights/deep_iclk_s16w64.tlw byte for byte"
+else
+  echo "reproduce.sh: $out differs from weights/deep_iclk_s16w64.tlw (above)" >&2
+  exit 1
+fi
