@@ -234,9 +234,16 @@ def validate(model, val, items, batch=8):
     return float(np.mean(init)), float(np.median(init)), float(np.mean(np.minimum(f, 1e3))), float(np.median(f))
 
 
+LOG_HEADER = "kind,step,loss,init_mean,init_median,final_mean,final_median,seconds\n"
+
+
 def keep_log_until(path, step):
     """Drops the log's lines after `step` (written after the checkpoint a run resumes from, by a
     run killed between checkpoints, or cut off mid-line): the resumed run logs them again."""
+    if not os.path.exists(path):  # a checkpoint moved without its log: the log starts again
+        with open(path, "w") as f:
+            f.write(LOG_HEADER)
+        return
     with open(path) as f:
         lines = f.readlines()
     keep = lines[:1]
@@ -397,7 +404,7 @@ def main():
                 model.load_state_dict(take, strict=False)
                 print(f"warm start from {a.init}: {len(take)} of {len(own)} tensors", flush=True)
         with open(log_path, "w") as f:
-            f.write("kind,step,loss,init_mean,init_median,final_mean,final_median,seconds\n")
+            f.write(LOG_HEADER)
         with open(os.path.join(a.out, "config.txt"), "w") as f:
             f.write(" ".join(sys.argv) + "\n")
     end = min(a.steps, a.stop_at) if a.stop_at > 0 else a.steps
