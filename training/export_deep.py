@@ -51,6 +51,17 @@ def architecture(size, note, channels=1):
     return "\n".join(lines) + "\n"
 
 
+# The comment lines architecture() and calibrate_sharpness.py write themselves; the rest is the note.
+OWN_LINES = ("# terralign learned tracker", "# input-scale", "# levels", "# max-disagreement-px", "# min-sharpness",
+             "# checkpoint step")
+
+
+def note_of(path):
+    """The note another weight file was exported with (to export a retrained file as it was)."""
+    arch, _ = tlw.architecture(path)
+    return "\n".join(l[2:] for l in arch.splitlines() if l.startswith("# ") and not l.startswith(OWN_LINES))
+
+
 def export(state, size, dst, note="", channels=1):
     tensors = [(k, v.detach().numpy()) for k, v in state.items()]
     tlw.write(dst, architecture(size, note, channels), tensors)
@@ -62,7 +73,10 @@ def main():
     p.add_argument("checkpoint")
     p.add_argument("out")
     p.add_argument("--note", default="")
+    p.add_argument("--note-from", help="take the note of this weight file (training/reproduce.sh: the committed one's)")
     a = p.parse_args()
+    if a.note_from:
+        a.note = note_of(a.note_from)
     ck = torch.load(a.checkpoint, map_location="cpu")
     k = ck.get("channels", 1)
     if k not in (1, 2, 4):

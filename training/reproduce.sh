@@ -102,20 +102,7 @@ run s16w64c 40 "$work/runs/s16w64b/last.pt"
 
 # The export carries the committed file's note, so that the files can match byte for byte.
 out="$work/deep_iclk_s16w64.tlw"
-note=$($py - weights/deep_iclk_s16w64.tlw <<'EOF'
-import sys
-sys.path.insert(0, "training")
-import tlw
-keep = []
-for line in tlw.architecture(sys.argv[1])[0].splitlines():
-    if not line.startswith("# ") or line.startswith(("# terralign learned tracker", "# input-scale", "# levels",
-                                                      "# max-disagreement-px", "# min-sharpness", "# checkpoint step")):
-        continue
-    keep.append(line[2:])
-print("\n".join(keep))
-EOF
-)
-$py training/export_deep.py "$work/runs/s16w64c/last.pt" "$out.part" --note "$note"
+$py training/export_deep.py "$work/runs/s16w64c/last.pt" "$out.part" --note-from weights/deep_iclk_s16w64.tlw
 python3 training/calibrate_sharpness.py --test agreement --count 200 --only "$out.part"
 mv "$out.part" "$out"
 if $py training/same_tensors.py "$out" weights/deep_iclk_s16w64.tlw && cmp "$out" weights/deep_iclk_s16w64.tlw; then
