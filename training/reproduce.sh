@@ -138,14 +138,14 @@ same_log() {
   echo "log $name: differs from training/runs/$name/log.csv (above: < committed, > this run)" >&2
   return 1
 }
-# A stage's end: $work/FILE exported from the last checkpoint of run LAST with the note of
-# COMMITTED, the committed file (so that the two can match byte for byte), its agreement
-# threshold calibrated, then compared with COMMITTED; RUN... the stage's runs, whose logs say
-# where a reproduction parted from the committed one. The export is skipped where the file is
-# there and newer than the checkpoint.
+# A stage's end: FILE COMMITTED RUN...: $work/FILE exported from the last checkpoint of the
+# stage's last run with the note of COMMITTED, the committed file (so that the two can match
+# byte for byte), its agreement threshold calibrated, then compared with COMMITTED; the logs of
+# the stage's runs say where a reproduction parted from the committed one. The export is
+# skipped where the file is there and newer than the checkpoint.
 ship() {
-  local file=$1 ref=$2 last=$3; shift 3
-  local out="$work/$file" logs=0
+  local file=$1 ref=$2; shift 2
+  local out="$work/$file" last=${!#} logs=0
   if [ "$out" -nt "$work/runs/$last/last.pt" ]; then
     echo "export: $out is there"
   else
@@ -169,18 +169,18 @@ ship() {
 s16_17="$work/s16_step17.tlw"
 if [ "$from" -eq 16 ]; then
   run s16anchor s16 1200 31 "$work/s16_step16.tlw" --val-every 400 --anchor-w 0.5 --anchor-iterations 2
-  ship deep_iclk_s16_step17.tlw "$work/s16_step17.tlw" s16anchor s16anchor
+  ship deep_iclk_s16_step17.tlw "$work/s16_step17.tlw" s16anchor
   s16_17="$work/deep_iclk_s16_step17.tlw"
 fi
 # Stage 3: s16 (step 20), from stage 2's file.
 s16=weights/deep_iclk_s16.tlw
 if [ "$from" -ne 20 ]; then
   run s16tilt s16 600 33 "$s16_17" --val-every 300 --tilt-prior 3
-  ship deep_iclk_s16.tlw weights/deep_iclk_s16.tlw s16tilt s16tilt
+  ship deep_iclk_s16.tlw weights/deep_iclk_s16.tlw s16tilt
   s16="$work/deep_iclk_s16.tlw"
 fi
 # Stage 4: s16w64 (step 24), from stage 3's file.
 run s16w64 s16w64 1200 38 "$s16" --val-every 300 --tilt-prior 3 --widen
 run s16w64b s16w64 1200 39 "$work/runs/s16w64/last.pt" --val-every 300 --tilt-prior 3
 run s16w64c s16w64 1200 40 "$work/runs/s16w64b/last.pt" --val-every 300 --tilt-prior 3
-ship deep_iclk_s16w64.tlw weights/deep_iclk_s16w64.tlw s16w64c s16w64 s16w64b s16w64c
+ship deep_iclk_s16w64.tlw weights/deep_iclk_s16w64.tlw s16w64 s16w64b s16w64c
