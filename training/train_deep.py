@@ -18,6 +18,7 @@ import argparse
 import csv
 import os
 import random
+import subprocess
 import sys
 import time
 
@@ -289,6 +290,40 @@ def plot(out):
     plt.close(fig)
 
 
+def host_record():
+    """What decides a run's arithmetic besides its inputs, one line: PyTorch's version and
+    threads, the CPU, the vector extensions by which oneDNN picks its convolution kernels, the
+    caches (which may set their blocking), and an ISA cap set in the environment. Training
+    gives the same bytes only where these agree: capping oneDNN at AVX2 (ONEDNN_MAX_CPU_ISA=AVX2)
+    on the AVX-512 host of sessions 50-52 moved a run's first logged loss mean from 125.0034 to
+    124.0071 (training/README.md, "What the same bytes need")."""
+    model, flags = "?", set()
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                key, _, value = line.partition(":")
+                if key.strip() == "model name" and model == "?":
+                    model = value.strip()
+                elif key.strip() == "flags":
+                    flags = set(value.split())
+                    break
+    except OSError:
+        pass
+    simd = [x for x in ("avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16", "amx_tile") if x in flags]
+    caches = []
+    for name, label in (("LEVEL1_DCACHE_SIZE", "L1d"), ("LEVEL2_CACHE_SIZE", "L2"), ("LEVEL3_CACHE_SIZE", "L3")):
+        try:  # glibc's reading of CPUID, as oneDNN's
+            size = int(subprocess.run(["getconf", name], capture_output=True, text=True, timeout=10).stdout.strip())
+            caches.append(f"{label} {size // 1024} KiB")
+        except (OSError, ValueError, subprocess.SubprocessError):
+            continue
+    caps = [f"{k}={os.environ[k]}" for k in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY")
+            if k in os.environ]
+    return (f"torch {torch.__version__}, {torch.get_num_threads()} threads, oneDNN "
+            f"{'on' if torch.backends.mkldnn.is_available() else 'off'}; {model}; {' '.join(simd) or 'no AVX2'}; "
+            f"{', '.join(caches) or 'caches unknown'}" + (f"; {' '.join(caps)}" if caps else ""))
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", required=True)
@@ -389,6 +424,8 @@ def main():
         if "aug_rng" in ck:
             gen.set_state(ck["aug_rng"])
         print(f"resumed at step {step}", flush=True)
+        with open(os.path.join(a.out, "host.txt"), "a") as f:
+            f.write(f"resumed at step {step}: {host_record()}\n")
     else:
         if a.init:
             if a.init.endswith(".tlw"):  # shipped weights: the tensors are the state dict
@@ -407,6 +444,8 @@ def main():
             f.write(LOG_HEADER)
         with open(os.path.join(a.out, "config.txt"), "w") as f:
             f.write(" ".join(sys.argv) + "\n")
+        with open(os.path.join(a.out, "host.txt"), "w") as f:
+            f.write(f"started: {host_record()}\n")
     end = min(a.steps, a.stop_at) if a.stop_at > 0 else a.steps
     t0 = time.time()
     while step < end:
