@@ -1,17 +1,23 @@
 #!/usr/bin/env bash
 # The learned tracker's two shipped weight files trained again in one command, each compared
-# with the committed file, from session 28's s16 file (training/README.md, step 16; in git as
-# committed in 3c0722d):
+# with the committed file, from session 23's s16 file (training/README.md, step 15's start; in
+# git as committed in 934536e):
 #   1. the training data (training/README.md, steps 1 and 7): NAIP's five training years and the
-#      Christchurch strip, rendered by `terralign dataset` at half the camera's size;
-#   2. session 31's s16 file: step 17's run of 1200 steps with the anchor loss, from step 16's
-#      file, compared with the file as committed in 1ada086 (its threshold calibrated under
-#      today's defaults);
-#   3. weights/deep_iclk_s16.tlw (the firmware's): step 20's run of 600 steps with the tilt
-#      prior, from stage 2's file;
-#   4. weights/deep_iclk_s16w64.tlw (the default): step 24's three runs of 1200 steps (stage 3's
+#      Christchurch strip, rendered by `terralign dataset` at half the camera's size, twice:
+#      by session 23's terralign (built from 934536e) for step 16, whose runs were trained on
+#      data rendered before 26 November's terrain changes (4679138-d8fa240) moved the rendered
+#      pixels, and by this checkout's for steps 17-24;
+#   2. session 28's s16 file: step 16's three runs of 600 steps (two feature channels; then
+#      cross-year pairs drawn by gap^3), the first compared with the file committed in 10be774,
+#      the last with the one committed in 3c0722d, tensor by tensor (the thresholds in those
+#      files were calibrated by session 28's eval and are not calibrated again);
+#   3. session 31's s16 file: step 17's run of 1200 steps with the anchor loss, compared with the
+#      file as committed in 1ada086 (its threshold calibrated under today's defaults);
+#   4. weights/deep_iclk_s16.tlw (the firmware's): step 20's run of 600 steps with the tilt
+#      prior, from stage 3's file;
+#   5. weights/deep_iclk_s16w64.tlw (the default): step 24's three runs of 1200 steps (stage 4's
 #      file widened to s16w64, then two continuations).
-# Each stage ends with the export under the committed file's note, the agreement threshold
+# Stages 3-5 end with the export under the committed file's note, the agreement threshold
 # calibrated (training/calibrate_sharpness.py), and every tensor and byte compared with the
 # committed file (training/same_tensors.py, cmp): the verdict, and a stage that differs stops
 # the command. Each run's log is compared with its committed one (training/runs/NAME/log.csv)
@@ -21,40 +27,41 @@
 #
 # --work DIR (default /work/train): the data, the runs and the weight files; each stage is
 # skipped where its result is there, and a run stopped midway resumes from its checkpoint.
-# --from STEP: start from the file of training step 16 (the default), 17 (stages 3 and 4, from
-# the file committed in 1ada086) or 20 (stage 4 alone, from the committed
-# weights/deep_iclk_s16.tlw: session 50's command).
+# --from STEP: start from the file of training step 15 (the default), 16 (stages 3-5, from the
+# file committed in 3c0722d), 17 (stages 4 and 5, from the file committed in 1ada086) or 20
+# (stage 5 alone, from the committed weights/deep_iclk_s16.tlw: session 50's command).
 # --check STEPS: only the first run's first STEPS steps, whose log (training loss every 50
-# steps, validation every 300 or 400) is then compared with the committed one line by line,
-# the times aside. Step 17's log (the first run from step 16) has three loss means 1e-4 from
-# the committed ones (their rounding, the tensors the same), so a quick check starts later:
-# --from 17 --check 300.
+# steps, validation every 300, 400 or 600) is then compared with the committed one line by
+# line, the times aside; a training loss mean may be 1e-4 off (step 17's log has three such,
+# their rounding, the tensors the same: same_log below).
 #
 # Needs the release build of the README's test command (build/release), Debian's
 # python3-torch and python3-matplotlib (`apt-get install python3-torch python3-matplotlib`;
-# /usr/bin/python3, not a pyenv python3), ../shared/data beside the checkout and, from step 16
-# or 17, the checkout's git history. On two cores: about 5 minutes of data; 50 minutes of
-# training for stage 2, 20 for stage 3 and 2.6 hours for stage 4 (session 38: 2475, 3360 and
-# 3441 s); 2-5 minutes of calibration a stage; 3.7 GB of data. The chain before step 16 is not
-# one command: its runs (sessions 3-28, training/README.md steps 2-16) were trained by earlier
-# versions of train_deep.py (four levels at first, one feature channel until session 28), each
-# from the file the session before had committed.
+# /usr/bin/python3, not a pyenv python3), ../shared/data beside the checkout and, from step 15,
+# 16 or 17, the checkout's git history. On two cores: about 5 minutes of data a renderer (and
+# 4 to build session 23's); about 55 minutes of training for stage 2, 50 for stage 3, 20 for
+# stage 4 and 2.6 hours for stage 5 (session 38: 2475, 3360 and 3441 s); 2-5 minutes of
+# calibration a file; 7.4 GB of data. A byte-for-byte result also needs PyTorch's oneDNN to run
+# the kernels it ran here (AVX-512; training/README.md). The chain before step 15's file is not
+# one command: its runs (sessions 3-23, training/README.md steps 2-13) were trained by earlier
+# versions of train_deep.py (four levels at first), on data of earlier renderers, each from the
+# file the session before had committed.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 work=/work/train
 check=0
-from=16
+from=15
 while [ $# -gt 0 ]; do
   case "$1" in
     --work) work=${2:?--work needs a directory}; shift 2 ;;
     --check) check=${2:?--check needs a number of steps}; shift 2 ;;
-    --from) from=${2:?--from needs a training step: 16, 17 or 20}; shift 2 ;;
+    --from) from=${2:?--from needs a training step: 15, 16, 17 or 20}; shift 2 ;;
     *) echo "reproduce.sh: unknown argument '$1' (--work DIR, --from STEP, --check STEPS)" >&2; exit 2 ;;
   esac
 done
 case "$from" in
-  16|17|20) ;;
-  *) echo "reproduce.sh: --from '$from' is not 16, 17 or 20 (training/README.md's steps)" >&2; exit 2 ;;
+  15|16|17|20) ;;
+  *) echo "reproduce.sh: --from '$from' is not 15, 16, 17 or 20 (training/README.md's steps)" >&2; exit 2 ;;
 esac
 case "$check" in
   ''|*[!0-9]*) echo "reproduce.sh: --check '$check' is not a number of steps" >&2; exit 2 ;;
@@ -64,12 +71,27 @@ tl=build/release/tools/terralign/terralign
 [ -x "$tl" ] || { echo "reproduce.sh: $tl is not built (the README's test command builds it)" >&2; exit 1; }
 $py -c "import torch, matplotlib" 2>/dev/null ||
   { echo "reproduce.sh: $py lacks torch or matplotlib (apt-get install python3-torch python3-matplotlib)" >&2; exit 1; }
+# PyTorch's convolutions (oneDNN) pick their kernels by the CPU, and their sums round by them:
+# the same bytes need a host whose oneDNN runs what sessions 50-52's ran (AVX-512;
+# training/README.md, "What the same bytes need").
+host=$(cd training && $py -c "import train_deep, torch; torch.set_num_threads(2); print(train_deep.host_record())")
+echo "host: $host"
+case "$host" in
+  *avx512f*) ;;
+  *) echo "reproduce.sh: warning: this CPU has no AVX-512, so oneDNN runs other kernels than the host that reproduced the committed files; expect the runs to part from their logs" >&2 ;;
+esac
+case "$host" in
+  *MAX_CPU_ISA=*|*ATEN_CPU_CAPABILITY=*) echo "reproduce.sh: warning: an ISA cap is set in the environment ($host); expect the runs to part from their logs" >&2 ;;
+esac
 shared=../shared/data
 for f in naip_nd_2009_2020/naip/m_4709963_se_14_1_20100629.tif whu_cd_christchurch_more_samples; do
   [ -e "$shared/$f" ] || { echo "reproduce.sh: $shared/$f is missing (the shared data beside the checkout)" >&2; exit 1; }
 done
-# The files of steps 16 and 17 from git (1ada086 recalibrated step 17's threshold under the
-# tilt prior that became the default then, its tensors unchanged).
+# The files of steps 15, 16 and 17 from git (10be774: step 16's first run, shipped alone first;
+# 1ada086 recalibrated step 17's threshold under the tilt prior that became the default then,
+# its tensors unchanged).
+step15=934536e:weights/deep_iclk_s16.tlw
+step16a=10be774:weights/deep_iclk_s16.tlw
 step16=3c0722d:weights/deep_iclk_s16.tlw
 step17=1ada086:weights/deep_iclk_s16.tlw
 mkdir -p "$work/runs"
@@ -81,29 +103,58 @@ committed() {  # NAME GIT-OBJECT: the committed file as $work/NAME
   mv "$work/$1.part" "$work/$1"
 }
 [ "$from" -eq 20 ] || committed s16_step17.tlw "$step17"
-[ "$from" -ne 16 ] || committed s16_step16.tlw "$step16"
+[ "$from" -gt 16 ] || committed s16_step16.tlw "$step16"
+if [ "$from" -eq 15 ]; then
+  committed s16_step15.tlw "$step15"
+  committed s16_step16a.tlw "$step16a"
+fi
 
-# A data set written to DIR.part and renamed when whole: a stopped render is redone, never half used.
-dataset() {
-  local out=$1; shift
+# The training data of steps 1 and 7 as TERRALIGN renders them: NAIP to $work/naip_376SUFFIX,
+# the Christchurch strip to $work/chch_376SUFFIX. Each set is written to DIR.part and renamed
+# when whole: a stopped render is redone, never half used.
+datasets() {
+  local bin=$1 suffix=$2
+  dataset "$bin" "$work/naip_376$suffix" --map training/naip_train_years.json --camera data/cameras/uav_752x480.json \
+    --count 1500 --seed 20261122 --altitude 600:900 --tilt 10 --split-fraction 0.3 --scale 0.5
+  if [ ! -f "$work/chch_map/christchurch_train.json" ]; then
+    rm -rf "$work/chch_map.part"
+    $py training/make_christchurch_mosaic.py "$work/chch_map.part"
+    mv "$work/chch_map.part" "$work/chch_map"
+  fi
+  dataset "$bin" "$work/chch_376$suffix" --map "$work/chch_map/christchurch_train.json" --camera data/cameras/uav_752x480.json \
+    --count 600 --seed 20261123 --altitude 45:65 --tilt 10 --split-fraction 0.3 --scale 0.5
+}
+dataset() {  # TERRALIGN OUT ARGS...
+  local bin=$1 out=$2; shift 2
   if [ -f "$out/index.csv" ]; then echo "data: $out is there"; return; fi
   rm -rf "$out.part"
-  "$tl" dataset "$@" --out "$out.part" > "$out.log" 2>&1 || { echo "reproduce.sh: terralign dataset failed, see $out.log" >&2; exit 1; }
+  "$bin" dataset "$@" --out "$out.part" > "$out.log" 2>&1 || { echo "reproduce.sh: terralign dataset failed, see $out.log" >&2; exit 1; }
   mv "$out.part" "$out"
   tail -n 1 "$out.log"
 }
-dataset "$work/naip_376" --map training/naip_train_years.json --camera data/cameras/uav_752x480.json \
-  --count 1500 --seed 20261122 --altitude 600:900 --tilt 10 --split-fraction 0.3 --scale 0.5
-if [ ! -f "$work/chch_map/christchurch_train.json" ]; then
-  rm -rf "$work/chch_map.part"
-  $py training/make_christchurch_mosaic.py "$work/chch_map.part"
-  mv "$work/chch_map.part" "$work/chch_map"
+# terralign built from COMMIT's tree in $work/terralign-COMMIT, its path in $built.
+build_at() {
+  local commit=$1 dir="$work/terralign-$1"
+  built="$dir/build/tools/terralign/terralign"
+  [ -x "$built" ] && return
+  git cat-file -e "$commit^{commit}" 2>/dev/null ||
+    { echo "reproduce.sh: commit $commit is not in this checkout's git history (clone the repository, or --from 16)" >&2; exit 1; }
+  echo "build: $commit's terralign in $dir (log: $dir.log)"
+  rm -rf "$dir" && mkdir -p "$dir"
+  git archive "$commit" | tar -x -C "$dir"
+  { cmake -S "$dir" -B "$dir/build" -DCMAKE_BUILD_TYPE=Release && cmake --build "$dir/build" -j2 --target terralign_cli; } \
+    > "$dir.log" 2>&1 || { echo "reproduce.sh: building $commit failed, see $dir.log" >&2; exit 1; }
+}
+if [ "$from" -eq 15 ]; then
+  build_at 934536e
+  datasets "$built" _s23
 fi
-dataset "$work/chch_376" --map "$work/chch_map/christchurch_train.json" --camera data/cameras/uav_752x480.json \
-  --count 600 --seed 20261123 --altitude 45:65 --tilt 10 --split-fraction 0.3 --scale 0.5
+# (A --check from step 15 runs only on session 23's renders.)
+[ "$from" -eq 15 ] && [ "$check" -gt 0 ] || datasets "$tl" ""
 
-# A run of training/README.md's steps 17, 20 and 24: NAME SIZE STEPS SEED INIT [ARGS: the
-# step's own flags]. Resumes a stopped run; skipped where its last checkpoint is at STEPS.
+# A run of training/README.md's steps 16, 17, 20 and 24 on the data named by $data (the suffix
+# of $work/naip_376 and chch_376): NAME SIZE STEPS SEED INIT [ARGS: the step's own flags].
+# Resumes a stopped run; skipped where its last checkpoint is at STEPS.
 # Under --check: to step STEPS of --check, then its log compared with the committed one, and
 # the command ends.
 run() {
@@ -115,9 +166,9 @@ run() {
     echo "run $name: done"; return
   fi
   echo "run $name: $out.stdout.txt"
-  $py training/train_deep.py --data "$work/naip_376" --extra "$work/chch_376" --extra-p 0.35 --out "$out" \
+  $py training/train_deep.py --data "$work/naip_376$data" --extra "$work/chch_376$data" --extra-p 0.35 --out "$out" \
     --size "$size" --channels 2 --steps "$steps" --batch 4 --iterations 5 --lr 3e-4 --seed "$seed" \
-    --val-count 64 --augment 0.8 --augment-survey 0.5 --gap-power 3 --init "$init" --resume "${stop[@]}" "$@" \
+    --val-count 64 --augment 0.8 --augment-survey 0.5 --init "$init" --resume "${stop[@]}" "$@" \
     >> "$out.stdout.txt" 2>&1 ||
     { echo "reproduce.sh: run $name failed, see $out.stdout.txt" >&2; exit 1; }
   if [ "$check" -gt 0 ]; then
@@ -166,49 +217,73 @@ same_log() {
   echo "log $name: differs from training/runs/$name/log.csv in $3 of its lines (above: < committed, > this run)" >&2
   return 1
 }
-# A stage's end: FILE COMMITTED RUN...: $work/FILE exported from the last checkpoint of the
-# stage's last run with the note of COMMITTED, the committed file (so that the two can match
-# byte for byte), its agreement threshold calibrated, then compared with COMMITTED; the logs of
-# the stage's runs say where a reproduction parted from the committed one. The export is
-# skipped where the file is there and newer than the checkpoint.
+# A stage's end: [--tensors] FILE COMMITTED RUN...: $work/FILE exported from the last
+# checkpoint of the stage's last run with the note of COMMITTED, the committed file (so that the
+# two can match byte for byte), its agreement threshold calibrated, then compared with
+# COMMITTED; the logs of the stage's runs say where a reproduction parted from the committed
+# one. The export is skipped where the file is there and newer than the checkpoint. With
+# --tensors (step 16, whose committed thresholds were calibrated by session 28's eval, under
+# other defaults) the threshold is not calibrated and the verdict is the tensors alone: the
+# next step reads only those.
 ship() {
+  local tensors=0
+  [ "$1" != --tensors ] || { tensors=1; shift; }
   local file=$1 ref=$2; shift 2
   local out="$work/$file" last=${!#} logs=0
   if [ "$out" -nt "$work/runs/$last/last.pt" ]; then
     echo "export: $out is there"
   else
     $py training/export_deep.py "$work/runs/$last/last.pt" "$out.part" --note-from "$ref"
-    python3 training/calibrate_sharpness.py --test agreement --count 200 --only "$out.part" > "$out.log" 2>&1 ||
-      { echo "reproduce.sh: the calibration failed, see $out.log" >&2; exit 1; }
-    tail -n 1 "$out.log"
+    if [ "$tensors" -eq 0 ]; then
+      python3 training/calibrate_sharpness.py --test agreement --count 200 --only "$out.part" > "$out.log" 2>&1 ||
+        { echo "reproduce.sh: the calibration failed, see $out.log" >&2; exit 1; }
+      tail -n 1 "$out.log"
+    fi
     mv "$out.part" "$out"
   fi
   for name in "$@"; do same_log "$name" || logs=1; done
-  if $py training/same_tensors.py "$out" "$ref" && cmp "$out" "$ref"; then
+  if [ "$tensors" -eq 1 ] && $py training/same_tensors.py "$out" "$ref"; then
+    echo "reproduced: $out holds $ref's tensors, bit for bit"
+  elif [ "$tensors" -eq 0 ] && $py training/same_tensors.py "$out" "$ref" && cmp "$out" "$ref"; then
     echo "reproduced: $out is $ref byte for byte"
-    [ "$logs" -eq 0 ] || echo "reproduce.sh: the same file, though a log differs (above)" >&2
   else
     echo "reproduce.sh: $out differs from $ref (above)" >&2
     exit 1
   fi
+  local what=file
+  [ "$tensors" -eq 0 ] || what=tensors
+  [ "$logs" -eq 0 ] || echo "reproduce.sh: the same $what, though a log differs (above)" >&2
 }
 
-# Stage 2: session 31's s16 (step 17), from step 16's file.
+# Stage 2: session 28's s16 (step 16), from session 23's file, on session 23's renders.
+s16_16="$work/s16_step16.tlw"
+if [ "$from" -eq 15 ]; then
+  data=_s23
+  run s16c2 s16 600 27 "$work/s16_step15.tlw" --val-every 600 --gap-power 1.5
+  ship --tensors deep_iclk_s16_step16a.tlw "$work/s16_step16a.tlw" s16c2
+  run s16c2g3 s16 600 29 "$work/runs/s16c2/last.pt" --val-every 600 --gap-power 3
+  run s16c2g3b s16 600 30 "$work/runs/s16c2g3/last.pt" --val-every 600 --gap-power 3
+  ship --tensors deep_iclk_s16_step16.tlw "$work/s16_step16.tlw" s16c2g3 s16c2g3b
+  s16_16="$work/deep_iclk_s16_step16.tlw"
+fi
+# Steps 17-24 on this checkout's renders.
+data=""
+# Stage 3: session 31's s16 (step 17), from step 16's file.
 s16_17="$work/s16_step17.tlw"
-if [ "$from" -eq 16 ]; then
-  run s16anchor s16 1200 31 "$work/s16_step16.tlw" --val-every 400 --anchor-w 0.5 --anchor-iterations 2
+if [ "$from" -le 16 ]; then
+  run s16anchor s16 1200 31 "$s16_16" --val-every 400 --gap-power 3 --anchor-w 0.5 --anchor-iterations 2
   ship deep_iclk_s16_step17.tlw "$work/s16_step17.tlw" s16anchor
   s16_17="$work/deep_iclk_s16_step17.tlw"
 fi
-# Stage 3: s16 (step 20), from stage 2's file.
+# Stage 4: s16 (step 20), from stage 3's file.
 s16=weights/deep_iclk_s16.tlw
 if [ "$from" -ne 20 ]; then
-  run s16tilt s16 600 33 "$s16_17" --val-every 300 --tilt-prior 3
+  run s16tilt s16 600 33 "$s16_17" --val-every 300 --gap-power 3 --tilt-prior 3
   ship deep_iclk_s16.tlw weights/deep_iclk_s16.tlw s16tilt
   s16="$work/deep_iclk_s16.tlw"
 fi
-# Stage 4: s16w64 (step 24), from stage 3's file.
-run s16w64 s16w64 1200 38 "$s16" --val-every 300 --tilt-prior 3 --widen
-run s16w64b s16w64 1200 39 "$work/runs/s16w64/last.pt" --val-every 300 --tilt-prior 3
-run s16w64c s16w64 1200 40 "$work/runs/s16w64b/last.pt" --val-every 300 --tilt-prior 3
+# Stage 5: s16w64 (step 24), from stage 4's file.
+run s16w64 s16w64 1200 38 "$s16" --val-every 300 --gap-power 3 --tilt-prior 3 --widen
+run s16w64b s16w64 1200 39 "$work/runs/s16w64/last.pt" --val-every 300 --gap-power 3 --tilt-prior 3
+run s16w64c s16w64 1200 40 "$work/runs/s16w64b/last.pt" --val-every 300 --gap-power 3 --tilt-prior 3
 ship deep_iclk_s16w64.tlw weights/deep_iclk_s16w64.tlw s16w64 s16w64b s16w64c
