@@ -210,8 +210,8 @@ same_log() {
   set -- $verdict
   if [ "$3" -eq 0 ]; then
     local rounded=""
-    [ "$2" -eq 0 ] || rounded=", $2 more with the loss mean 1e-4 off"
-    echo "log $name: the committed run's${upto:+ to step $upto} ($1 lines the same$rounded)"
+    [ "$2" -eq 0 ] || rounded="; with the loss mean 1e-4 off: $2"
+    echo "log $name: the committed run's${upto:+ to step $upto} (lines the same: $1$rounded)"
     return 0
   fi
   echo "log $name: differs from training/runs/$name/log.csv in $3 of its lines (above: < committed, > this run)" >&2
