@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The learned tracker's two shipped weight files trained again in one command, each compared
-# with the committed file, from session 23's s16 file (training/README.md, step 15's start; in
-# git as committed in 934536e):
+# with the committed file, from session 23's s16 file (training/README.md, step 12's; in git as
+# committed in 934536e), where step 15's two-channel run s16c2 started:
 #   1. the training data (training/README.md, steps 1 and 7): NAIP's five training years and the
 #      Christchurch strip, rendered by `terralign dataset` at half the camera's size, twice:
 #      by session 23's terralign (built from 934536e) for step 16, whose runs were trained on
@@ -27,9 +27,10 @@
 #
 # --work DIR (default /work/train): the data, the runs and the weight files; each stage is
 # skipped where its result is there, and a run stopped midway resumes from its checkpoint.
-# --from STEP: start from the file of training step 15 (the default), 16 (stages 3-5, from the
-# file committed in 3c0722d), 17 (stages 4 and 5, from the file committed in 1ada086) or 20
-# (stage 5 alone, from the committed weights/deep_iclk_s16.tlw: session 50's command).
+# --from STEP: 15 (the default) starts with step 15's s16c2 run, from step 12's file; 16, 17 or
+# 20 from the file of that step: 16 runs stages 3-5 from the file committed in 3c0722d, 17
+# stages 4 and 5 from the file committed in 1ada086, 20 stage 5 alone from the committed
+# weights/deep_iclk_s16.tlw (session 50's command).
 # --check STEPS: only the first run's first STEPS steps, whose log (training loss every 50
 # steps, validation every 300, 400 or 600) is then compared with the committed one line by
 # line, the times aside; a training loss mean may be 1e-4 off (step 17's log has three such,
@@ -42,8 +43,8 @@
 # 4 to build session 23's); about 55 minutes of training for stage 2, 50 for stage 3, 20 for
 # stage 4 and 2.6 hours for stage 5 (session 38: 2475, 3360 and 3441 s); 2-5 minutes of
 # calibration a file; 7.4 GB of data. A byte-for-byte result also needs PyTorch's oneDNN to run
-# the kernels it ran here (AVX-512; training/README.md). The chain before step 15's file is not
-# one command: its runs (sessions 3-23, training/README.md steps 2-13) were trained by earlier
+# the kernels it ran here (AVX-512; training/README.md). The chain before step 12's file is not
+# one command: its runs (sessions 3-23, training/README.md steps 2-12) were trained by earlier
 # versions of train_deep.py (four levels at first), on data of earlier renderers, each from the
 # file the session before had committed.
 set -euo pipefail
