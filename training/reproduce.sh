@@ -243,17 +243,14 @@ ship() {
     mv "$out.part" "$out"
   fi
   for name in "$@"; do same_log "$name" || logs=1; done
-  if [ "$tensors" -eq 1 ] && $py training/same_tensors.py "$out" "$ref"; then
+  $py training/same_tensors.py "$out" "$ref" && { [ "$tensors" -eq 1 ] || cmp "$out" "$ref"; } ||
+    { echo "reproduce.sh: $out differs from $ref (above)" >&2; exit 1; }
+  if [ "$tensors" -eq 1 ]; then
     echo "reproduced: $out holds $ref's tensors, bit for bit"
-  elif [ "$tensors" -eq 0 ] && $py training/same_tensors.py "$out" "$ref" && cmp "$out" "$ref"; then
-    echo "reproduced: $out is $ref byte for byte"
   else
-    echo "reproduce.sh: $out differs from $ref (above)" >&2
-    exit 1
+    echo "reproduced: $out is $ref byte for byte"
   fi
-  local what=file
-  [ "$tensors" -eq 0 ] || what=tensors
-  [ "$logs" -eq 0 ] || echo "reproduce.sh: the same $what, though a log differs (above)" >&2
+  [ "$logs" -eq 0 ] || echo "reproduce.sh: the same result, though a log differs (above)" >&2
 }
 
 # Stage 2: session 28's s16 (step 16), from session 23's file, on session 23's renders.
