@@ -13,7 +13,9 @@ The threshold keeps `--keep` (97 %) of the right converged answers (2-D EPE < 5 
 adjacent-year pair on calibration poses (seed 11; the README's tables use seed 7). Runs
 `terralign eval ... --min-sharpness -1 --max-disagreement -1 --json` (both tests off, the
 other options eval's defaults: since session 33 the 3-degree tilt prior);
-Python's standard library only.
+Python's standard library only. `--area MINX,MINY,MAXX,MAXY` takes the poses from that part of
+the map alone, as `eval --area` does: the held-out strip (0,5208159.9,1e9,1e9) for a file
+trained on the rest of the tile in the map's own years (session 53).
 
   training/calibrate_sharpness.py weights/deep_iclk_s16.tlw
   training/calibrate_sharpness.py --test agreement --count 200 --only weights/deep_iclk_s16.tlw
@@ -42,6 +44,7 @@ def main():
     p.add_argument("--count", type=int, default=100)
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--keep", type=float, default=0.97, help="share of right converged answers to keep")
+    p.add_argument("--area", help="MINX,MINY,MAXX,MAXY: the calibration poses from this part of the map (eval --area)")
     p.add_argument("--test", choices=("sharpness", "agreement"), default="sharpness")
     p.add_argument("--only", action="store_true",
                    help="remove the other test's threshold from the weights (its test then off by default)")
@@ -52,7 +55,8 @@ def main():
         subprocess.run([a.terralign, "eval", "--map", a.map, "--camera", a.camera, "--ref-layer", ref,
                         "--query-layer", query, "--count", str(a.count), "--seed", str(a.seed), "--altitude",
                         "700:900", "--tilt", "10", "--methods", "nn:20", "--weights", a.weights,
-                        "--min-sharpness", "-1", "--max-disagreement", "-1", "--json", out], check=True, stdout=subprocess.DEVNULL)
+                        "--min-sharpness", "-1", "--max-disagreement", "-1", "--json", out]
+                       + (["--area", a.area] if a.area else []), check=True, stdout=subprocess.DEVNULL)
         samples = json.load(open(out))["methods"]["nn:20"]["samples"]
     # Each test as "higher is more likely right": sharpness, and minus the disagreement (a
     # second start that failed has none in the JSON: infinitely far).
@@ -81,7 +85,8 @@ def main():
     at = next(i for i, l in enumerate(lines) if l.startswith("# levels ")) + 1
     lines.insert(at, f"# {line_key} {text}")
     tlw.replace_architecture(a.weights, "\n".join(lines))
-    print(f"{a.weights}: {line_key} {text} ({key}; {ref} -> {query}, {a.count} poses, seed {a.seed}): keeps "
+    where = f", area {a.area}" if a.area else ""
+    print(f"{a.weights}: {line_key} {text} ({key}; {ref} -> {query}{where}, {a.count} poses, seed {a.seed}): keeps "
           f"{kept} of {len(right)} right converged answers, fails {rejected} of {len(wrong)} wrong ones")
 
 

@@ -12,9 +12,11 @@ chance).
 
 The rows: NAIP 2016 -> 2017, 2009 -> 2020 and the held-out strip (2012 -> 2020 north of the
 training ground) at 700-900 m, tilt 10 degrees; Christchurch 000121 2012 -> 2016 at 100-140 m,
-tilt 5 (the README's "Today's numbers"). Every answer is counted (`--max-disagreement -1`,
-as the paper counts) unless --with-test, which keeps each file's own agreement threshold and
-counts a failed answer at its prior. Python's standard library and the built `terralign`.
+tilt 5 (the README's "Today's numbers"). On request, the strip under other pairs of years:
+strip-2009-2020, strip-2009-2016, strip-2009-2017, strip-2016-2020, strip-2016-2017. Every
+answer is counted (`--max-disagreement -1`, as the paper counts) unless --with-test, which
+keeps each file's own agreement threshold and counts a failed answer at its prior. Python's
+standard library and the built `terralign`.
 """
 import argparse
 import json
@@ -33,6 +35,11 @@ ROWS = {
     "chch121": ["--map", "data/christchurch/000121.json", "--altitude", "100:140", "--tilt", "5",
                 "--ref-layer", "2012", "--query-layer", "2016"],
 }
+DEFAULT_ROWS = list(ROWS)
+# The held-out strip under other pairs of the sample's years ("strip-A-B"; session 53): the ground
+# no training map holds, for a file trained on these years elsewhere on the tile.
+for _a, _b in (("2009", "2020"), ("2009", "2016"), ("2009", "2017"), ("2016", "2020"), ("2016", "2017")):
+    ROWS[f"strip-{_a}-{_b}"] = NAIP + ["--ref-layer", _a, "--query-layer", _b, "--area", "0,5208159.9,1e9,1e9"]
 
 
 def run_eval(terralign, weights, row, seed, count, with_test, extra, out, reuse):
@@ -67,7 +74,7 @@ def main():
     p.add_argument("weights", nargs="+")
     p.add_argument("--terralign", default=os.path.join(ROOT, "build/release/tools/terralign/terralign"))
     p.add_argument("--seeds", default="11,7,13")
-    p.add_argument("--rows", default=",".join(ROWS))
+    p.add_argument("--rows", default=",".join(DEFAULT_ROWS))
     p.add_argument("--count", type=int, default=200)
     p.add_argument("--with-test", action="store_true", help="keep each file's agreement test (eval's default)")
     p.add_argument("--json-dir", help="keep eval's JSON files here (default: a temporary folder)")
