@@ -279,7 +279,7 @@ TEST_CASE("learned tracker: the converged tests read their thresholds from the w
   // --test agreement) and, since it replaced it (docs/history.md, session 20), no sharpness threshold.
   auto agree = iclk::DeepAligner::max_disagreement(shipped);
   REQUIRE(agree.ok());
-  CHECK(agree.value() == doctest::Approx(1.25));
+  CHECK(agree.value() == doctest::Approx(0.55));
   auto none = iclk::DeepAligner::min_sharpness(shipped);
   REQUIRE(none.ok());
   CHECK(none.value() == 0.0);
@@ -318,10 +318,42 @@ TEST_CASE("learned tracker: the converged tests read their thresholds from the w
   CHECK(off.sharpness == 0);
   CHECK(off.params.R == right.params.R);
   CHECK(off.params.t == right.params.t);
-  // A weight file with a malformed threshold is refused, naming the line.
-  for (const char* line : {"# min-sharpness nan", "# max-disagreement-px 0"}) {
+  // A weight file with a malformed threshold or start is refused, naming the line.
+  for (const char* line : {"# min-sharpness nan", "# max-disagreement-px 0", "# agree-px 0", "# agree-px 11"}) {
     auto refused = iclk::DeepAligner::create(with_line(shipped, line), p.ref.width(), p.ref.height(), options(), 1);
     REQUIRE_FALSE(refused.ok());
     CHECK(refused.error().message.find(line) != std::string::npos);
   }
+}
+
+TEST_CASE("learned tracker: the agreement test starts where the weight file's threshold was calibrated") {
+  // The threshold is calibrated for one start (training/calibrate_sharpness.py --agree-px):
+  // the default file carries it as `# agree-px`; a file without the line (the firmware's
+  // s16, calibrated before session 54) starts kAgreePx away.
+  auto start = iclk::DeepAligner::agree_px(shipped_weights());
+  REQUIRE(start.ok());
+  CHECK(start.value() == doctest::Approx(1.0));
+  const nn::WeightFile s16 = load("weights/deep_iclk_s16.tlw");
+  auto old = iclk::DeepAligner::agree_px(s16);
+  REQUIRE(old.ok());
+  CHECK(old.value() == iclk::DeepAligner::kAgreePx);
+  // The file's start reaches the tracker: the same run as the options' start, and another
+  // measure than kAgreePx's (a second start from elsewhere stops elsewhere).
+  const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
+  const Pair p = pair_of(vectors, 0);
+  auto run = [&](const nn::WeightFile& w, double agree_px) {
+    iclk::TrackerOptions o = parity_options();
+    o.agree_px = agree_px;
+    o.max_disagreement_px = -1;  // measured, not tested
+    auto D = iclk::DeepAligner::create(w, p.ref.width(), p.ref.height(), o, 1);
+    REQUIRE(D.ok());
+    return D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
+  };
+  const auto by_file = run(with_line(s16, "# agree-px 0.5"), 0);
+  const auto by_options = run(s16, 0.5);
+  const auto by_default = run(s16, 0);
+  REQUIRE(by_file.converged);
+  CHECK(by_file.disagreement_px == by_options.disagreement_px);
+  CHECK(by_file.disagreement_px != by_default.disagreement_px);
+  CHECK(by_file.params.t == by_default.params.t);  // the answer itself is the same
 }

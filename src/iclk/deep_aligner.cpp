@@ -90,6 +90,14 @@ Result<double> DeepAligner::max_disagreement(const nn::WeightFile& weights) {
   return v;
 }
 
+Result<double> DeepAligner::agree_px(const nn::WeightFile& weights) {
+  std::string line;
+  double v = kAgreePx;
+  if (comment_value(weights, "agree-px", line, v) && !(v > 0 && v <= 10))
+    return Error{weights.name + ": '" + line + "': the agreement test's start must be in (0, 10] pixels"};
+  return v;
+}
+
 Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& weights, int width, int height,
                                                          const iclk::TrackerOptions& options, int threads,
                                                          int use_levels, ThreadPool* pool) {
@@ -158,7 +166,9 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   o.normalize = true;
   o.block.fill(1);
   o.robust = iclk::Robust::None;
-  if (o.agree_px == 0) o.agree_px = kAgreePx;
+  if (o.agree_px == 0) {
+    TERRALIGN_TRY_ASSIGN(o.agree_px, DeepAligner::agree_px(weights));
+  }
   if (o.min_step_px == 0) o.min_step_px = kMinStepPx;
   if (o.coarse_search_px == 0) o.coarse_search_px = kCoarseSearchPx;
   if (o.coarse_search_yaw_deg == 0) o.coarse_search_yaw_deg = kCoarseSearchYawDeg;

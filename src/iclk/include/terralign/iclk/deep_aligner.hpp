@@ -40,13 +40,17 @@ class DeepAligner : public iclk::LevelWeights {
   // line have no test. The measure is taken where the test is on or the options' probe_px
   // asks for it (0 in TrackResult::sharpness otherwise).
   static constexpr double kProbePx = 2.0;
-  // The agreement test (iclk::TrackResult::disagreement_px: where a second start kAgreePx
-  // working pixels away in u and in v settles, after up to 10 finest-level steps): its
-  // threshold likewise comes from the weight file (`# max-disagreement-px X`, written by
+  // The agreement test (iclk::TrackResult::disagreement_px: where a second start some working
+  // pixels away in u and in v settles, after up to 10 finest-level steps): its threshold
+  // likewise comes from the weight file (`# max-disagreement-px X`, written by
   // training/calibrate_sharpness.py --test agreement) unless the options set one (negative:
-  // off, still measured). On the calibration seed (11) a start 2 px away in each axis
-  // separated right from wrong answers of 2009 -> 2020 best (AUC 0.86; 1.5 px 0.86, 3 px 0.85,
-  // 5 px too far to come back, 0.42), where the sharpness test's AUC is 0.55-0.58 (README).
+  // off, still measured). The start's offset is the one the threshold was calibrated with:
+  // the file's `# agree-px X` (calibrate_sharpness.py --agree-px), kAgreePx where it has none
+  // (every file before session 54), unless the options set one. On the calibration seed (11)
+  // a start 2 px away in each axis separated right from wrong answers of 2009 -> 2020 best by
+  // AUC (0.86; 1.5 px 0.86, 3 px 0.85, 5 px too far to come back, 0.42), where the sharpness
+  // test's AUC is 0.55-0.58 (README); where nearly every right answer must pass, a start 1 px
+  // away keeps more of them across years (session 54, README "The agreement test's start").
   static constexpr double kAgreePx = 2.0;
   // The coarse search before the first step (TrackerOptions::coarse_search_px and _yaw_deg),
   // unless the options set it (coarse_search_px negative: none): shifts of up to 2
@@ -82,6 +86,7 @@ class DeepAligner : public iclk::LevelWeights {
   static Result<int> levels(const nn::WeightFile& weights);
   static Result<double> min_sharpness(const nn::WeightFile& weights);  // 0: none
   static Result<double> max_disagreement(const nn::WeightFile& weights);  // 0: none
+  static Result<double> agree_px(const nn::WeightFile& weights);  // kAgreePx where none
 
   // ref_rgb, live_rgb: 3-channel, 0..255; ref_depth: metres, NaN where none; K: pinhole of
   // the working size; init: T_live_ref to start from.
