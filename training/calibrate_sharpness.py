@@ -6,8 +6,10 @@ its threshold into it (read by src/iclk/deep_aligner.cpp):
   failed when its feature agreement 2 px away is within a factor X of the final one
   (iclk::TrackResult::sharpness). Rounded down to 0.005.
 - `--test agreement`: `# max-disagreement-px X`. The tracker reports an answer as failed when
-  a second start 2 working px away in u and v settles more than X px from it
-  (iclk::TrackResult::disagreement_px). Rounded up to 0.05.
+  a second start D working px away in u and v settles more than X px from it
+  (iclk::TrackResult::disagreement_px). Rounded up to 0.05. D is the file's `# agree-px`, 2
+  where it has none; `--agree-px D` writes that line first, so that the threshold is
+  calibrated with the start the tracker will use (session 54: 1 px for the default file).
 
 The threshold keeps `--keep` (97 %) of the right converged answers (2-D EPE < 5 px) of an
 adjacent-year pair on calibration poses (seed 11; the README's tables use seed 7). Runs
@@ -19,6 +21,7 @@ trained on the rest of the tile in the map's own years (session 53).
 
   training/calibrate_sharpness.py weights/deep_iclk_s16.tlw
   training/calibrate_sharpness.py --test agreement --count 200 --only weights/deep_iclk_s16.tlw
+  training/calibrate_sharpness.py --test agreement --agree-px 1 --count 200 --only weights/deep_iclk_s16w64.tlw
 """
 import argparse
 import json
@@ -32,6 +35,16 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import tlw  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def set_line(weights, key, text, drop=None):
+    """Writes `# key text` into the file's header after `# levels` (in place of any `# key`
+    line), the tensors unchanged; `drop`: another key whose line goes."""
+    arch, _ = tlw.architecture(weights)
+    lines = [l for l in arch.split("\n") if not l.startswith(f"# {key} ") and not (drop and l.startswith(f"# {drop} "))]
+    at = next(i for i, l in enumerate(lines) if l.startswith("# levels ")) + 1
+    lines.insert(at, f"# {key} {text}")
+    tlw.replace_architecture(weights, "\n".join(lines))
 
 
 def main():
@@ -48,8 +61,14 @@ def main():
     p.add_argument("--test", choices=("sharpness", "agreement"), default="sharpness")
     p.add_argument("--only", action="store_true",
                    help="remove the other test's threshold from the weights (its test then off by default)")
+    p.add_argument("--agree-px", type=float,
+                   help="the agreement test's start (working px in u and v), written as '# agree-px' before calibrating")
     a = p.parse_args()
     ref, query = a.pair.split(",")
+    if a.agree_px is not None:
+        if a.test != "agreement" or not 0 < a.agree_px <= 10:
+            sys.exit(f"--agree-px {a.agree_px}: only with --test agreement, and in (0, 10] pixels")
+        set_line(a.weights, "agree-px", f"{a.agree_px:g}")
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "eval.json")
         subprocess.run([a.terralign, "eval", "--map", a.map, "--camera", a.camera, "--ref-layer", ref,
@@ -78,13 +97,7 @@ def main():
         text = f"{-threshold:.2f}"
     kept = sum(v >= threshold for v in right)
     rejected = sum(v < threshold for v in wrong)
-    arch, _ = tlw.architecture(a.weights)
-    other = "max-disagreement-px" if sharp else "min-sharpness"
-    lines = [l for l in arch.split("\n")
-             if not l.startswith(f"# {line_key} ") and not (a.only and l.startswith(f"# {other} "))]
-    at = next(i for i, l in enumerate(lines) if l.startswith("# levels ")) + 1
-    lines.insert(at, f"# {line_key} {text}")
-    tlw.replace_architecture(a.weights, "\n".join(lines))
+    set_line(a.weights, line_key, text, drop=("max-disagreement-px" if sharp else "min-sharpness") if a.only else None)
     where = f", area {a.area}" if a.area else ""
     print(f"{a.weights}: {line_key} {text} ({key}; {ref} -> {query}{where}, {a.count} poses, seed {a.seed}): keeps "
           f"{kept} of {len(right)} right converged answers, fails {rejected} of {len(wrong)} wrong ones")

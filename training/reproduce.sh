@@ -221,8 +221,9 @@ same_log() {
 # A stage's end: [--tensors] FILE COMMITTED RUN...: $work/FILE exported from the last
 # checkpoint of the stage's last run with the note of COMMITTED, the committed file (so that the
 # two can match byte for byte), its agreement threshold calibrated, then compared with
-# COMMITTED; the logs of the stage's runs say where a reproduction parted from the committed
-# one. The export is skipped where the file is there and newer than the checkpoint. With
+# COMMITTED (with the agreement test's start COMMITTED carries, `# agree-px`: 1 px for step
+# 24's since session 54, none before); the logs of the stage's runs say where a reproduction
+# parted from the committed one. The export is skipped where the file is there and newer than the checkpoint. With
 # --tensors (step 16, whose committed thresholds were calibrated by session 28's eval, under
 # other defaults) the threshold is not calibrated and the verdict is the tensors alone: the
 # next step reads only those.
@@ -236,7 +237,10 @@ ship() {
   else
     $py training/export_deep.py "$work/runs/$last/last.pt" "$out.part" --note-from "$ref"
     if [ "$tensors" -eq 0 ]; then
-      python3 training/calibrate_sharpness.py --test agreement --count 200 --only "$out.part" > "$out.log" 2>&1 ||
+      local start
+      start=$(grep -a -m 1 '^# agree-px ' "$ref" | cut -d ' ' -f 3)
+      python3 training/calibrate_sharpness.py --test agreement ${start:+--agree-px "$start"} --count 200 --only \
+        "$out.part" > "$out.log" 2>&1 ||
         { echo "reproduce.sh: the calibration failed, see $out.log" >&2; exit 1; }
       tail -n 1 "$out.log"
     fi
