@@ -53,8 +53,7 @@ def architecture(size, note, channels=1):
 
 # The comment lines architecture() and calibrate_sharpness.py write themselves; the rest is the note.
 OWN_LINES = ("# terralign learned tracker", "# input-scale", "# levels", "# max-disagreement-px", "# agree-px",
-             "# min-sharpness",
-             "# checkpoint step")
+             "# min-sharpness", "# checkpoint step")
 
 
 def note_of(path):
