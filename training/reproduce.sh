@@ -224,9 +224,9 @@ same_log() {
 # COMMITTED (with the agreement test's start COMMITTED carries, `# agree-px`: 1 px for step
 # 24's since session 54, none before); the logs of the stage's runs say where a reproduction
 # parted from the committed one. The export is skipped where the file is there and newer than
-# the checkpoint. With --tensors (step 16, whose committed thresholds were calibrated by session 28's eval, under
-# other defaults) the threshold is not calibrated and the verdict is the tensors alone: the
-# next step reads only those.
+# the checkpoint. With --tensors (step 16, whose committed thresholds were calibrated by
+# session 28's eval, under other defaults) the threshold is not calibrated and the verdict is
+# the tensors alone: the next step reads only those.
 ship() {
   local tensors=0
   [ "$1" != --tensors ] || { tensors=1; shift; }
