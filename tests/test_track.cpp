@@ -240,6 +240,23 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
     CHECK((rc == 0) == (*agree == 0));
     if (*agree) CHECK(a["reason"].get<std::string>().find("ambiguous: a start nearby") != std::string::npos);
   }
+  // --agree-px reaches both trackers: the second start from 3 px (the weight file's is 1, the
+  // classical tracker's 2) settles somewhere else by rounding at least, and still converges.
+  for (const std::string method : {"nn", "classic"}) {
+    CAPTURE(method);
+    auto disagreement = [&](const std::string& extra) {
+      const std::string line = tl + " align --method " + method + " --map " + map + " --camera " + cam +
+                               " --layer 2016 --image " + dir + "/frames/000000.png --prior \"" + first_truth_pose(dir) +
+                               "\" " + extra + " >" + dir + "/agree.json 2>/dev/null";
+      REQUIRE(std::system(line.c_str()) == 0);
+      return nlohmann::json::parse(test::read_text(dir + "/agree.json"))["disagreement_px"].get<double>();
+    };
+    const double own = disagreement(""), three = disagreement("--agree-px 3");
+    MESSAGE("second start's distance: own start " << own << " px, from 3 px " << three << " px");
+    CHECK(own != three);
+  }
+  check_refused(align + "--agree-px 11", dir + "/err.txt", "--agree-px '11' must be in [0, 10] working pixels");
+  check_refused(align + "--agree-px -1", dir + "/err.txt", "--agree-px '-1' must be in [0, 10] working pixels");
   // Over two layers that both fail so, "attempts" says why each was not taken, in order, and
   // their iterations add up to the answer's.
   const std::string two = tl + " align --method nn --map " + map + " --camera " + cam + " --layer 2016,2017 --image " + dir +

@@ -114,6 +114,10 @@ Result<iclk::TrackerOptions> parse_tracker_options(const Args& args) {
     return Error{"--max-disagreement '" + args.get("max-disagreement") +
                  "' must be in [-1000, 1000] working pixels (negative: no agreement test)"};
   opt.max_disagreement_px = agree.value();
+  auto agree_px = args.get_double("agree-px", 0.0);
+  if (!agree_px.ok() || !(agree_px.value() >= 0 && agree_px.value() <= 10))
+    return Error{"--agree-px '" + args.get("agree-px") + "' must be in [0, 10] working pixels (0: each tracker's own)"};
+  opt.agree_px = agree_px.value();
   TERRALIGN_TRY_ASSIGN(opt.coarse_search_px, args.get_int("coarse-search", 0, -1, 16));
   auto min_step = args.get_double("min-step", 0.0);
   if (!min_step.ok() || !(min_step.value() >= -1 && min_step.value() <= 10))

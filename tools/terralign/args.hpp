@@ -58,6 +58,9 @@ Result<nn::WeightFile> learned_weights(const Args& args);
 // --max-disagreement PX: the agreement test (max_disagreement_px), in [-1000, 1000] of each
 //   tracker's working pixels; 0 (the default): each tracker's own (kClassicMaxDisagreementPx,
 //   the weight file's '# max-disagreement-px'); negative: no test.
+// --agree-px PX: where that test's second start begins (agree_px), in [0, 10] working pixels
+//   in u and v; 0 (the default): each tracker's own (kClassicAgreePx, the weight file's
+//   '# agree-px'). A threshold holds only for the start it was calibrated with.
 // --coarse-search PX: the search before the coarsest level (coarse_search_px), in [-1, 16]
 //   coarsest-level pixels; 0 (the default): each tracker's own (kClassicCoarseSearchPx,
 //   iclk::DeepAligner::kCoarseSearchPx); -1: none.

@@ -44,7 +44,7 @@ nlohmann::json pose_json(const geo::Pose& p) {
 int run_align(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "image", "prior", "layer", "method", "iterations", "robust", "threads", "weights",
                                  "tilt-prior", "registration-floor", "registration-floor-per-residual", "refine", "refine-uniform", "min-sharpness",
-                                 "max-disagreement", "coarse-search", "min-step"}, {});
+                                 "max-disagreement", "agree-px", "coarse-search", "min-step"}, {});
   if (!args.ok()) return usage_error("align", args.error());
   for (const char* k : {"map", "camera", "image", "prior", "layer"})
     if (!args->has(k)) return usage_error("align", Error{std::string("missing required option --") + k});

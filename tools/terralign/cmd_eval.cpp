@@ -131,7 +131,7 @@ ImageU8 overlay(const ImageF& ref_grey, const ImageF& depth, const ImageF& query
 int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
-                                 "min-sharpness", "max-disagreement", "coarse-search", "min-step", "input-scale", "nn-levels", "imu-tilt", "tilt-prior",
+                                 "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "input-scale", "nn-levels", "imu-tilt", "tilt-prior",
                                  "prior-scale", "refine", "refine-uniform", "blur", "noise", "exposure"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
