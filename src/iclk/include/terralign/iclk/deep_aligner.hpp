@@ -46,11 +46,13 @@ class DeepAligner : public iclk::LevelWeights {
   // training/calibrate_sharpness.py --test agreement) unless the options set one (negative:
   // off, still measured). The start's offset is the one the threshold was calibrated with:
   // the file's `# agree-px X` (calibrate_sharpness.py --agree-px), kAgreePx where it has none
-  // (every file before session 54), unless the options set one. On the calibration seed (11)
-  // a start 2 px away in each axis separated right from wrong answers of 2009 -> 2020 best by
-  // AUC (0.86; 1.5 px 0.86, 3 px 0.85, 5 px too far to come back, 0.42), where the sharpness
-  // test's AUC is 0.55-0.58 (README); where nearly every right answer must pass, a start 1 px
-  // away keeps more of them across years (session 54, README "The agreement test's start").
+  // (every shipped file), unless the options set one. On the calibration seed (11) a start
+  // 2 px away in each axis separated right from wrong answers of 2009 -> 2020 best by AUC
+  // (0.86; 1.5 px 0.86, 3 px 0.85, 5 px too far to come back, 0.42), where the sharpness
+  // test's AUC is 0.55-0.58 (README). A start 1 px away (session 54) kept as many right
+  // answers of the sample's ten year pairs as 2 px where both pass as many wrong ones, and
+  // passed more wrong ones on ground the tracker cannot place (session 55, README "The
+  // agreement test's start").
   static constexpr double kAgreePx = 2.0;
   // The coarse search before the first step (TrackerOptions::coarse_search_px and _yaw_deg),
   // unless the options set it (coarse_search_px negative: none): shifts of up to 2
