@@ -9,8 +9,8 @@ its threshold into it (read by src/iclk/deep_aligner.cpp):
   a second start D working px away in u and v settles more than X px from it
   (iclk::TrackResult::disagreement_px). Rounded up to 0.05. D is the file's `# agree-px`, 2
   where it has none; `--agree-px D` calibrates with that start and writes its line with the
-  threshold, so that the threshold holds for the start the tracker will use (session 54: 1 px
-  for the default file).
+  threshold, so that the threshold holds for the start the tracker will use (session 54 gave
+  the default file 1 px, session 55 took it back: README, "The agreement test's start").
 
 The threshold keeps `--keep` (97 %) of the right converged answers (2-D EPE < 5 px) of an
 adjacent-year pair on calibration poses (seed 11; the README's tables use seed 7). Runs
@@ -22,7 +22,8 @@ trained on the rest of the tile in the map's own years (session 53).
 
   training/calibrate_sharpness.py weights/deep_iclk_s16.tlw
   training/calibrate_sharpness.py --test agreement --count 200 --only weights/deep_iclk_s16.tlw
-  training/calibrate_sharpness.py --test agreement --agree-px 1 --count 200 --only weights/deep_iclk_s16w64.tlw
+  training/calibrate_sharpness.py --test agreement --count 200 --only weights/deep_iclk_s16w64.tlw
+  training/calibrate_sharpness.py --test agreement --agree-px 1 --count 200 --only other.tlw
 """
 import argparse
 import json
