@@ -240,8 +240,8 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
     CHECK((rc == 0) == (*agree == 0));
     if (*agree) CHECK(a["reason"].get<std::string>().find("ambiguous: a start nearby") != std::string::npos);
   }
-  // --agree-px reaches both trackers: the second start from 3 px (the weight file's is 1, the
-  // classical tracker's 2) settles somewhere else by rounding at least, and still converges.
+  // --agree-px reaches both trackers: the second start from 3 px (both trackers' own is 2)
+  // settles somewhere else by rounding at least, and the answer still converges.
   for (const std::string method : {"nn", "classic"}) {
     CAPTURE(method);
     auto disagreement = [&](const std::string& extra) {
