@@ -29,7 +29,6 @@ import argparse
 import json
 import math
 import os
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -73,17 +72,14 @@ def main():
             sys.exit(f"--agree-px {a.agree_px}: only with --test agreement, and in (0, 10] pixels")
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "eval.json")
-        # The eval runs on a copy with the new start: the file itself changes only once its
-        # start and threshold are both known, so a calibration that fails leaves it as it was.
-        evaluated = a.weights
-        if a.agree_px is not None:
-            evaluated = os.path.join(tmp, "weights.tlw")
-            shutil.copyfile(a.weights, evaluated)
-            set_line(evaluated, "agree-px", f"{a.agree_px:g}")
+        # The new start reaches the eval as its option (eval --agree-px): the file itself
+        # changes only once its start and threshold are both known, so a calibration that
+        # fails leaves it as it was.
         subprocess.run([a.terralign, "eval", "--map", a.map, "--camera", a.camera, "--ref-layer", ref,
                         "--query-layer", query, "--count", str(a.count), "--seed", str(a.seed), "--altitude",
-                        "700:900", "--tilt", "10", "--methods", "nn:20", "--weights", evaluated,
+                        "700:900", "--tilt", "10", "--methods", "nn:20", "--weights", a.weights,
                         "--min-sharpness", "-1", "--max-disagreement", "-1", "--json", out]
+                       + (["--agree-px", f"{a.agree_px:g}"] if a.agree_px is not None else [])
                        + (["--area", a.area] if a.area else []), check=True, stdout=subprocess.DEVNULL)
         samples = json.load(open(out))["methods"]["nn:20"]["samples"]
     # Each test as "higher is more likely right": sharpness, and minus the disagreement (a
