@@ -223,10 +223,11 @@ same_log() {
 # two can match byte for byte), its agreement threshold calibrated, then compared with
 # COMMITTED (with the agreement test's start COMMITTED carries, `# agree-px`: none in the
 # shipped files; session 54 gave step 24's 1 px, session 55 took it back); the logs of the
-# stage's runs say where a reproduction parted from the committed one. The export is skipped where the file is there and newer than
-# the checkpoint. With --tensors (step 16, whose committed thresholds were calibrated by
-# session 28's eval, under other defaults) the threshold is not calibrated and the verdict is
-# the tensors alone: the next step reads only those.
+# stage's runs say where a reproduction parted from the committed one. The export is skipped
+# where the file is there and newer than the checkpoint. With --tensors (step 16, whose
+# committed thresholds were calibrated by session 28's eval, under other defaults) the
+# threshold is not calibrated and the verdict is the tensors alone: the next step reads only
+# those.
 ship() {
   local tensors=0
   [ "$1" != --tensors ] || { tensors=1; shift; }
