@@ -230,8 +230,12 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   check_refused(cmd + "--nn-levels 7", dir + "/err.txt", "--nn-levels '7' must be an integer in [0, 6]");
   // align takes the same converged tests: the first frame from its true pose converges with
   // the weight file's threshold, fails "ambiguous" (exit code 3, the prior printed) with 1e-9 px.
-  const std::string align = tl + " align --method nn --map " + map + " --camera " + cam + " --layer 2016 --image " + dir +
-                            "/frames/000000.png --prior \"" + first_truth_pose(dir) + "\" ";
+  // The first frame from its true pose, by one tracker on the given layers.
+  auto align_first = [&](const std::string& method, const std::string& layers) {
+    return tl + " align --method " + method + " --map " + map + " --camera " + cam + " --layer " + layers + " --image " +
+           dir + "/frames/000000.png --prior \"" + first_truth_pose(dir) + "\" ";
+  };
+  const std::string align = align_first("nn", "2016");
   for (const char* agree : {"", "--max-disagreement 1e-9"}) {
     CAPTURE(agree);
     const int rc = std::system((align + agree + " >" + dir + "/align.json 2>/dev/null").c_str());
@@ -245,9 +249,7 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   for (const std::string method : {"nn", "classic"}) {
     CAPTURE(method);
     auto disagreement = [&](const std::string& extra) {
-      const std::string line = tl + " align --method " + method + " --map " + map + " --camera " + cam +
-                               " --layer 2016 --image " + dir + "/frames/000000.png --prior \"" + first_truth_pose(dir) +
-                               "\" " + extra + " >" + dir + "/agree.json 2>/dev/null";
+      const std::string line = align_first(method, "2016") + extra + " >" + dir + "/agree.json 2>/dev/null";
       REQUIRE(std::system(line.c_str()) == 0);
       return nlohmann::json::parse(test::read_text(dir + "/agree.json"))["disagreement_px"].get<double>();
     };
@@ -259,8 +261,7 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   check_refused(align + "--agree-px -1", dir + "/err.txt", "--agree-px '-1' must be in [0, 10] working pixels");
   // Over two layers that both fail so, "attempts" says why each was not taken, in order, and
   // their iterations add up to the answer's.
-  const std::string two = tl + " align --method nn --map " + map + " --camera " + cam + " --layer 2016,2017 --image " + dir +
-                          "/frames/000000.png --prior \"" + first_truth_pose(dir) + "\" --max-disagreement 1e-9";
+  const std::string two = align_first("nn", "2016,2017") + "--max-disagreement 1e-9";
   CHECK(std::system((two + " >" + dir + "/align2.json 2>/dev/null").c_str()) != 0);
   const nlohmann::json a2 = nlohmann::json::parse(test::read_text(dir + "/align2.json"));
   CHECK(a2["layer"] == "2017");
