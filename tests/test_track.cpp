@@ -203,8 +203,9 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   // times its own (same year 18-57, eval's per-pose JSON; across years about 1), so every
   // frame fails and keeps its prediction: "ambiguous" while the prior is still near the
   // aircraft (with no frame converged, every prior is --init, which the aircraft leaves at
-  // 25 m/s; by frame 8 the alignments diverge instead). Out-of-range thresholds and searches
-  // are refused. The runs that need no more than that take the first five frames.
+  // 25 m/s; on the whole flight, by frame 8 the alignments diverge instead). These runs take
+  // the first five frames, which is all they need. Out-of-range thresholds and searches are
+  // refused.
   const std::string cmd = track + dir + "/list.txt --out " + dir + "/sharp.csv ";
   const std::string five = track + first_frames(dir, 5) + " --out " + dir + "/sharp.csv ";
   REQUIRE(run(five + "--min-sharpness 1000") == 0);
