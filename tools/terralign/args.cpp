@@ -164,6 +164,17 @@ Result<Refinement> parse_refine(const Args& args) {
   auto n = args.get_int("refine", kDefaultRefinePasses, 0, 5);
   if (!n.ok()) return Error{"--refine '" + args.get("refine") + "' must be 0 to 5 re-rendered passes"};
   r.passes = n.value();
+  if (args.has("refine-levels")) {
+    auto l = args.get_int("refine-levels", 0, 1, 6);
+    if (!l.ok()) return Error{"--refine-levels '" + args.get("refine-levels") + "' must be 1 to 6 levels"};
+    r.levels = l.value();
+  }
+  if (args.has("refine-max-residual")) {
+    auto m = args.get_double("refine-max-residual", 0.0);
+    if (!m.ok() || !(m.value() > 0 && m.value() <= 100))
+      return Error{"--refine-max-residual '" + args.get("refine-max-residual") + "' must be a final residual in (0, 100]"};
+    r.max_residual = m.value();
+  }
   if (args.has("refine-uniform")) {
     auto u = args.get_double("refine-uniform", 0.0);
     if (!u.ok() || !(u.value() >= 0 && u.value() <= 2))

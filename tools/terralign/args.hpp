@@ -79,13 +79,24 @@ constexpr double kDefaultTiltPriorDeg = 3.0;
 // camera does to a rendered frame (Degradation); none by default.
 Result<Degradation> parse_degradation(const Args& args);
 // --refine N: the re-rendered refinement's passes (Localizer::set_refinement), 0..5;
+// --refine-levels L (1..6) and --refine-max-residual R ((0, 100]): a pass's levels and the
+// final residual above which none runs (Localizer::set_refinement_scope; default the
+// tracker's: learned 3 and none, classical 1 and 1.0; `--refine-levels 1 --refine-max-residual
+// 1` is the learned tracker's before session 58);
 // --refine-uniform R: the learned tracker's passes without the M-estimator below a final
 // residual of R (Localizer::set_uniform_refinement; 0..2, default off).
 struct Refinement {
   int passes = kDefaultRefinePasses;
+  int levels = 0;             // 0: the tracker's default
+  double max_residual = 0;    // 0: the tracker's default
   double uniform_max_residual = kRefineUniformOff;
   void apply(Localizer& loc) const {
     loc.set_refinement(passes);
+    if (levels > 0 || max_residual > 0) {
+      const bool learned = loc.learned();
+      loc.set_refinement_scope(levels > 0 ? levels : learned ? kDeepRefineLevels : kRefineLevels,
+                               max_residual > 0 ? max_residual : learned ? kDeepRefineMaxResidual : kRefineMaxResidual);
+    }
     loc.set_uniform_refinement(uniform_max_residual);
   }
 };

@@ -51,6 +51,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
     dopt.registration_floor_per_residual_px *= s;
     L->pool_ = std::make_unique<ThreadPool>(std::max(1, threads));
     TERRALIGN_TRY_ASSIGN(L->deep_, iclk::DeepAligner::create(*weights, w, h, dopt, threads, sizes.levels, L->pool_.get()));
+    L->set_refinement_scope(kDeepRefineLevels, kDeepRefineMaxResidual);
     L->ref_rgb_.resize(w, h, 3);
     L->live_rgb_.resize(w, h, 3);
     L->sum_row_.resize(static_cast<std::size_t>(3 * w));
@@ -112,12 +113,6 @@ double nees_of(const geo::Pose& estimate, const geo::Pose& truth, const Eigen::M
   const Eigen::Matrix<double, 6, 1> e = pose_error(estimate, truth);
   const auto ldlt = P.ldlt();
   return ldlt.info() == Eigen::Success && ldlt.isPositive() ? e.dot(ldlt.solve(e)) : NAN;
-}
-
-void Localizer::set_refinement(int passes, int levels, double min_deg) {
-  refine_passes_ = std::max(passes, 0);
-  refine_levels_ = std::max(levels, 1);
-  refine_min_deg_ = min_deg;
 }
 
 void Localizer::use_layer(std::size_t i) {
@@ -281,10 +276,10 @@ Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::
     out.T_W_C = ref_pose * rel;
     out.covariance = covariance_in_world(r.covariance, ref_pose, T_ref_live);
     out.covariance(5, 5) += dem_variance_;
-    // Again while the answer turned by more than min_deg from where the reference was
-    // rendered, where the image agrees with the map (kRefineMaxResidual).
-    if (!(Eigen::AngleAxisd(T_live_ref.R).angle() * (180.0 / 3.14159265358979323846) > refine_min_deg_)) break;
-    if (!(r.residual_final <= kRefineMaxResidual)) break;
+    // Again while the answer turned by more than kRefineMinDeg from where the reference was
+    // rendered, and its final residual is within the bound (set_refinement_scope).
+    if (!(Eigen::AngleAxisd(T_live_ref.R).angle() * (180.0 / 3.14159265358979323846) > kRefineMinDeg)) break;
+    if (!(r.residual_final <= refine_max_residual_)) break;
     ref_pose = out.T_W_C;
     T_ref_prior = out.T_live_ref;
   }

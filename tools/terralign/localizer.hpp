@@ -4,6 +4,8 @@
 // construction; localize() allocates nothing.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <memory>
 #include <string>
 #include <vector>
@@ -86,22 +88,33 @@ constexpr double kClassicAgreePx = 2.0;
 constexpr double kClassicMaxDisagreementPx = 0.95;
 
 // The re-rendered refinement's defaults (Localizer::set_refinement, docs/history.md, "Session 29"): up
-// to two passes (the command line's --refine), each on the finest level
-// alone (one, two or three levels gave the same answers on 200 same-year poses), again while
-// the last pass turned the answer by more than 0.05 degree from its reference (the learned
-// tracker keeps an eighth to a fifth of that turn as a tilt error, 0.1 m at 800 m; 0.02 degree
-// did no better on the tracks, 0.2 left the first frames of a track started from an IMU's
-// tilt 0.6 m off).
-// Only where the image agrees with the map, a final residual (LocalizeOutput::residual_final,
-// normalised images: about 2 (1 - NCC)) of at most 1.0, a correlation of 0.5 or more: same-year
-// answers end at 0.01-0.08, 2016 -> 2017's at 0.8-1.5 and 2009 -> 2020's at 1.0-2.1. Across many
-// years the learned minimum moves with the reference instead of settling: refining every
-// answer moved 2009 -> 2020's by +0.1-0.16 px at the median and cost 1-4 points within 5 px on
-// seeds 7, 11 and 13, where with this bound no answer of it was refined (README).
+// to two passes (the command line's --refine), again while the last pass turned the answer by
+// more than 0.05 degree from its reference (the learned tracker keeps an eighth to a fifth of
+// that turn as a tilt error, 0.1 m at 800 m; 0.02 degree did no better on the tracks, 0.2 left
+// the first frames of a track started from an IMU's tilt 0.6 m off).
 constexpr int kDefaultRefinePasses = 2;
-constexpr int kRefineLevels = 1;
 constexpr double kRefineMinDeg = 0.05;
+// The classical tracker's passes (Localizer::set_refinement_scope): the finest level alone (one,
+// two or three levels gave the same answers on 200 same-year poses), and only where the image
+// agrees with the map, a final residual (LocalizeOutput::residual_final, normalised images:
+// about 2 (1 - NCC)) of at most 1.0, a correlation of 0.5 or more: same-year answers end at
+// 0.01-0.08, 2016 -> 2017's at 0.8-1.5 and 2009 -> 2020's at 1.0-2.1.
+constexpr int kRefineLevels = 1;
 constexpr double kRefineMaxResidual = 1.0;
+// The learned tracker's passes (session 58): its finest three levels, after every converged
+// answer. Across many years a pass on the finest level alone moves the learned minimum with
+// its reference instead of settling (every answer refined so: 2009 -> 2020 cost 1-4 points
+// within 5 px, session 29; hence the residual bound above, under which no answer of 2009 ->
+// 2020 was refined). Three levels from a reference rendered at the answer move it back to the
+// ground instead: the six NAIP pairs with a 2017 or 2020 image, seeds 7 and 13, every answer
+// counted, 1075.5 -> 1093.5 points within 5 px (2009 -> 2020 82.5 / 84.5 -> 88.0 / 87.5 %);
+// with the agreement test (the first pass's, as before) 985.5 -> 993.5 points, and 60 -> 44
+// wrong answers passed. Two levels lost points (1057.0 every answer counted), four and five
+// gained as three on seed 11 (87.0 and 86.5 % of 2009 -> 2020 against three's 87.0 and the
+// bound's 84.5). One pass of three levels gains 14 points, two 18 (README, "Refinement on three
+// levels").
+constexpr int kDeepRefineLevels = 3;
+constexpr double kDeepRefineMaxResidual = INFINITY;
 // Localizer::set_uniform_refinement's bound, opt-in since session 38 (the command line's
 // --refine-uniform 0.5; off by default): the learned tracker's refinement pass weighs every
 // pixel alike, without the M-estimator, where the answer it refines ended at a residual of at
@@ -151,13 +164,20 @@ class Localizer {
                                   const Eigen::Quaterniond* attitude = nullptr);
   void set_iterations(int n);
   // Re-rendered refinement: after a converged alignment, up to `passes` times, render the
-  // reference again at the answer and align again from it on the finest `levels` levels (the
-  // learned tracker keeps the live image's features), while the last answer turned by more
-  // than `min_deg` from where its reference was rendered and its final residual is at most
-  // kRefineMaxResidual. The answer, its covariance and its
-  // converged flag are the last converged pass's (a pass that fails leaves the one before it). Default:
-  // none.
-  void set_refinement(int passes, int levels = kRefineLevels, double min_deg = kRefineMinDeg);
+  // reference again at the answer and align again from it on its finest levels (the learned
+  // tracker keeps the live image's features), while the last answer turned by more than
+  // kRefineMinDeg from where its reference was rendered and its final residual is within the
+  // bound (set_refinement_scope). The answer, its covariance and its converged flag are the
+  // last converged pass's (a pass that fails leaves the one before it); the converged tests
+  // are the first pass's. Default: none.
+  void set_refinement(int passes) { refine_passes_ = std::max(passes, 0); }
+  // A pass's levels (1 or more; at most the tracker's) and the final residual above which no
+  // pass runs (INFINITY: none). create() sets the tracker's defaults: kDeepRefineLevels and
+  // kDeepRefineMaxResidual learned, kRefineLevels and kRefineMaxResidual classical.
+  void set_refinement_scope(int levels, double max_residual) {
+    refine_levels_ = std::max(levels, 1);
+    refine_max_residual_ = max_residual;
+  }
   // The learned tracker's refinement passes without the M-estimator where the answer refined
   // ended at a final residual of at most `max_residual` (kRefineUniformMaxResidual: session
   // 37's rule); kRefineUniformOff (the default): every pass with it.
@@ -193,7 +213,7 @@ class Localizer {
                                                                  bool learned_weights);
   double dem_variance_ = 0;  // the DEM's vertical_sigma_m squared (m^2)
   int refine_passes_ = 0, refine_levels_ = kRefineLevels;
-  double refine_min_deg_ = kRefineMinDeg;
+  double refine_max_residual_ = kRefineMaxResidual;
   double refine_uniform_max_residual_ = kRefineUniformOff;
   geo::CameraModel camera_, work_;
   // Learned: one pool for the renderer and the aligner, which run one after the other
