@@ -1,7 +1,8 @@
 // The whole localisation of one 752x480 camera image, render + align, as `terralign align`
 // and `track` run it: the classical tracker (20 iterations per level) and the learned one
-// (20 iterations per level, without and with one re-rendered refinement pass) for each weight
-// file given, on the same pairs (NAIP 2016 map,
+// (20 iterations per level, without and with one re-rendered refinement pass: on its default
+// three levels, and on the finest under the classical bound, its scope before session 58) for
+// each weight file given, on the same pairs (NAIP 2016 map,
 // 2017 camera images, the eval protocol's priors: 700-900 m, tilt 10 deg, seed 3), 2 threads,
 // each pair by every method in turn. Prints medians per stage, frames per second, and the
 // ratio to the classical tracker.
@@ -9,8 +10,9 @@
 // a child process (getrusage of the children).
 //   build/release/bench/bench_localize [N] [--live-layer YEAR] [--layers A,B,...] [weights.tlw ...]
 // (default: 20 pairs, the 2017 camera images, the shipped weights). --live-layer 2016 renders
-// the camera images from the map's own year, where the refinement passes run (a converged
-// answer's final residual at most 1.0: same-year maps; across a year they seldom do).
+// the camera images from the map's own year, where the refinement passes run under the
+// classical bound too (a converged answer's final residual at most 1.0: same-year maps; across
+// a year they seldom do).
 // --layers adds a row over those reference layers (Localizer: the next is aligned to only
 // where the one before did not converge) for the classical tracker and each weight file, e.g.
 // --live-layer 2020 --layers 2016,2012,2009; its "layers tried" is the mean alignments an
@@ -96,18 +98,21 @@ int main(int argc, char** argv) {
     weights.push_back(std::move(w.value()));
   }
   std::vector<Method> methods;
-  // Each tracker alone; the learned also with one refinement pass; both over --layers.
-  enum Variant { kAlone, kRefined, kLayers };
+  // Each tracker alone; the learned also with one refinement pass, on its own scope and on the
+  // finest level under the classical bound; both over --layers.
+  enum Variant { kAlone, kRefined, kRefinedFinest, kLayers };
   for (std::size_t m = 0; m <= files.size(); ++m)
-    for (const Variant variant : {kAlone, kRefined, kLayers}) {
-      if ((variant == kRefined && m == 0) || (variant == kLayers && layer_list.empty())) continue;
-      const int refine = variant == kRefined;
+    for (const Variant variant : {kAlone, kRefined, kRefinedFinest, kLayers}) {
+      if (((variant == kRefined || variant == kRefinedFinest) && m == 0) || (variant == kLayers && layer_list.empty()))
+        continue;
+      const int refine = variant == kRefined || variant == kRefinedFinest;
       const std::size_t slash = m == 0 ? 0 : files[m - 1].find_last_of('/');
       const std::string tracker =
           m == 0 ? "classic:20" : "nn:20 " + files[m - 1].substr(slash == std::string::npos ? 0 : slash + 1);
       const std::string name = variant == kAlone     ? tracker
                                : variant == kRefined ? tracker + " --refine 1"
-                                                     : tracker + " --layer " + layer_list;
+                               : variant == kRefinedFinest ? tracker + " --refine 1 --refine-levels 1 --refine-max-residual 1"
+                                                           : tracker + " --layer " + layer_list;
       iclk::TrackerOptions opt;
       opt.iterations = 20;
       std::vector<std::string> layers{"2016"};
@@ -122,6 +127,7 @@ int main(int argc, char** argv) {
         return 1;
       }
       loc.value()->set_refinement(refine);
+      if (variant == kRefinedFinest) loc.value()->set_refinement_scope(cli::kRefineLevels, cli::kRefineMaxResidual);
       Method M;
       M.name = name;
       M.loc = std::move(loc.value());
