@@ -4,6 +4,7 @@
 // tilt error as a shift; a reference rendered at the answer takes it out. Also the
 // registration floor that grows with the final residual (session 29, as refinement's bound).
 #include <cstring>
+#include <memory>
 
 #include <doctest/doctest.h>
 
@@ -39,6 +40,14 @@ Answer localize(cli::Localizer& loc, const Scene& s, int passes) {
   REQUIRE(out.ok());
   REQUIRE(out->converged);
   return {(out->T_W_C.t_W_C - s.truth.t_W_C).norm(), out->refinements, out->T_W_C};
+}
+
+// A learned localizer on the scene's 2016 map with the default weights and passes.
+std::unique_ptr<cli::Localizer> learned_localizer(const Scene& s, const nn::WeightFile& weights) {
+  auto loc = cli::Localizer::create(s.map, s.cam, "2016", iclk::TrackerOptions{}, 2, &weights);
+  REQUIRE(loc.ok());
+  loc.value()->set_refinement(cli::kDefaultRefinePasses);
+  return std::move(loc.value());
 }
 
 }  // namespace
@@ -81,17 +90,14 @@ TEST_CASE("refinement: asked to, the learned tracker weighs every pixel alike wh
   const Scene s = scene();
   auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
   REQUIRE(weights.ok());
-  iclk::TrackerOptions opt;
-  auto loc = cli::Localizer::create(s.map, s.cam, "2016", opt, 2, &weights.value());
-  REQUIRE(loc.ok());
-  loc.value()->set_refinement(cli::kDefaultRefinePasses);
+  auto loc = learned_localizer(s, weights.value());
   {
-    auto by_default = loc.value()->localize(s.live.view(), s.prior);
+    auto by_default = loc->localize(s.live.view(), s.prior);
     REQUIRE(by_default.ok());
     CHECK(by_default->refinements >= 1);
     CHECK(by_default->uniform_refinements == 0);
   }
-  loc.value()->set_uniform_refinement(cli::kRefineUniformMaxResidual);
+  loc->set_uniform_refinement(cli::kRefineUniformMaxResidual);
   // Across a year: 2017's render, 7 parts to 3 of 2016's, ends between the bounds (0.72,
   // measured; 2017 alone ends at 1.3, where no pass runs at all, half and half at 0.35).
   ImageU8 blend = s.live_2017;
@@ -99,7 +105,7 @@ TEST_CASE("refinement: asked to, the learned tracker weighs every pixel alike wh
     blend.data()[i] = static_cast<std::uint8_t>((7 * s.live_2017.data()[i] + 3 * s.live.data()[i] + 5) / 10);
   for (const bool same_year : {true, false}) {
     CAPTURE(same_year);
-    auto out = loc.value()->localize((same_year ? s.live : blend).view(), s.prior);
+    auto out = loc->localize((same_year ? s.live : blend).view(), s.prior);
     REQUIRE(out.ok());
     REQUIRE(out->converged);
     const double error_m = (out->T_W_C.t_W_C - s.truth.t_W_C).norm();
@@ -116,7 +122,7 @@ TEST_CASE("refinement: asked to, the learned tracker weighs every pixel alike wh
     }
   }
   // The classical tracker has no M-estimator to leave out.
-  auto classic = cli::Localizer::create(s.map, s.cam, "2016", opt, 2, nullptr);
+  auto classic = cli::Localizer::create(s.map, s.cam, "2016", iclk::TrackerOptions{}, 2, nullptr);
   REQUIRE(classic.ok());
   classic.value()->set_refinement(cli::kDefaultRefinePasses);
   auto out = classic.value()->localize(s.live.view(), s.prior);
@@ -293,19 +299,16 @@ TEST_CASE("refinement: the learned tracker refines on three levels whatever its 
   const Scene s = scene();
   auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
   REQUIRE(weights.ok());
-  iclk::TrackerOptions opt;
-  auto loc = cli::Localizer::create(s.map, s.cam, "2016", opt, 2, &weights.value());
-  REQUIRE(loc.ok());
-  loc.value()->set_refinement(cli::kDefaultRefinePasses);
-  auto by_default = loc.value()->localize(s.live_2017.view(), s.prior);
+  auto loc = learned_localizer(s, weights.value());
+  auto by_default = loc->localize(s.live_2017.view(), s.prior);
   REQUIRE(by_default.ok());
   REQUIRE(by_default->converged);
-  loc.value()->set_refinement_scope(cli::kRefineLevels, cli::kRefineMaxResidual);
-  auto before = loc.value()->localize(s.live_2017.view(), s.prior);
+  loc->set_refinement_scope(cli::kRefineLevels, cli::kRefineMaxResidual);
+  auto before = loc->localize(s.live_2017.view(), s.prior);
   REQUIRE(before.ok());
   REQUIRE(before->converged);
-  loc.value()->set_refinement(0);
-  auto once = loc.value()->localize(s.live_2017.view(), s.prior);
+  loc->set_refinement(0);
+  auto once = loc->localize(s.live_2017.view(), s.prior);
   REQUIRE(once.ok());
   const double e_default = (by_default->T_W_C.t_W_C - s.truth.t_W_C).norm();
   const double e_before = (before->T_W_C.t_W_C - s.truth.t_W_C).norm();
