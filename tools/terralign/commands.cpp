@@ -192,8 +192,10 @@ const std::vector<Command>& commands() {
        "--nn-levels L: the learned tracker aligns on the finest L of the weight file's levels (as\n"
        "eval's; 0: all).\n"
        "--refine N: as align's (default 2): a frame whose answer turned by more than 0.05 degree\n"
-       "from its prediction is aligned again from a reference rendered at it, as the first frames\n"
-       "of a track started from an IMU's tilt are; the frames after them seldom are.\n"
+       "from its prediction is aligned again from a reference rendered at it: on a map of the\n"
+       "camera's year the first frames of a track started from an IMU's tilt; across years, where\n"
+       "the learned tracker's passes have no residual bound, nearly every frame (the README's\n"
+       "flights: 33-40 of 40, at about twice the iterations).\n"
        "--refine-levels L, --refine-max-residual R and --refine-uniform R: as align's.\n",
        run_track},
       {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
