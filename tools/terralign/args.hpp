@@ -87,16 +87,13 @@ Result<Degradation> parse_degradation(const Args& args);
 // residual of R (Localizer::set_uniform_refinement; 0..2, default off).
 struct Refinement {
   int passes = kDefaultRefinePasses;
-  int levels = 0;             // 0: the tracker's default
-  double max_residual = 0;    // 0: the tracker's default
+  int levels = 0;           // 0: the localizer's (its tracker's default)
+  double max_residual = 0;  // 0: the localizer's
   double uniform_max_residual = kRefineUniformOff;
   void apply(Localizer& loc) const {
     loc.set_refinement(passes);
-    if (levels > 0 || max_residual > 0) {
-      const bool learned = loc.learned();
-      loc.set_refinement_scope(levels > 0 ? levels : learned ? kDeepRefineLevels : kRefineLevels,
-                               max_residual > 0 ? max_residual : learned ? kDeepRefineMaxResidual : kRefineMaxResidual);
-    }
+    loc.set_refinement_scope(levels > 0 ? levels : loc.refinement_levels(),
+                             max_residual > 0 ? max_residual : loc.refinement_max_residual());
     loc.set_uniform_refinement(uniform_max_residual);
   }
 };

@@ -178,6 +178,8 @@ class Localizer {
     refine_levels_ = std::max(levels, 1);
     refine_max_residual_ = max_residual;
   }
+  int refinement_levels() const { return refine_levels_; }
+  double refinement_max_residual() const { return refine_max_residual_; }
   // The learned tracker's refinement passes without the M-estimator where the answer refined
   // ended at a final residual of at most `max_residual` (kRefineUniformMaxResidual: session
   // 37's rule); kRefineUniformOff (the default): every pass with it.
