@@ -88,7 +88,11 @@ def attitude(a, ref, query):
     if right + wrong < 20:
         sys.exit(f"{a.weights}: the plain threshold passes only {right + wrong} answers of {ref} -> {query}: too few")
     trust = right / (right + wrong)
-    share = lambda t: (lambda r, w: r / (r + w) if r + w else 1.0)(*passed(with_imu, t))
+
+    def share(t):  # of the answers t passes with the IMU, the right ones
+        r, w = passed(with_imu, t)
+        return r / (r + w) if r + w else 1.0
+
     steps = round(plain / 0.05)  # the threshold in steps of 0.05 px, from the plain one
     if share(steps * 0.05) >= trust:
         while steps < 2000 and share((steps + 1) * 0.05) >= trust:
