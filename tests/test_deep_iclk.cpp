@@ -357,3 +357,49 @@ TEST_CASE("learned tracker: the agreement test starts where the weight file's th
   CHECK(by_file.disagreement_px != by_default.disagreement_px);
   CHECK(by_file.params.t == by_default.params.t);  // the answer itself is the same
 }
+
+TEST_CASE("learned tracker: with an attitude reference the agreement test takes the file's attitude threshold") {
+  constexpr double kDeg = 3.14159265358979323846 / 180;
+  // The shipped file carries both (training/calibrate_sharpness.py --test agreement-attitude);
+  // a tilt prior of at most kAttitudeTiltPriorDeg takes the attitude one, a rough pose's (the
+  // default 3 degrees) or none the plain one.
+  const nn::WeightFile shipped = shipped_weights();
+  auto threshold = [](const nn::WeightFile& w, double tilt_prior_deg) {
+    auto t = iclk::DeepAligner::max_disagreement(w, tilt_prior_deg * kDeg);
+    REQUIRE(t.ok());
+    return t.value();
+  };
+  CHECK(threshold(shipped, 0) == doctest::Approx(1.25));
+  CHECK(threshold(shipped, 3) == doctest::Approx(1.25));
+  CHECK(threshold(shipped, 1.01) == doctest::Approx(1.25));
+  CHECK(threshold(shipped, 1) == doctest::Approx(1.35));
+  CHECK(threshold(shipped, 0.5) == doctest::Approx(1.35));
+  // A file without the line (s16, the firmware's) keeps its plain threshold with an IMU too.
+  const nn::WeightFile s16 = load("weights/deep_iclk_s16.tlw");
+  CHECK(threshold(s16, 0.5) == threshold(s16, 0));
+  CHECK(threshold(s16, 0) > 0);
+  // The tracker tests with it: an attitude threshold the answer does not meet fails the right
+  // answer only where the tilt prior is an attitude reference's (no up vector is set, so the
+  // prior itself does not act and the answer is the same).
+  const nn::WeightFile strict = with_line(s16, "# max-disagreement-px-attitude 1e-9");
+  const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
+  const Pair p = pair_of(vectors, 0);
+  auto run = [&](double tilt_prior_deg) {
+    iclk::TrackerOptions o = parity_options();
+    o.tilt_prior_rad = tilt_prior_deg * kDeg;
+    auto D = iclk::DeepAligner::create(strict, p.ref.width(), p.ref.height(), o, 1);
+    REQUIRE(D.ok());
+    return D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
+  };
+  const auto rough = run(3), imu = run(0.5);
+  REQUIRE(rough.disagreement_px > 1e-9);  // this synthetic pair's second start settles 2e-6 px away
+  CHECK(rough.converged);
+  CHECK_FALSE(imu.converged);
+  CHECK(std::string(imu.reason).rfind("ambiguous", 0) == 0);
+  CHECK(imu.disagreement_px == rough.disagreement_px);
+  // A malformed attitude threshold is refused, naming the line.
+  const std::string bad = "# max-disagreement-px-attitude 0";
+  auto refused = iclk::DeepAligner::create(with_line(s16, bad), p.ref.width(), p.ref.height(), options(), 1);
+  REQUIRE_FALSE(refused.ok());
+  CHECK(refused.error().message.find(bad) != std::string::npos);
+}

@@ -220,7 +220,8 @@ same_log() {
 }
 # A stage's end: [--tensors] FILE COMMITTED RUN...: $work/FILE exported from the last
 # checkpoint of the stage's last run with the note of COMMITTED, the committed file (so that the
-# two can match byte for byte), its agreement threshold calibrated, then compared with
+# two can match byte for byte), its agreement threshold calibrated (and the one with an
+# attitude reference, where COMMITTED has it: the default file since session 59), then compared with
 # COMMITTED (with the agreement test's start COMMITTED carries, `# agree-px`: none in the
 # shipped files; session 54 gave step 24's 1 px, session 55 took it back); the logs of the
 # stage's runs say where a reproduction parted from the committed one. The export is skipped
@@ -244,6 +245,13 @@ ship() {
         "$out.part" > "$out.log" 2>&1 ||
         { echo "reproduce.sh: the calibration failed, see $out.log" >&2; exit 1; }
       tail -n 1 "$out.log"
+      # The threshold with an attitude reference, where COMMITTED carries one (session 59).
+      if grep -a -q '^# max-disagreement-px-attitude ' "$ref"; then
+        python3 training/calibrate_sharpness.py --test agreement-attitude --pair 2009,2020 --count 1000 \
+          "$out.part" > "$out.attitude.log" 2>&1 ||
+          { echo "reproduce.sh: the calibration failed, see $out.attitude.log" >&2; exit 1; }
+        tail -n 1 "$out.attitude.log"
+      fi
     fi
     mv "$out.part" "$out"
   fi

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <cstdlib>
 #include <sstream>
+#include <utility>
 
 
 namespace terralign::iclk {
@@ -82,12 +83,15 @@ Result<double> DeepAligner::min_sharpness(const nn::WeightFile& weights) {
   return v;
 }
 
-Result<double> DeepAligner::max_disagreement(const nn::WeightFile& weights) {
+Result<double> DeepAligner::max_disagreement(const nn::WeightFile& weights, double tilt_prior_rad) {
   std::string line;
-  double v = 0;
-  if (comment_value(weights, "max-disagreement-px", line, v) && !(v > 0 && v <= 100))
-    return Error{weights.name + ": '" + line + "': the agreement threshold must be in (0, 100] pixels"};
-  return v;
+  double plain = 0, attitude = 0;
+  for (auto [key, v] : {std::pair{"max-disagreement-px", &plain}, std::pair{"max-disagreement-px-attitude", &attitude}})
+    if (comment_value(weights, key, line, *v) && !(*v > 0 && *v <= 100))
+      return Error{weights.name + ": '" + line + "': the agreement threshold must be in (0, 100] pixels"};
+  const bool attitude_reference =
+      tilt_prior_rad > 0 && tilt_prior_rad <= kAttitudeTiltPriorDeg * (3.14159265358979323846 / 180);
+  return attitude_reference && attitude > 0 ? attitude : plain;
 }
 
 Result<double> DeepAligner::agree_px(const nn::WeightFile& weights) {
@@ -177,7 +181,7 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
     TERRALIGN_TRY_ASSIGN(o.min_sharpness, DeepAligner::min_sharpness(weights));
   }
   if (o.max_disagreement_px == 0) {
-    TERRALIGN_TRY_ASSIGN(o.max_disagreement_px, DeepAligner::max_disagreement(weights));
+    TERRALIGN_TRY_ASSIGN(o.max_disagreement_px, DeepAligner::max_disagreement(weights, o.tilt_prior_rad));
   }
   // The sharpness probe (four finest-level residuals, about 2 % of a pair) runs where its test
   // is on, or where the caller asks for the measure (probe_px > 0: eval); negative: never.

@@ -57,7 +57,8 @@ Result<nn::WeightFile> learned_weights(const Args& args);
 //   0 (the default): the weight file's '# min-sharpness'; negative: no test.
 // --max-disagreement PX: the agreement test (max_disagreement_px), in [-1000, 1000] of each
 //   tracker's working pixels; 0 (the default): each tracker's own (kClassicMaxDisagreementPx,
-//   the weight file's '# max-disagreement-px'); negative: no test.
+//   the weight file's '# max-disagreement-px', or with an attitude reference's tilt prior its
+//   '# max-disagreement-px-attitude': iclk::DeepAligner::max_disagreement); negative: no test.
 // --agree-px PX: where that test's second start begins (agree_px), in [0, 10] working pixels
 //   in u and v; 0 (the default): each tracker's own (kClassicAgreePx, the weight file's
 //   '# agree-px'). A threshold holds only for the start it was calibrated with.

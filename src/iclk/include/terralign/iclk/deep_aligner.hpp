@@ -54,6 +54,16 @@ class DeepAligner : public iclk::LevelWeights {
   // passed more wrong ones on ground the tracker cannot place (session 55, README "The
   // agreement test's start").
   static constexpr double kAgreePx = 2.0;
+  // With an attitude reference, a tilt prior (iclk::TrackerOptions::tilt_prior_rad) of at most
+  // kAttitudeTiltPriorDeg, the agreement threshold is the file's `# max-disagreement-px-attitude
+  // X` where it has one (calibrate_sharpness.py --test agreement-attitude: the widest threshold
+  // whose passed answers of 2009 -> 2020 with an IMU's tilt, seed 11, are right as often as
+  // the plain threshold's without it), else its `# max-disagreement-px`. Held to an IMU's tilt
+  // the tracker trades less tilt for shift, and its wrong answers' second starts drift further:
+  // on the calibration poses (1000) the plain 1.25 px passes 98.9 % right answers without the
+  // IMU, 99.6 % with it; 1.35 px passes 99.3 % with it (README, "The agreement test with an
+  // attitude reference", session 59). A rough pose's tilt (the default 3 degrees) is not one.
+  static constexpr double kAttitudeTiltPriorDeg = 1.0;
   // The coarse search before the first step (TrackerOptions::coarse_search_px and _yaw_deg),
   // unless the options set it (coarse_search_px negative: none): shifts of up to 2
   // coarsest-level pixels, turns of up to 4 degrees. On the calibration seed (11) the shifts
@@ -87,7 +97,9 @@ class DeepAligner : public iclk::LevelWeights {
   static Result<double> input_scale(const nn::WeightFile& weights);
   static Result<int> levels(const nn::WeightFile& weights);
   static Result<double> min_sharpness(const nn::WeightFile& weights);  // 0: none
-  static Result<double> max_disagreement(const nn::WeightFile& weights);  // 0: none
+  // The agreement threshold for a tilt prior of `tilt_prior_rad` (0: none; see
+  // kAttitudeTiltPriorDeg); 0: none.
+  static Result<double> max_disagreement(const nn::WeightFile& weights, double tilt_prior_rad = 0);
   static Result<double> agree_px(const nn::WeightFile& weights);  // kAgreePx where none
 
   // ref_rgb, live_rgb: 3-channel, 0..255; ref_depth: metres, NaN where none; K: pinhole of
