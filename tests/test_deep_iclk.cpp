@@ -311,6 +311,18 @@ TEST_CASE("learned tracker: the converged tests read their thresholds from the w
     CHECK(std::string(strict.reason).rfind("ambiguous", 0) == 0);
     CHECK(strict.params.t.norm() == 0.0f);
   }
+  CHECK_FALSE(right.unconfirmed);
+  // The agreement test alone failing keeps the answer it measured as unconfirmed (a track with
+  // no velocity yet may start from it), its covariance scaled by the square of how many times
+  // the threshold the second start settled away: here 1 / 0.99. The sharpness test's failure
+  // keeps none.
+  CHECK_FALSE(run(right.sharpness * 1.01, -1).unconfirmed);
+  const auto unsure = run(-1, right.disagreement_px * 0.99);
+  REQUIRE(unsure.unconfirmed);
+  CHECK(unsure.unconfirmed_params.R == right.params.R);
+  CHECK(unsure.unconfirmed_params.t == right.params.t);
+  const double scale = 1 / (0.99 * 0.99);
+  for (int i = 0; i < 6; ++i) CHECK(unsure.unconfirmed_covariance(i, i) == doctest::Approx(right.covariance(i, i) * scale).epsilon(1e-9));
   const auto off = run(-1, -1);
   CHECK(off.converged);
   // With its test off the sharpness probe does not run (0: not measured), and the answer is

@@ -1149,8 +1149,17 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
           }
           R.disagreement_px = settled ? rms_motion_px(SE3Log<Params>::of(p, q), n) : INFINITY;
           R.ms_iterations += ms(ta, Clock::now());
-          if (opt_.max_disagreement_px > 0 && !(R.disagreement_px <= opt_.max_disagreement_px))
-            return fail("ambiguous: a start nearby settles elsewhere");
+          if (opt_.max_disagreement_px > 0 && !(R.disagreement_px <= opt_.max_disagreement_px)) {
+            const double scale = R.disagreement_px / opt_.max_disagreement_px;
+            const Eigen::Matrix<double, DoF, DoF> scaled = R.covariance * (scale * scale);
+            fail("ambiguous: a start nearby settles elsewhere");
+            if (std::isfinite(scale)) {
+              R.unconfirmed = true;
+              R.unconfirmed_params = p;
+              R.unconfirmed_covariance = scaled;
+            }
+            return R;
+          }
         }
       }
     }

@@ -220,6 +220,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
                     out.residual_final, out.disagreement_px, out.sharpness};
     if (out.converged) break;
   }
+  if (out.converged) out.unconfirmed = false;  // an earlier layer's is no answer here
   return out;
 }
 
@@ -265,17 +266,28 @@ Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::
     out.covariance_inflation = r.covariance_inflation;
     out.refinements = pass;
     if (uniform) ++out.uniform_refinements;
-    if (!r.converged) return Ok{};  // failure as data: the prior (T_W_C), no covariance
+    // A map pose and its world covariance from the tracker's relative pose and covariance.
+    const auto in_world = [&](const iclk::SE3<float>& params, const Eigen::Matrix<double, 6, 6>& cov_ref,
+                              geo::Pose& T_W_C, Eigen::Matrix<double, 6, 6>& cov) {
+      const iclk::SE3<double> T_ref_live = params.cast<double>().inverse();
+      geo::Pose rel;
+      rel.q_W_C = Eigen::Quaterniond(T_ref_live.R).normalized();
+      rel.t_W_C = T_ref_live.t;
+      T_W_C = ref_pose * rel;
+      cov = covariance_in_world(cov_ref, ref_pose, T_ref_live);
+      cov(5, 5) += dem_variance_;
+    };
+    if (!r.converged) {  // failure as data: the prior (T_W_C), no covariance
+      if (pass == 0 && r.unconfirmed && !out.unconfirmed) {
+        out.unconfirmed = true;
+        in_world(r.unconfirmed_params, r.unconfirmed_covariance, out.T_W_C_unconfirmed, out.covariance_unconfirmed);
+      }
+      return Ok{};
+    }
     // T_live_prior = T_live_ref T_ref_prior: the relative pose to the prior's reference.
     const iclk::SE3<double> T_live_ref = r.params.cast<double>();
     out.T_live_ref = T_live_ref * T_ref_prior;
-    const iclk::SE3<double> T_ref_live = T_live_ref.inverse();
-    geo::Pose rel;
-    rel.q_W_C = Eigen::Quaterniond(T_ref_live.R).normalized();
-    rel.t_W_C = T_ref_live.t;
-    out.T_W_C = ref_pose * rel;
-    out.covariance = covariance_in_world(r.covariance, ref_pose, T_ref_live);
-    out.covariance(5, 5) += dem_variance_;
+    in_world(r.params, r.covariance, out.T_W_C, out.covariance);
     // Again while the answer turned by more than kRefineMinDeg from where the reference was
     // rendered, and its final residual is within the bound (set_refinement_scope).
     if (!(Eigen::AngleAxisd(T_live_ref.R).angle() * (180.0 / 3.14159265358979323846) > kRefineMinDeg)) break;

@@ -35,6 +35,13 @@ struct LocalizeOutput {
   Eigen::Matrix<double, 6, 6> covariance = Eigen::Matrix<double, 6, 6>::Zero();
   bool converged = false;
   const char* reason = "not run";  // the tracker's (a static string: no allocation per frame)
+  // Where no layer converged and a layer's first pass failed the agreement test alone
+  // (iclk::TrackResult::unconfirmed; the first such layer's): that answer, unconfirmed, as a
+  // map pose with its covariance in LocalizeOutput::covariance's frame (the DEM's variance
+  // included). terralign track may start a track with it; T_W_C stays the prior.
+  bool unconfirmed = false;
+  geo::Pose T_W_C_unconfirmed;
+  Eigen::Matrix<double, 6, 6> covariance_unconfirmed = Eigen::Matrix<double, 6, 6>::Zero();
   int iterations = 0;
   double cost_init = 0, cost_final = 0;  // mean squared residual of the normalised images
   double residual_init = 0, residual_final = 0;  // the same unweighted (iclk::TrackResult)

@@ -214,6 +214,14 @@ struct TrackResult {
   // a wrong answer is often as deep a minimum as a right one, but a shallower, wider one: a
   // start nearby returns to a right answer and drifts near a wrong one (README).
   double disagreement_px = 0;
+  // Where the agreement test alone failed an answer (converged false, params the initial
+  // ones): that answer, unconfirmed, and its covariance scaled by (disagreement_px /
+  // max_disagreement_px)^2, as uncertain as its two starts are apart. Only where the second
+  // start settled (a finite disagreement); elsewhere false, the identity and zero. A track that
+  // has no velocity yet may take it to start (terralign track); nothing else uses it.
+  bool unconfirmed = false;
+  Params unconfirmed_params = Warp::identity();
+  Eigen::Matrix<double, DoF, DoF> unconfirmed_covariance = Eigen::Matrix<double, DoF, DoF>::Zero();
   // The pose the coarsest level started from: the initial one, or the coarse search's pick
   // (TrackerOptions::coarse_search_px).
   Params coarse_start = Warp::identity();
