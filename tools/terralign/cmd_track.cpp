@@ -150,10 +150,11 @@ int run_track(const std::vector<std::string>& argv) {
     return usage_error("track", Error{"--accel-sigma, --gate and --init-sigma set the filter: they need --filter kalman (or auto with --attitude)"});
   // --acquire yes (the default): until the track has a velocity (none given, and fewer than two
   // converged answers taken), an answer the agreement test alone failed starts it, with its
-  // covariance scaled by how far the second start settled (LocalizeOutput::unconfirmed). A track whose
-  // first frames fail the test otherwise waits where it started while the aircraft flies on:
-  // 36 random flights across 11 years with the IMU, 6 lost, 5 of them so (docs/history.md,
-  // session 61).
+  // covariance scaled by how far the second start settled (LocalizeOutput::unconfirmed). A
+  // track whose first frames fail the test otherwise waits where it started while the aircraft
+  // flies on: so were all 6 of 36 random flights across 11 years with the IMU lost (2 with
+  // it); of 36 more, rendered after the rule was written, 3 -> 1 with the IMU, 11 -> 8
+  // without (docs/history.md, session 61).
   const std::string acquire = args->get("acquire", "yes");
   if (acquire != "yes" && acquire != "no") return usage_error("track", Error{"--acquire '" + acquire + "' must be yes or no"});
   auto iters = args->get_int("iterations", 20, 1, 1000);
