@@ -155,8 +155,9 @@ int run_track(const std::vector<std::string>& argv) {
   // flies on: so were all 6 of 36 random flights across 11 years with the IMU lost (2 with
   // it); of 36 more, rendered after the rule was written, 3 -> 1 with the IMU, 11 -> 8
   // without (docs/history.md, session 61).
-  const std::string acquire = args->get("acquire", "yes");
-  if (acquire != "yes" && acquire != "no") return usage_error("track", Error{"--acquire '" + acquire + "' must be yes or no"});
+  const std::string acquire_arg = args->get("acquire", "yes");
+  if (acquire_arg != "yes" && acquire_arg != "no")
+    return usage_error("track", Error{"--acquire '" + acquire_arg + "' must be yes or no"});
   auto iters = args->get_int("iterations", 20, 1, 1000);
   auto threads = args->get_int("threads", 2, 1, 64);
   if (!iters.ok()) return usage_error("track", iters.error());
@@ -171,6 +172,7 @@ int run_track(const std::vector<std::string>& argv) {
     if (!v.ok()) return usage_error("track", v.error());
     init_velocity = v.value();
   }
+  const bool acquire = acquire_arg == "yes" && !init_velocity;  // a velocity given: nothing to acquire
   auto map = geo::load_map(args->get("map"));
   if (!map.ok()) return fail(map.error());
   auto cam_in = geo::load_camera(args->get("camera"));
@@ -288,10 +290,9 @@ int run_track(const std::vector<std::string>& argv) {
           iterations = out->iterations;
           // Starting, an unconfirmed answer stands in for a converged one; the frame still
           // reports itself not converged.
-          const bool starting = acquire == "yes" && !init_velocity && converged < 2;
-          const bool unconfirmed = !ok && starting && out->unconfirmed;
-          const geo::Pose T = ok ? out->T_W_C : out->T_W_C_unconfirmed;
-          const Eigen::Matrix<double, 6, 6> P = ok ? out->covariance : out->covariance_unconfirmed;
+          const bool unconfirmed = !ok && acquire && converged < 2 && out->unconfirmed;
+          const geo::Pose& T = ok ? out->T_W_C : out->T_W_C_unconfirmed;
+          const Eigen::Matrix<double, 6, 6>& P = ok ? out->covariance : out->covariance_unconfirmed;
           taken = ok || unconfirmed;
           if (taken) {
             answer = T;
