@@ -133,21 +133,23 @@ int run_track(const std::vector<std::string>& argv) {
   if (nn_levels.value() > 0 && method != "nn")
     return usage_error("track", Error{"--nn-levels sets the learned tracker's levels: it needs --method nn"});
   sizes.levels = nn_levels.value();
-  // --filter auto (the default): the filter where an attitude reference comes with the
-  // frames. Without an IMU, across many years, the answers drift together over frames and the
-  // filter's velocity follows them; with one it holds tracks that extrapolation loses. 24
-  // random flights across 4 and 11 years: with the IMU 1 track lost against 6, without it 6
-  // against 4 (session 39; with session 40's conservative covariances 1 and 5); the 11-year
-  // lawnmower with the IMU 20 m RMSE against 478 (README "Tracking a flight").
-  std::string filter_mode = args->get("filter", "auto");
+  // --filter kalman (the default; auto, its earlier name, is the same): the filter, with or
+  // without an attitude reference. Without one its velocity moves more slowly
+  // (TrackFilterOptions::kAccelSigmaWithoutAttitude), since the answers across many years drift
+  // together over frames. Against extrapolating the last two answers (--filter none, the
+  // default without an IMU until session 62), without an IMU across 11 years: 36 random
+  // flights rendered after the rule was written lost 9 -> 5, and the README's lawnmower holds
+  // (38.3 -> 39.4 m RMSE; docs/history.md, session 62).
+  std::string filter_mode = args->get("filter", "kalman");
   if (filter_mode != "auto" && filter_mode != "kalman" && filter_mode != "none")
-    return usage_error("track", Error{"--filter '" + filter_mode + "' must be auto, kalman or none"});
-  if (filter_mode == "auto") filter_mode = args->has("attitude") ? "kalman" : "none";
+    return usage_error("track", Error{"--filter '" + filter_mode + "' must be kalman or none (or auto: kalman)"});
+  if (filter_mode == "auto") filter_mode = "kalman";
   auto filter_options = parse_track_filter(args.value());
   if (!filter_options.ok()) return usage_error("track", filter_options.error());
-  const TrackFilterOptions& fopt = filter_options.value();
+  TrackFilterOptions fopt = filter_options.value();
+  if (!args->has("attitude") && !args->has("accel-sigma")) fopt.accel_sigma = TrackFilterOptions::kAccelSigmaWithoutAttitude;
   if (filter_mode == "none" && (args->has("accel-sigma") || args->has("gate") || args->has("init-sigma")))
-    return usage_error("track", Error{"--accel-sigma, --gate and --init-sigma set the filter: they need --filter kalman (or auto with --attitude)"});
+    return usage_error("track", Error{"--accel-sigma, --gate and --init-sigma set the filter: they need --filter kalman"});
   // --acquire yes (the default): until the track has a velocity (none given, and fewer than two
   // converged answers taken), an answer the agreement test alone failed starts it, with its
   // covariance scaled by how far the second start settled (LocalizeOutput::unconfirmed). A
@@ -236,7 +238,7 @@ int run_track(const std::vector<std::string>& argv) {
     t_prev = t_last - 1;
     known = 2;
   }
-  // The filter (--filter kalman; auto's with --attitude) predicts each frame's prior from the
+  // The filter (--filter kalman, the default) predicts each frame's prior from the
   // start and every answer it took; without it (--filter none) the prior extrapolates the
   // last two.
   std::optional<TrackFilter> filter;

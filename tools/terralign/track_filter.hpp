@@ -28,6 +28,12 @@ struct TrackFilterOptions {
   // rate's, degrees/s per square root of a second.
   double accel_sigma = 1.0;
   double angular_accel_sigma_deg = 5.0;
+  // `track`'s velocity random walk where no attitude reference comes with the frames (and no
+  // --accel-sigma): across many years the answers drift together over frames, and a filter
+  // whose velocity may move 1 m/s in a second takes that drift for motion (the README's
+  // lawnmower across 11 years lost, 118.7 m RMSE); at 0.3 it holds it (39.4 m), and of 36
+  // random straight flights it loses 3 where extrapolation loses 8 (docs/history.md, session 62).
+  static constexpr double kAccelSigmaWithoutAttitude = 0.3;
   // The gate on the innovation's squared Mahalanobis distance: the chi-square quantile of 6
   // degrees of freedom at p = 0.999 (22.46): one right answer in a thousand refused where
   // both covariances are honest. Negative: no gate.
