@@ -361,6 +361,48 @@ TEST_CASE("a forward pass gives the same bytes on 1 and 2 threads and on a pool 
   }
 }
 
+TEST_CASE("two networks at once, each on one thread of a pool, give the bytes of a pass on the whole pool, and allocate nothing") {
+  // The learned tracker's first encoding of a pair (iclk::DeepAligner::encode_pair): the
+  // reference and the live image, each network on a one-thread pool of its own inside a task of
+  // the two-thread pool the networks were planned on. Unpaired rows and columns (97 x 61) and
+  // dilated layers: a band of the whole image on one thread, where two bands split it before.
+  const WeightFile weights = load("weights/lv19_tum_abc.tlw");
+  ThreadPool pool(2);
+  ThreadPool solo[2] = {ThreadPool(1), ThreadPool(1)};
+  std::unique_ptr<Network> at_once[2], split[2];
+  for (int k = 0; k < 2; ++k) {
+    auto a = Network::plan(weights, "encoder", 97, 61, 2, Simd::Auto, Memory::Shared, &pool);
+    auto b = Network::plan(weights, "encoder", 97, 61, 2, Simd::Auto, Memory::Shared, &pool);
+    REQUIRE((a.ok() && b.ok()));
+    at_once[k] = std::move(a.value());
+    split[k] = std::move(b.value());
+  }
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<float> u(-2, 2);
+  for (int k = 0; k < 2; ++k) {  // two different images
+    Tensor* a = at_once[k]->input("x");
+    Tensor* b = split[k]->input("x");
+    for (int y = 0; y < 61; ++y)
+      for (int x = 0; x < 97; ++x)
+        for (int c = 0; c < 8; ++c) a->at(y, x)[c] = b->at(y, x)[c] = u(rng);
+  }
+  for (auto& n : split) n->forward();
+  struct Ctx {
+    std::unique_ptr<Network>* nets;
+    ThreadPool* solo;
+  } ctx{at_once, solo};
+  test::AllocationCounter count;
+  pool.run(2, [](void* c, int i) {
+    auto* x = static_cast<Ctx*>(c);
+    x->nets[i]->forward_until(1 << 30, x->solo[i]);
+  }, &ctx);
+  CHECK(count.allocations() == 0);
+  for (int k = 0; k < 2; ++k)
+    for (const char* o : {"f0", "f3", "e3_2"}) CHECK(same_pixels(*at_once[k]->output(o), *split[k]->output(o)));
+  // Not one image twice: the two networks' outputs differ.
+  CHECK_FALSE(same_pixels(*at_once[0]->output("f0"), *at_once[1]->output("f0")));
+}
+
 TEST_CASE("forward_until runs the first steps alone, and a pass again on the same input gives the same bytes") {
   // The learned tracker's refinement encodes only the finest level this way (docs/history.md,
   // "Session 30"). Shared memory: the input must outlive every step (until session 30 the

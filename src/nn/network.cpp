@@ -359,8 +359,11 @@ int Network::step_of(const std::string& name) const {
 
 void Network::forward() { forward_until(static_cast<int>(steps_.size()) - 1); }
 
-void Network::forward_until(int last_step) {
+void Network::forward_until(int last_step) { forward_until(last_step, *pool_); }
+
+void Network::forward_until(int last_step, ThreadPool& on) {
   TERRALIGN_ASSERT(bound_, "Network::forward: a Memory::External network before bind()");
+  TERRALIGN_ASSERT(on.threads() <= pool_->threads(), "Network::forward_until: a pool of more threads than planned");
   const std::size_t end = last_step < 0 ? 0 : std::min(steps_.size(), static_cast<std::size_t>(last_step) + 1);
   for (std::size_t step = 0; step < end; ++step) {
     const Step& s = steps_[step];
@@ -376,8 +379,8 @@ void Network::forward_until(int last_step) {
     // convolution's in pairs, which the band edges keep whole), so the bytes are the same
     // however they are split.
     const ConvWeights* cw = s.conv >= 0 ? &convs_[static_cast<std::size_t>(s.conv)] : nullptr;
-    StepCtx ctx{&s, &tensors_, cw, conv_, scratch_, scratch_floats_, pool_->threads(), cw ? conv_row_align(*cw) : 1};
-    pool_->run(ctx.bands, [](void* p, int i) {
+    StepCtx ctx{&s, &tensors_, cw, conv_, scratch_, scratch_floats_, on.threads(), cw ? conv_row_align(*cw) : 1};
+    on.run(ctx.bands, [](void* p, int i) {
       auto* c = static_cast<StepCtx*>(p);
       const Network::Step& st = *c->step;
       std::vector<Tensor>& T = *c->tensors;

@@ -84,6 +84,11 @@ class Network {
   // forward_until allocates nothing.
   int step_of(const std::string& name) const;
   void forward_until(int last_step);
+  // The same steps on `on`, a pool of at most the planned pool's threads (each thread's band
+  // has its scratch), in place of the planned one: a caller that runs two networks at once,
+  // each on one thread of its own (a one-thread pool runs its tasks on the calling thread).
+  // The bytes are forward_until(last_step)'s: rows do not depend on the split.
+  void forward_until(int last_step, ThreadPool& on);
   const char* simd_name() const { return simd_name_; }
   // Bytes of tensor memory the network owns (activations and the convolutions' scratch; the
   // packed weights are not counted; 0 for Memory::External).
