@@ -11,7 +11,9 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <memory>
 #include <random>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -163,6 +165,71 @@ bool tracker_network(const nn::WeightFile& weights, const char* name) {
   return true;
 }
 
+// The learned tracker's first encoding of a pair (iclk::DeepAligner::encode_pair): the
+// reference and the live image encoded at once, each on one thread of a two-thread pool,
+// against one after the other, each split over both threads, alternated 25 times; fastest
+// and median of each. Checks first that the two ways give the same bytes at every level.
+bool encoder_pair(const nn::WeightFile& weights) {
+  ThreadPool pool(2);
+  ThreadPool solo[2] = {ThreadPool(1), ThreadPool(1)};
+  std::unique_ptr<nn::Network> net[2];
+  for (auto& n : net) {
+    auto planned = nn::Network::plan(weights, "encoder", 376, 240, 2, nn::Simd::Auto, nn::Memory::Shared, &pool);
+    if (!planned.ok()) return false;
+    n = std::move(planned.value());
+  }
+  std::mt19937 rng(9);
+  std::normal_distribution<float> n01(0, 1);
+  for (auto& n : net) {
+    nn::Tensor* x = n->input("x");
+    for (int y = 0; y < x->h; ++y)
+      for (int i = 0; i < x->w; ++i)
+        for (int c = 0; c < 3; ++c) x->at(y, i)[c] = n01(rng);
+  }
+  auto split = [&] {
+    for (auto& n : net) n->forward();
+  };
+  // Task i on thread i: network i on that thread's one-thread pool.
+  std::pair<std::unique_ptr<nn::Network>*, ThreadPool*> ctx{net, solo};
+  auto at_once = [&] {
+    pool.run(2, [](void* c, int i) {
+      auto* nets = static_cast<std::pair<std::unique_ptr<nn::Network>*, ThreadPool*>*>(c);
+      nets->first[i]->forward_until(1 << 30, nets->second[i]);
+    }, &ctx);
+  };
+  // The same bytes: each network's last output after either way.
+  auto features = [&](int k) {  // every level's output, f0, f1, ...
+    std::vector<float> v;
+    for (int l = 0; const nn::Tensor* f = net[k]->output("f" + std::to_string(l)); ++l)
+      for (int y = 0; y < f->h; ++y)
+        for (int i = 0; i < f->w; ++i) v.insert(v.end(), f->at(y, i), f->at(y, i) + f->c);
+    return v;
+  };
+  split();
+  const std::vector<float> a[2] = {features(0), features(1)};
+  at_once();
+  for (int k = 0; k < 2; ++k)
+    if (std::memcmp(a[k].data(), features(k).data(), a[k].size() * sizeof(float)) != 0) {
+      std::fprintf(stderr, "bench_nn: the encoder pair at once differs from one after the other\n");
+      return false;
+    }
+  std::vector<double> ms[2];
+  for (int pass = 0; pass < 25; ++pass)
+    for (int k = 0; k < 2; ++k) {
+      const auto t0 = std::chrono::steady_clock::now();
+      if (k == 0) split();
+      else at_once();
+      ms[k].push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    }
+  for (auto& v : ms) std::sort(v.begin(), v.end());
+  std::printf("learned tracker's encoder, two 376x240 images, 2 threads, %s, 25 alternated passes (fastest / median):\n"
+              "  one after the other, each on both threads: %.2f / %.2f ms\n"
+              "  at once, one image a thread:               %.2f / %.2f ms  (%.2fx / %.2fx; the same bytes)\n\n",
+              net[0]->simd_name(), ms[0].front(), ms[0][12], ms[1].front(), ms[1][12], ms[0].front() / ms[1].front(),
+              ms[0][12] / ms[1][12]);
+  return true;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -221,6 +288,7 @@ int main(int argc, char** argv) {
   }
   for (const char* name : {"encoder", "mestimator"})
     if (!tracker_network(shipped.value(), name)) return 1;
+  if (!encoder_pair(shipped.value())) return 1;
   std::printf("\n");
   one_channel_layer(nn::conv3x3_rows_scalar, 8, "scalar");
 #if defined(TERRALIGN_NN_AVX2)

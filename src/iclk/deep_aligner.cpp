@@ -121,14 +121,15 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   // out at once: one buffer holds the tensors of all of them (the largest network's need).
   D->pool_ = given_or_own(pool, std::max(1, threads), D->own_pool_);
   threads = D->pool_->threads();
-  TERRALIGN_TRY_ASSIGN(D->encoder_, nn::Network::plan(weights, "encoder", width, height, threads, nn::Simd::Auto,
-                                                      nn::Memory::External, D->pool_));
-  D->enc_in_ = D->encoder_->input("x");
-  if (const nn::Tensor* x = D->enc_in_; !x || x->c != 3)
+  Encoder& enc = D->enc_[0];
+  TERRALIGN_TRY_ASSIGN(enc.net, nn::Network::plan(weights, "encoder", width, height, threads, nn::Simd::Auto,
+                                                  nn::Memory::External, D->pool_));
+  enc.in = enc.net->input("x");
+  if (const nn::Tensor* x = enc.in; !x || x->c != 3)
     return Error{weights.name + ": the encoder must take x, 3 channels of normalised RGB" +
                  (x ? " (this one takes " + std::to_string(x->c) + ")" : std::string(" (it has no input x)"))};
   // The channels of every level are f0's: 1, 2 or 4 (the solvers built, tracker.cpp).
-  if (const nn::Tensor* f0 = D->encoder_->output("f0")) {
+  if (const nn::Tensor* f0 = enc.net->output("f0")) {
     if (f0->c != 1 && f0->c != 2 && f0->c != 4)
       return Error{weights.name + ": the encoder's features have " + std::to_string(f0->c) +
                    " channels a level; the learned tracker runs 1, 2 or 4"};
@@ -137,13 +138,13 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
   const int C = D->channels_;
   for (int l = 0; l < levels; ++l) {
     const std::string name = "f" + std::to_string(l);
-    const nn::Tensor* f = D->enc_out_[static_cast<std::size_t>(l)] = D->encoder_->output(name);
+    const nn::Tensor* f = enc.out[static_cast<std::size_t>(l)] = enc.net->output(name);
     if (!f || f->c != C || f->w != width >> l || f->h != height >> l)
       return Error{weights.name + ": the encoder must output " + name + ", " + std::to_string(C) + " channel(s) of " +
                    std::to_string(width >> l) + " x " + std::to_string(height >> l)};
     // The last encoder step the finest l + 1 levels need.
     D->enc_until_[static_cast<std::size_t>(l)] =
-        std::max(l > 0 ? D->enc_until_[static_cast<std::size_t>(l - 1)] : -1, D->encoder_->step_of(name));
+        std::max(l > 0 ? D->enc_until_[static_cast<std::size_t>(l - 1)] : -1, enc.net->step_of(name));
     auto& m = D->mest_[static_cast<std::size_t>(l)];
     TERRALIGN_TRY_ASSIGN(m, nn::Network::plan(weights, "mestimator", width >> l, height >> l, threads, nn::Simd::Auto,
                                               nn::Memory::External, D->pool_));
@@ -157,13 +158,23 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
     D->ref_v_[static_cast<std::size_t>(l)] = D->ref_f_[static_cast<std::size_t>(l)].view();
     D->live_v_[static_cast<std::size_t>(l)] = D->live_f_[static_cast<std::size_t>(l)].view();
   }
-  std::size_t floats = D->encoder_->external_floats();
+  std::size_t floats = enc.net->external_floats();
   for (int l = 0; l < levels; ++l) floats = std::max(floats, D->mest_[static_cast<std::size_t>(l)]->external_floats());
   D->scratch_.assign(floats + 16, 0.0f);
   float* base = D->scratch_.data();
   while (reinterpret_cast<std::uintptr_t>(base) % 64 != 0) ++base;
-  D->encoder_->bind(base);
+  enc.net->bind(base);
   for (int l = 0; l < levels; ++l) D->mest_[static_cast<std::size_t>(l)]->bind(base);
+  if (threads == 2) {
+    // The live image's encoder, run beside enc_[0] (encode_pair): the same network in memory
+    // of its own, as enc_[0]'s description was checked above.
+    Encoder& live = D->enc_[1];
+    TERRALIGN_TRY_ASSIGN(live.net, nn::Network::plan(weights, "encoder", width, height, threads, nn::Simd::Auto,
+                                                     nn::Memory::Shared, D->pool_));
+    live.in = live.net->input("x");
+    for (int l = 0; l < levels; ++l) live.out[static_cast<std::size_t>(l)] = live.net->output("f" + std::to_string(l));
+    for (auto& solo : D->solo_) solo = std::make_unique<ThreadPool>(1);
+  }
   D->up_.resize(width, height, 1);  // used at each level's size, as the top-left part
   iclk::TrackerOptions o = options;
   o.levels = levels;
@@ -203,24 +214,44 @@ void DeepAligner::set_ground_floor_m(double m) {
   update_options([m](iclk::TrackerOptions& o) { o.ground_floor_m = m; });
 }
 
-void DeepAligner::encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out, int levels) {
-  nn::Tensor* x = enc_in_;
-  for_rows(*pool_, height_, [&](int y) {
+void DeepAligner::encode(const Encoder& e, ThreadPool& pool, ImageView<const float> rgb,
+                         std::array<ImageF, kMaxLevels>& out, int levels) {
+  nn::Tensor* x = e.in;
+  for_rows(pool, height_, [&](int y) {
     const float* s = rgb.row(y);
     for (int i = 0; i < width_; ++i, s += 3) {
       float* p = x->at(y, i);
       for (int c = 0; c < 3; ++c) p[c] = (s[c] / 255.0f - kMean[c]) / kStd[c];
     }
   });
-  encoder_->forward_until(enc_until_[static_cast<std::size_t>(levels - 1)]);
+  e.net->forward_until(enc_until_[static_cast<std::size_t>(levels - 1)], pool);
   for (int l = 0; l < levels; ++l) {
-    const nn::Tensor* f = enc_out_[static_cast<std::size_t>(l)];
+    const nn::Tensor* f = e.out[static_cast<std::size_t>(l)];
     ImageF& o = out[static_cast<std::size_t>(l)];
-    for_rows(*pool_, f->h, [&](int y) {
+    for_rows(pool, f->h, [&](int y) {
       for (int i = 0; i < f->w; ++i)
         for (int c = 0; c < channels_; ++c) o.at(i, y, c) = f->at(y, i)[c];
     });
   }
+}
+
+void DeepAligner::encode_pair(ImageView<const float> ref_rgb, ImageView<const float> live_rgb) {
+  if (!enc_[1].net) {
+    encode(enc_[0], *pool_, ref_rgb, ref_f_, levels_);
+    encode(enc_[0], *pool_, live_rgb, live_f_, levels_);
+    return;
+  }
+  // Task 0 on the calling thread, task 1 on the pool's other (ThreadPool::run).
+  struct Job {
+    DeepAligner* self;
+    ImageView<const float> rgb[2];
+  } job{this, {ref_rgb, live_rgb}};
+  pool_->run(2, [](void* c, int i) {
+    auto* j = static_cast<Job*>(c);
+    DeepAligner& d = *j->self;
+    const auto k = static_cast<std::size_t>(i);
+    d.encode(d.enc_[k], *d.solo_[k], j->rgb[k], k == 0 ? d.ref_f_ : d.live_f_, d.levels_);
+  }, &job);
 }
 
 void DeepAligner::weights(int level, ImageView<const float> abs_r, ImageView<const float> ref,
@@ -285,8 +316,8 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align_all(ImageView<con
   TERRALIGN_ASSERT(ref_rgb.width == width_ && ref_rgb.height == height_ && ref_rgb.channels == 3,
                    "DeepAligner::align, align_to: a reference of another size than the aligner was built for");
   const auto t0 = std::chrono::steady_clock::now();
-  encode(ref_rgb, ref_f_, levels_);
-  if (live_rgb) encode(*live_rgb, live_f_, levels_);
+  if (live_rgb) encode_pair(ref_rgb, *live_rgb);
+  else encode(enc_[0], *pool_, ref_rgb, ref_f_, levels_);
   live_encoded_ = true;
   ms_encoder_ = elapsed_ms(t0);
   ms_mest_ = 0;
@@ -307,7 +338,7 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::refine(ImageView<const 
                    "DeepAligner::refine: an image of another size than the aligner was built for");
   const auto t0 = std::chrono::steady_clock::now();
   levels = std::max(1, std::min(levels, levels_));
-  encode(ref_rgb, ref_f_, levels);  // the finest levels alone: the others do not run
+  encode(enc_[0], *pool_, ref_rgb, ref_f_, levels);  // the finest levels alone: the others do not run
   ms_encoder_ = elapsed_ms(t0);
   ms_mest_ = 0;
   return std::visit(

@@ -145,8 +145,20 @@ class DeepAligner : public iclk::LevelWeights {
 
  private:
   DeepAligner() = default;
-  // Encodes the finest `levels` levels into out (the encoder stops at the last step they need).
-  void encode(ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out, int levels);
+  // An encoder network and its tensors, looked up once: the input and each level's output.
+  struct Encoder {
+    std::unique_ptr<nn::Network> net;
+    nn::Tensor* in = nullptr;
+    std::array<const nn::Tensor*, kMaxLevels> out{};
+  };
+  // Encodes the finest `levels` levels of rgb by e on `pool` into out (the encoder stops at
+  // the last step they need).
+  void encode(const Encoder& e, ThreadPool& pool, ImageView<const float> rgb, std::array<ImageF, kMaxLevels>& out,
+              int levels);
+  // The reference into ref_f_ and the live image into live_f_, every level: at once, one
+  // image a thread, where the pool has two threads (enc_[1] exists); else one after the
+  // other, each on the whole pool.
+  void encode_pair(ImageView<const float> ref_rgb, ImageView<const float> live_rgb);
   // align()'s and align_to()'s solve over every level; live_rgb null: the last live features.
   const iclk::TrackResult<Warp>& align_all(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
                                            const ImageView<const float>* live_rgb, const iclk::Pinhole<float>& K,
@@ -168,16 +180,20 @@ class DeepAligner : public iclk::LevelWeights {
   // the caller's or own_pool_ (declared first: it outlives them).
   std::unique_ptr<ThreadPool> own_pool_;
   ThreadPool* pool_ = nullptr;
-  std::unique_ptr<nn::Network> encoder_;
-  std::array<std::unique_ptr<nn::Network>, kMaxLevels> mest_;
-  // The networks' tensors, looked up once: the encoder's input and level outputs, each
-  // level's M-estimator input and output.
-  nn::Tensor* enc_in_ = nullptr;
-  std::array<const nn::Tensor*, kMaxLevels> enc_out_{};
+  // enc_[0] encodes every reference, and the live image where enc_[1] does not exist. On a
+  // pool of two threads enc_[1], with memory of its own, encodes the live image while enc_[0]
+  // encodes the reference, each on one thread (solo_[i], a pool of one: the thread the task
+  // runs on): the coarse levels' layers are too small to split well over two threads, and
+  // each layer's hand-over costs a wait. The rows are computed as on the whole pool, so the
+  // bytes are the same.
+  std::array<Encoder, 2> enc_;
+  std::array<std::unique_ptr<ThreadPool>, 2> solo_;
   std::array<int, kMaxLevels> enc_until_{};  // [l]: the last encoder step levels 0..l need
+  std::array<std::unique_ptr<nn::Network>, kMaxLevels> mest_;
+  // Each level's M-estimator input and output, looked up once.
   std::array<nn::Tensor*, kMaxLevels> mest_in_{};
   std::array<const nn::Tensor*, kMaxLevels> mest_out_{};
-  std::vector<float> scratch_;  // every network's tensors (nn::Memory::External)
+  std::vector<float> scratch_;  // the tensors of every network but enc_[1] (nn::Memory::External)
   std::array<ImageF, kMaxLevels> ref_f_, live_f_, w_;
   std::array<ImageView<const float>, kMaxLevels> ref_v_, live_v_;
   ImageF up_;
