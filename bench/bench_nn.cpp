@@ -190,14 +190,17 @@ bool encoder_pair(const nn::WeightFile& weights) {
     for (auto& n : net) n->forward();
   };
   // Task i on thread i: network i on that thread's one-thread pool.
-  std::pair<std::unique_ptr<nn::Network>*, ThreadPool*> ctx{net, solo};
+  struct Ctx {
+    std::unique_ptr<nn::Network>* nets;
+    ThreadPool* solo;
+  } ctx{net, solo};
   auto at_once = [&] {
     pool.run(2, [](void* c, int i) {
-      auto* nets = static_cast<std::pair<std::unique_ptr<nn::Network>*, ThreadPool*>*>(c);
-      nets->first[i]->forward_until(1 << 30, nets->second[i]);
+      auto* x = static_cast<Ctx*>(c);
+      x->nets[i]->forward_until(1 << 30, x->solo[i]);
     }, &ctx);
   };
-  // The same bytes: each network's last output after either way.
+  // The same bytes either way, every level of each network.
   auto features = [&](int k) {  // every level's output, f0, f1, ...
     std::vector<float> v;
     for (int l = 0; const nn::Tensor* f = net[k]->output("f" + std::to_string(l)); ++l)
