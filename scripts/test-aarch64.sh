@@ -51,13 +51,17 @@ cmake -S . -B "$build" -DCMAKE_TOOLCHAIN_FILE=cmake/toolchains/aarch64-linux-gnu
   -DCMAKE_BUILD_TYPE=Release -DTERRALIGN_WERROR=ON -DTERRALIGN_BUILD_BENCH=OFF "${static[@]}" >/dev/null
 cmake --build "$build" -j "$jobs"
 THREADED_TESTS='abuse|no-data texels|learned tracker: the C|learned tracker: same bytes|rendered|no texture|1 and 2 threads|allocates nothing|parity with PyTorch|depth is the analytic|no cracks|ortho texel|bad poses|unknown layer|ray-caster|registration|flight|track reports|dataset|cli_render'
-# Three cases run the learned tracker end to end through the command line (a tracked flight,
-# eval across 11 years, eval on Christchurch): 7-11 s each natively, 10-30 minutes each under
-# qemu. On session 63's AVX2 host they took CI past its 90 minutes. They run natively in each
-# of the three x86 suites (release, ASan + UBSan, clang); the NEON code they go through is
-# tested here case by case (the kernels against their scalar twins, the learned tracker's
-# PyTorch parity, its 1-against-2-thread bytes, refinement, layers, a rendered flight tracked).
-NATIVE_ONLY="the learned tracker confirms a prediction that is already right|eval's default tilt prior: across 11 years|eval on Christchurch: the manifest's registration sigma"
+# The cases that run the command-line program over a flight or an eval (tests/test_track.cpp:
+# track, eval, align on a flight's frames) run natively only: 1-11 s each on x86, 1.5-30
+# minutes each under qemu, where on session 63's AVX2 host they took CI past its 90 minutes.
+# They run in each of the three x86 suites (release, ASan + UBSan, clang); their code is the
+# same on every ISA, and the NEON code they go through is tested here case by case (the
+# kernels against their scalar twins, the learned tracker's PyTorch parity, its
+# 1-against-2-thread bytes, refinement, layers, the abuse test's 1000 poses).
+NATIVE_ONLY="the learned tracker confirms a prediction that is already right|eval's default tilt prior: across 11 years"
+NATIVE_ONLY+="|eval on Christchurch: the manifest's registration sigma|a rendered flight is tracked, and a frame of pure noise"
+NATIVE_ONLY+="|align on a flight's first frame takes the learned tracker's converged tests|eval --noise/--blur/--exposure"
+NATIVE_ONLY+="|track starts from --init-velocity|track holds each answer's tilt to an attitude|track reports bad frames by name"
 if [ ${#static[@]} -gt 0 ]; then
   ctest --test-dir "$build" --output-on-failure -j "$jobs" --timeout 1800 -E "$NATIVE_ONLY"
 else
