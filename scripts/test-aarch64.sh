@@ -62,6 +62,13 @@ NATIVE_ONLY="the learned tracker confirms a prediction that is already right|eva
 NATIVE_ONLY+="|eval on Christchurch: the manifest's registration sigma|a rendered flight is tracked, and a frame of pure noise"
 NATIVE_ONLY+="|align on a flight's first frame takes the learned tracker's converged tests|eval --noise/--blur/--exposure"
 NATIVE_ONLY+="|track starts from --init-velocity|track holds each answer's tilt to an attitude|track reports bad frames by name"
+# Five of the learned tracker's library cases test what it decides (which layer is tried next,
+# which answers a refinement pass takes and how, the covariance's floor), not how a kernel
+# computes: 130-165 s each under qemu. The refinement's and the layers' cases for bytes and
+# allocations stay here, and go through the same NEON code.
+NATIVE_ONLY+="|layers: the next layer is tried only where the one before did not converge"
+NATIVE_ONLY+="|refinement: asked to, the learned tracker weighs every pixel alike|refinement: a reference rendered at the answer"
+NATIVE_ONLY+="|refinement: the learned tracker refines on three levels|the registration floor grows with the final residual"
 if [ ${#static[@]} -gt 0 ]; then
   ctest --test-dir "$build" --output-on-failure -j "$jobs" --timeout 1800 -E "$NATIVE_ONLY"
 else
