@@ -3,7 +3,8 @@
 // run), at 752x480 and 160x120, 1 and 2 threads; beside PyTorch on the CPU with two threads
 // (training/bench_torch_encoder.py, where /usr/bin/python3 has torch), with the speed ratio.
 // Then the shipped learned tracker's encoder and M-estimator per layer, Winograd's
-// convolutions against the direct kernel in the same run, and the M-estimator's
+// convolutions against the direct kernel in the same run, the encoder's two images of a pair
+// at once (one a thread) against one after the other, and the M-estimator's
 // one-output-channel last layer with the one-channel kernel against the block kernel.
 //   build/release/bench/bench_nn [--tracker]   (--tracker: only the learned tracker's part)
 #include <algorithm>
