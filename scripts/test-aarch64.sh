@@ -58,8 +58,8 @@ THREADED_TESTS='abuse|no-data texels|learned tracker: the C|learned tracker: sam
 # same on every ISA, and the NEON code they go through is tested here case by case (the
 # kernels against their scalar twins, the learned tracker's PyTorch parity, its
 # 1-against-2-thread bytes, refinement, layers, the abuse test's 1000 poses).
-NATIVE_ONLY="the learned tracker confirms a prediction that is already right|eval's default tilt prior: across 11 years"
-NATIVE_ONLY+="|eval on Christchurch: the manifest's registration sigma|a rendered flight is tracked, and a frame of pure noise"
+source scripts/end-to-end-cases.sh
+NATIVE_ONLY="$END_TO_END_CASES|a rendered flight is tracked, and a frame of pure noise"
 NATIVE_ONLY+="|align on a flight's first frame takes the learned tracker's converged tests|eval --noise/--blur/--exposure"
 NATIVE_ONLY+="|track starts from --init-velocity|track holds each answer's tilt to an attitude|track reports bad frames by name"
 # Five of the learned tracker's library cases test what it decides (which layer is tried next,

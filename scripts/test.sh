@@ -23,14 +23,10 @@ if [ "${TERRALIGN_SKIP_SANITIZE:-0}" != "1" ]; then
   cmake -S . -B build/sanitize -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRALIGN_SANITIZE=ON \
         -DTERRALIGN_WERROR=ON -DTERRALIGN_BUILD_BENCH=OFF
   cmake --build build/sanitize -j "$jobs"
-  # The three longest cases run the learned tracker end to end through the command line (a
-  # tracked flight, eval across 11 years, eval on Christchurch): 7-11 s each here, 144-206 s
-  # each under the sanitizers, over half of that suite's time, which on session 63's AVX2 host
-  # helped take CI past its 90 minutes. They run in the release suite above and in clang's;
-  # the same command-line paths stay under the sanitizers through the shorter track, eval
-  # and align cases.
-  slow="the learned tracker confirms a prediction that is already right|eval's default tilt prior: across 11 years"
-  slow+="|eval on Christchurch: the manifest's registration sigma"
+  # The three longest cases (scripts/end-to-end-cases.sh) are over half of this suite's time
+  # under the sanitizers; they run in the release suite above and in clang's, and the same
+  # command-line paths stay under the sanitizers through the shorter track, eval and align cases.
+  source scripts/end-to-end-cases.sh
   (cd build/sanitize && ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
-     ctest --output-on-failure -j "$jobs" -E "$slow")
+     ctest --output-on-failure -j "$jobs" -E "$END_TO_END_CASES")
 fi
