@@ -333,7 +333,7 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align_all(ImageView<con
 const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::refine(ImageView<const float> ref_rgb,
                                                                 ImageView<const float> ref_depth,
                                                                 const iclk::Pinhole<float>& K, int levels,
-                                                                bool learned_weights) {
+                                                                bool learned_weights, bool agreement) {
   TERRALIGN_ASSERT(ref_rgb.width == width_ && ref_rgb.height == height_ && ref_rgb.channels == 3,
                    "DeepAligner::refine: an image of another size than the aligner was built for");
   const auto t0 = std::chrono::steady_clock::now();
@@ -344,7 +344,12 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::refine(ImageView<const 
   return std::visit(
       [&](auto& t) -> const iclk::TrackResult<Warp>& {
         const iclk::TrackerOptions keep = t->options();
-        t->set_options(iclk::refinement_options(keep, levels));
+        iclk::TrackerOptions o = iclk::refinement_options(keep, levels);
+        if (agreement) {
+          o.agree_px = keep.agree_px;
+          o.max_disagreement_px = keep.max_disagreement_px;
+        }
+        t->set_options(o);
         // The live levels are the last align()'s, already in the solver.
         // Without the M-estimator every pixel weighs 1 (the options' robust loss is None).
         const auto& r = t->align_levels(ref_v_.data(), ref_depth, nullptr, K, iclk::SE3<float>::identity(),

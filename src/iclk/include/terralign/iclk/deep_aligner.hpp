@@ -123,8 +123,13 @@ class DeepAligner : public iclk::LevelWeights {
   // `learned_weights` false: every pixel weighs the same, and the M-estimator (at the finest
   // level about a third of a pass's time) does not run; for answers whose image already agrees
   // with the map, where it has nothing to reject (the localizer's kRefineUniformMaxResidual).
+  // `agreement` true: the pass keeps the agreement test of the options (agree_px,
+  // max_disagreement_px; no other converged test), as a second look at an answer that failed
+  // it runs (cli::Localizer::set_second_look); its failure is the test's, with the answer
+  // unconfirmed (iclk::TrackResult::unconfirmed).
   const iclk::TrackResult<Warp>& refine(ImageView<const float> ref_rgb, ImageView<const float> ref_depth,
-                                        const iclk::Pinhole<float>& K, int levels, bool learned_weights = true);
+                                        const iclk::Pinhole<float>& K, int levels, bool learned_weights = true,
+                                        bool agreement = false);
   void set_iterations(int n);
   // The map's own error on the ground (iclk::TrackerOptions::ground_floor_m), for a caller
   // that aligns to references of several layers, each with its own.
