@@ -181,6 +181,9 @@ Result<Refinement> parse_refine(const Args& args) {
       return Error{"--refine-uniform '" + args.get("refine-uniform") + "' must be a final residual in [0, 2]"};
     r.uniform_max_residual = u.value();
   }
+  const std::string look = args.get("second-look", kDefaultSecondLook ? "yes" : "no");
+  if (look != "yes" && look != "no") return Error{"--second-look '" + look + "' must be yes or no"};
+  r.second_look = look == "yes";
   return r;
 }
 

@@ -91,8 +91,10 @@ struct Refinement {
   int levels = 0;           // 0: the localizer's (its tracker's default)
   double max_residual = 0;  // 0: the localizer's
   double uniform_max_residual = kRefineUniformOff;
+  bool second_look = kDefaultSecondLook;  // --second-look yes|no
   void apply(Localizer& loc) const {
     loc.set_refinement(passes);
+    loc.set_second_look(second_look);
     loc.set_refinement_scope(levels > 0 ? levels : loc.refinement_levels(),
                              max_residual > 0 ? max_residual : loc.refinement_max_residual());
     loc.set_uniform_refinement(uniform_max_residual);

@@ -43,7 +43,7 @@ nlohmann::json pose_json(const geo::Pose& p) {
 
 int run_align(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "image", "prior", "layer", "method", "iterations", "robust", "threads", "weights",
-                                 "tilt-prior", "registration-floor", "registration-floor-per-residual", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "min-sharpness",
+                                 "tilt-prior", "registration-floor", "registration-floor-per-residual", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "min-sharpness",
                                  "max-disagreement", "agree-px", "coarse-search", "min-step"}, {});
   if (!args.ok()) return usage_error("align", args.error());
   for (const char* k : {"map", "camera", "image", "prior", "layer"})
@@ -131,6 +131,14 @@ int run_align(const std::vector<std::string>& argv) {
   j["uniform_refinements"] = out->uniform_refinements;
   // The converged tests' measures (0 where not measured; where the second start failed, null).
   j["disagreement_px"] = out->disagreement_px;
+  // The learned tracker's second look (--second-look), where it ran: whether it confirmed the
+  // answer, and its own agreement test's measure (null where its second start failed).
+  if (!std::isnan(out->second_look_disagreement_px)) {
+    j["second_look"] = out->second_look;
+    j["second_look_disagreement_px"] = std::isfinite(out->second_look_disagreement_px)
+                                           ? nlohmann::json(out->second_look_disagreement_px)
+                                           : nlohmann::json(nullptr);
+  }
   j["sharpness"] = out->sharpness;
   j["residual_correlation"] = out->residual_correlation;
   j["covariance_inflation"] = out->covariance_inflation;

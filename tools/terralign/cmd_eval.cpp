@@ -87,6 +87,8 @@ struct Method {
   std::vector<Eigen::Vector3d> truth_position;  // the true camera centre, map x y z
   std::vector<char> ok;  // reported converged
   std::vector<double> cost_init, cost_final, residual_init, residual_final, sharpness, disagreement;
+  std::vector<char> second_look;                  // the learned tracker's second look confirmed the answer
+  std::vector<double> second_look_disagreement;  // that look's measure (NaN: it did not run)
   std::vector<double> sigma_position, sigma_angle, residual_correlation;  // the covariance's (m, deg: root of its trace)
   // The answer's 6-DoF error against that covariance, e^T P^-1 e (track's NEES: world-axis
   // rotation and position error); NaN where no covariance (not converged).
@@ -132,7 +134,7 @@ int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
                                  "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "input-scale", "nn-levels", "imu-tilt", "tilt-prior",
-                                 "prior-scale", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "blur", "noise", "exposure"}, {});
+                                 "prior-scale", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "blur", "noise", "exposure"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
@@ -314,6 +316,8 @@ int run_eval(const std::vector<std::string>& argv) {
         m.residual_final.push_back(out->residual_final);
         m.sharpness.push_back(out->sharpness);
         m.disagreement.push_back(out->disagreement_px);
+        m.second_look.push_back(out->second_look);
+        m.second_look_disagreement.push_back(out->second_look_disagreement_px);
         // (no covariance where not converged: NaN, left out of the JSON)
         const Eigen::Matrix<double, 6, 6>& P = out->covariance;
         m.sigma_angle.push_back(out->converged ? std::sqrt(P.topLeftCorner<3, 3>().trace()) * 180.0 / kPi : NAN);
@@ -425,6 +429,11 @@ int run_eval(const std::vector<std::string>& argv) {
         sj["residual_final"] = m.residual_final[k];
         sj["sharpness"] = m.sharpness[k];
         if (std::isfinite(m.disagreement[k])) sj["disagreement_px"] = m.disagreement[k];  // else the second start failed
+        if (!std::isnan(m.second_look_disagreement[k])) {  // a second look ran (null: its second start failed)
+          sj["second_look"] = m.second_look[k] != 0;
+          sj["second_look_disagreement_px"] =
+              std::isfinite(m.second_look_disagreement[k]) ? nlohmann::json(m.second_look_disagreement[k]) : nlohmann::json(nullptr);
+        }
         if (std::isfinite(m.sigma_position[k])) {
           sj["sigma_position_m"] = m.sigma_position[k];
           sj["sigma_angle_deg"] = m.sigma_angle[k];

@@ -121,7 +121,7 @@ int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
                                  "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor",
                                  "registration-floor-per-residual",
-                                 "filter", "accel-sigma", "gate", "init-sigma", "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "nn-levels", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "acquire"}, {});
+                                 "filter", "accel-sigma", "gate", "init-sigma", "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "nn-levels", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "acquire"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});

@@ -23,7 +23,7 @@ const std::vector<Command>& commands() {
        "                       --layer NAME[,NAME...] [--method classic|nn] [--iterations N] [--robust none|huber|tukey]\n"
        "                       [--threads N] [--weights FILE] [--tilt-prior DEG] [--registration-floor PX]\n"
        "                       [--registration-floor-per-residual PX] [--refine N] [--refine-levels L]\n"
-       "                       [--refine-max-residual R] [--refine-uniform R]\n"
+       "                       [--refine-max-residual R] [--refine-uniform R] [--second-look yes|no]\n"
        "                       [--min-sharpness S] [--max-disagreement PX] [--agree-px PX]\n"
        "                       [--coarse-search PX] [--min-step PX]\n\n"
        "Renders LAYER at the prior, aligns the image to it (inverse-compositional LM on SE(3),\n"
@@ -67,6 +67,13 @@ const std::vector<Command>& commands() {
        "M-estimator, where the answer refined ended at a final residual of at most R (session 37's\n"
        "rule, 0.5: same-year renders come out as precise and a refined alignment takes 2-6 ms\n"
        "less; real frames ended 0.6-1.6 m further from their surveyed pose; default off).\n"
+       "--second-look yes|no: where the learned tracker's first answer failed the agreement test\n"
+       "alone (a start nearby settled elsewhere), the reference is rendered again at that answer\n"
+       "and the first refinement pass aligns from it with the same test; if it passes, the answer\n"
+       "is converged (\"reason\" says so, and the JSON's \"second_look\" and\n"
+       "\"second_look_disagreement_px\" are there wherever it ran). Default yes (session 64: across\n"
+       "eleven years 9-13 points more answers converged and within 5 px, 2-3 more wrong ones passed\n"
+       "of 200; docs/history.md); it needs --refine 1 or more.\n"
        "--min-sharpness S, --max-disagreement PX, --agree-px PX, --coarse-search PX and\n"
        "--min-step PX: as eval's (the converged tests, the search before the coarsest level, the\n"
        "finest level's stop).\n",
@@ -80,7 +87,7 @@ const std::vector<Command>& commands() {
        "                      [--coarse-search PX] [--min-step PX] [--input-scale S] [--nn-levels L]\n"
        "                      [--imu-tilt DEG] [--tilt-prior DEG] [--prior-scale F] [--refine N]\n"
        "                      [--refine-levels L] [--refine-max-residual R] [--refine-uniform R]\n"
-       "                      [--noise SIGMA] [--blur R] [--exposure F]\n\n"
+       "                      [--second-look yes|no] [--noise SIGMA] [--blur R] [--exposure F]\n\n"
        "Samples N true poses with the whole footprint on the map (altitude above ground in\n"
        "[LO, HI] m, tilt off nadir up to DEG, any heading), perturbs each for the prior (rotation\n"
        "about a random axis by U[0, 6] deg, translation by U[0, 0.13 x altitude] m in a random\n"
@@ -123,7 +130,8 @@ const std::vector<Command>& commands() {
        "covariance, as track's; per method its mean and median, the table's last column: 6 where\n"
        "the covariance is honest).\n"
        "--refine N: both trackers' refinement passes, as align's (default 2; the time includes them);\n"
-       "--refine-levels L, --refine-max-residual R and --refine-uniform R: as align's.\n"
+       "--refine-levels L, --refine-max-residual R, --refine-uniform R and --second-look yes|no:\n"
+       "as align's.\n"
        "--noise, --blur and --exposure degrade each query as flight's frames (a blur of radius R px,\n"
        "a gain in 1 +- F, then Gaussian noise of SIGMA grey levels; each pose's own draws), so that\n"
        "the trackers see a camera's image rather than a clean render; none by default.\n",
@@ -152,7 +160,7 @@ const std::vector<Command>& commands() {
        "                       [--coarse-search PX] [--min-step PX] [--nn-levels L] [--refine N]\n"
        "                       [--refine-levels L] [--refine-max-residual R] [--refine-uniform R]\n"
        "                       [--filter kalman|none] [--accel-sigma A] [--gate D2]\n"
-       "                       [--init-sigma M] [--acquire yes|no]\n\n"
+       "                       [--init-sigma M] [--acquire yes|no] [--second-look yes|no]\n\n"
        "LIST has 'timestamp image-path' lines; --init is the pose at the first frame's time.\n"
        "--filter kalman (the default; auto is the same): each frame's prior is a Kalman filter's\n"
        "prediction (pose, velocity and turn rate; constant velocity and turn rate, white\n"
@@ -203,7 +211,8 @@ const std::vector<Command>& commands() {
        "camera's year the first frames of a track started from an IMU's tilt; across years, where\n"
        "the learned tracker's passes have no residual bound, nearly every frame (the README's\n"
        "flights: 33-40 of 40, at about twice the iterations).\n"
-       "--refine-levels L, --refine-max-residual R and --refine-uniform R: as align's.\n",
+       "--refine-levels L, --refine-max-residual R, --refine-uniform R and --second-look yes|no:\n"
+       "as align's.\n",
        run_track},
       {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
        "usage: terralign dataset --map MAP.json --camera CAMERA.json --count N --seed S --out DIR\n"

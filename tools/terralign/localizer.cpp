@@ -146,7 +146,8 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
                                                                           const geo::Pose& ref_pose,
                                                                           const geo::Pose& prior,
                                                                           const Eigen::Quaterniond* attitude,
-                                                                          bool first, bool learned_weights) {
+                                                                          bool first, bool learned_weights,
+                                                                          bool agreement) {
   const iclk::Pinhole<float> K{static_cast<float>(work_.fx), static_cast<float>(work_.fy), static_cast<float>(work_.cx),
                                static_cast<float>(work_.cy)};
   // The reference camera is ref_pose's: the world's up seen from it (the tilt prior's axis),
@@ -174,7 +175,7 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
     return r;
   }
   deep_->set_up(up, tilt);
-  if (!first) return deep_->refine(ref_rgb_.view(), depth_.view(), K, refine_levels_, learned_weights);
+  if (!first) return deep_->refine(ref_rgb_.view(), depth_.view(), K, refine_levels_, learned_weights, agreement);
   // A later layer: the live image's features are those the first layer's alignment encoded.
   if (live_kept_) return deep_->align_to(ref_rgb_.view(), depth_.view(), K, iclk::SE3<float>::identity());
   live_kept_ = true;
@@ -210,6 +211,8 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
     out.T_live_ref = iclk::SE3<double>::identity();
     out.covariance.setZero();
     out.uniform_refinements = 0;
+    out.second_look = false;
+    out.second_look_disagreement_px = NAN;
     const int iterations_before = out.iterations;
     // Every layer sees the same ground from the same prior: one that cannot be rendered
     // there is an error of the first (the pose off the map, say).
@@ -230,6 +233,7 @@ Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::
   out.converged = false;
   geo::Pose ref_pose = prior;                                      // where the reference is rendered
   iclk::SE3<double> T_ref_prior = iclk::SE3<double>::identity();  // and its place against the prior
+  bool second_look = false;  // this pass looks again at the first pass's unconfirmed answer
   for (int pass = 0; pass <= refine_passes_; ++pass) {
     // A refinement pass that cannot render or does not converge leaves the previous pass's
     // answer: of the converged answers such passes failed on seed 7, 16 of 17 were right (the
@@ -242,7 +246,7 @@ Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::
     // Where asked (set_uniform_refinement), the learned tracker's refinement pass of an answer
     // whose image agrees with the map weighs every pixel alike.
     const bool uniform = deep_ && pass > 0 && out.residual_final <= refine_uniform_max_residual_;
-    const auto& r = align_once(live, ref_pose, prior, attitude, pass == 0, !uniform);
+    const auto& r = align_once(live, ref_pose, prior, attitude, pass == 0, !uniform, second_look);
     out.iterations += r.iterations;
     out.ms_pyramid += r.ms_pyramid;
     out.ms_jacobian += r.ms_jacobian;
@@ -251,7 +255,10 @@ Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::
       out.ms_encoder += deep_->ms_encoder();
       out.ms_mestimator += deep_->ms_mestimator();
     }
+    if (second_look) out.second_look_disagreement_px = r.disagreement_px;
     if (pass > 0 && !r.converged) break;
+    if (second_look) out.second_look = true;
+    second_look = false;
     if (pass == 0) {  // the start, and the tests' measures (a refinement pass has none)
       out.cost_init = r.cost_init;
       out.residual_init = r.residual_init;
@@ -278,9 +285,21 @@ Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::
       cov(5, 5) += dem_variance_;
     };
     if (!r.converged) {  // failure as data: the prior (T_W_C), no covariance
-      if (pass == 0 && r.unconfirmed && !out.unconfirmed) {
-        out.unconfirmed = true;
-        in_world(r.unconfirmed_params, r.unconfirmed_covariance, out.T_W_C_unconfirmed, out.covariance_unconfirmed);
+      if (pass == 0 && r.unconfirmed) {
+        geo::Pose at;
+        Eigen::Matrix<double, 6, 6> cov;
+        in_world(r.unconfirmed_params, r.unconfirmed_covariance, at, cov);
+        if (!out.unconfirmed) {
+          out.unconfirmed = true;
+          out.T_W_C_unconfirmed = at;
+          out.covariance_unconfirmed = cov;
+        }
+        if (deep_ && second_look_ && pass < refine_passes_) {  // set_second_look
+          ref_pose = at;
+          T_ref_prior = r.unconfirmed_params.cast<double>();
+          second_look = true;
+          continue;
+        }
       }
       return Ok{};
     }
@@ -295,6 +314,7 @@ Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::
     ref_pose = out.T_W_C;
     T_ref_prior = out.T_live_ref;
   }
+  if (out.second_look) out.reason = "converged at a second look (a reference rendered at the first answer)";
   return Ok{};
 }
 

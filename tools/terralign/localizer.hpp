@@ -42,6 +42,12 @@ struct LocalizeOutput {
   bool unconfirmed = false;
   geo::Pose T_W_C_unconfirmed;
   Eigen::Matrix<double, 6, 6> covariance_unconfirmed = Eigen::Matrix<double, 6, 6>::Zero();
+  // The learned tracker's second look (Localizer::set_second_look) at the answer layer's
+  // unconfirmed first answer: whether it confirmed the answer (then converged), and where it
+  // ran, the disagreement its own agreement test measured (NaN where it did not run, INFINITY
+  // where its second start failed).
+  bool second_look = false;
+  double second_look_disagreement_px = NAN;
   int iterations = 0;
   double cost_init = 0, cost_final = 0;  // mean squared residual of the normalised images
   double residual_init = 0, residual_final = 0;  // the same unweighted (iclk::TrackResult)
@@ -101,6 +107,11 @@ constexpr double kClassicMaxDisagreementPx = 0.95;
 // the first frames of a track started from an IMU's tilt 0.6 m off).
 constexpr int kDefaultRefinePasses = 2;
 constexpr double kRefineMinDeg = 0.05;
+// The learned tracker's second look at an answer that failed the agreement test alone
+// (Localizer::set_second_look; the command line's --second-look, docs/history.md, "Session
+// 64"): 2009 -> 2020 on 200 poses, seeds 7 / 13, placed 66.5 / 63.5 -> 75.5 / 76.5 % of its
+// answers converged and within 5 px, with 2 / 2 -> 5 / 4 wrong ones passed.
+constexpr bool kDefaultSecondLook = true;
 // The classical tracker's passes (Localizer::set_refinement_scope): the finest level alone (one,
 // two or three levels gave the same answers on 200 same-year poses), and only where the image
 // agrees with the map, a final residual (LocalizeOutput::residual_final, normalised images:
@@ -191,6 +202,15 @@ class Localizer {
   // ended at a final residual of at most `max_residual` (kRefineUniformMaxResidual: session
   // 37's rule); kRefineUniformOff (the default): every pass with it.
   void set_uniform_refinement(double max_residual) { refine_uniform_max_residual_ = max_residual; }
+  // The learned tracker's second look: where a layer's first answer failed the agreement test
+  // alone (iclk::TrackResult::unconfirmed), the reference is rendered again at that answer and
+  // the first refinement pass aligns from it with the agreement test in it (the first pass's
+  // threshold). If that pass converges the answer is confirmed: converged, its later passes
+  // and covariance as any refined answer's. It is one of set_refinement's passes (none where
+  // passes is 0). A first answer that failed it is a first pass's failure, as before. The
+  // classical tracker has none. Default: off (kDefaultSecondLook is the command line's).
+  void set_second_look(bool on) { second_look_ = on; }
+  bool second_look() const { return second_look_; }
   // The last localize()'s alignments, one a layer tried, in the order tried (its
   // LocalizeOutput::layers_tried of them; sized at create(): no allocation a frame).
   const LayerAttempt* attempts() const { return attempts_.data(); }
@@ -219,11 +239,12 @@ class Localizer {
   const iclk::TrackResult<iclk::SE3DepthWarp<float>>& align_once(ImageView<const std::uint8_t> live,
                                                                  const geo::Pose& ref_pose, const geo::Pose& prior,
                                                                  const Eigen::Quaterniond* attitude, bool first,
-                                                                 bool learned_weights);
+                                                                 bool learned_weights, bool agreement);
   double dem_variance_ = 0;  // the DEM's vertical_sigma_m squared (m^2)
   int refine_passes_ = 0, refine_levels_ = kRefineLevels;
   double refine_max_residual_ = kRefineMaxResidual;
   double refine_uniform_max_residual_ = kRefineUniformOff;
+  bool second_look_ = false;
   geo::CameraModel camera_, work_;
   // Learned: one pool for the renderer and the aligner, which run one after the other
   // (declared before both: it outlives them). The classical tracker runs on the caller's thread.
