@@ -5,8 +5,8 @@
 // registration floor that grows with the final residual (session 29, as refinement's bound).
 #include <cmath>
 #include <cstring>
-#include <string>
 #include <memory>
+#include <string>
 
 #include <doctest/doctest.h>
 
@@ -336,14 +336,17 @@ TEST_CASE("second look: an answer that failed the agreement test alone is confir
   const Scene s = scene();
   auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
   REQUIRE(weights.ok());
-  auto run = [&](double threshold_px, bool second_look) {
+  auto make = [&](double threshold_px, bool second_look) {
     iclk::TrackerOptions opt;
     opt.max_disagreement_px = threshold_px;
     auto loc = cli::Localizer::create(s.map, s.cam, "2016", opt, 2, &weights.value());
     REQUIRE(loc.ok());
     loc.value()->set_refinement(cli::kDefaultRefinePasses);
     loc.value()->set_second_look(second_look);
-    auto out = loc.value()->localize(s.live_2017.view(), s.prior);
+    return std::move(loc.value());
+  };
+  auto run = [&](double threshold_px, bool second_look) {
+    auto out = make(threshold_px, second_look)->localize(s.live_2017.view(), s.prior);
     REQUIRE(out.ok());
     return out.value();
   };
@@ -387,18 +390,13 @@ TEST_CASE("second look: an answer that failed the agreement test alone is confir
   CHECK(moved_m < 5.0);
   // No heap allocation a frame, the second look's render and pass included.
   {
-    iclk::TrackerOptions opt;
-    opt.max_disagreement_px = between;
-    auto loc = cli::Localizer::create(s.map, s.cam, "2016", opt, 2, &weights.value());
-    REQUIRE(loc.ok());
-    loc.value()->set_refinement(cli::kDefaultRefinePasses);
-    loc.value()->set_second_look(true);
-    REQUIRE(loc.value()->localize(s.live_2017.view(), s.prior).ok());  // the first call may size lazily
+    auto loc = make(between, true);
+    REQUIRE(loc->localize(s.live_2017.view(), s.prior).ok());  // the first call may size lazily
     long allocations = 0;
     bool confirmed = false;
     {
       test::AllocationCounter count;
-      auto again = loc.value()->localize(s.live_2017.view(), s.prior);
+      auto again = loc->localize(s.live_2017.view(), s.prior);
       allocations = count.allocations();
       REQUIRE(again.ok());
       confirmed = again->second_look;
