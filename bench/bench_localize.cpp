@@ -2,8 +2,9 @@
 // and `track` run it: the classical tracker (20 iterations per level) and the learned one
 // (20 iterations per level, without and with one re-rendered refinement pass: on its default
 // three levels, and on the finest under the classical bound, its scope before session 58;
-// that pass is also the second look at a first answer that failed the agreement test alone,
-// as the command line runs it since session 64) for each weight file given, on the same pairs (NAIP 2016 map,
+// that pass would also be the second look at a first answer that failed the agreement test
+// alone, where the command line's default cli::kDefaultSecondLook (off) turns it on) for each
+// weight file given, on the same pairs (NAIP 2016 map,
 // 2017 camera images, the eval protocol's priors: 700-900 m, tilt 10 deg, seed 3), 2 threads,
 // each pair by every method in turn. Prints medians per stage, frames per second, and the
 // ratio to the classical tracker.
@@ -192,7 +193,7 @@ int main(int argc, char** argv) {
         return 1;
       }
       loc.value()->set_refinement(refine);
-      loc.value()->set_second_look(cli::kDefaultSecondLook);  // as the command line runs it (it needs a pass)
+      loc.value()->set_second_look(cli::kDefaultSecondLook);  // the command line's default (it needs a pass)
       if (variant == kRefinedFinest) loc.value()->set_refinement_scope(cli::kRefineLevels, cli::kRefineMaxResidual);
       Method M;
       M.name = name;
