@@ -80,7 +80,8 @@ def main():
     ap.add_argument("--tl", default=os.path.join(ROOT, "build/release/tools/terralign/terralign"))
     ap.add_argument("--method", default="nn", choices=["nn", "classic"])
     ap.add_argument("--tag", default="run", help="name of this set of tracks (their files)")
-    ap.add_argument("--rows", default="", help="comma-separated row labels to run (default all)")
+    ap.add_argument("--rows", default="", help="comma-separated row labels to run (default all; with --random, "
+                    "a label without its flight, e.g. '11 years', runs that row of every flight)")
     ap.add_argument("extra", nargs="*", help="options passed to every track (after --)")
     ap.add_argument("--check", action="store_true", help="the check flight (README) instead of the lawnmower")
     ap.add_argument("--random", type=int, default=0, metavar="N",
@@ -95,21 +96,26 @@ def main():
         rows = [(label, "check" + fl[4:], layer) for label, fl, layer in ROWS if not fl.startswith("circle")]
     if a.random:
         flights, rows = random_flights(a.out, a.random, a.seed)
+    wanted = set(a.rows.split(",")) if a.rows else None
+
+    def runs(label):
+        return not wanted or label in wanted or label.split(", flight")[0] in wanted
+
+    needed = {flight for label, flight, _ in rows if runs(label)}  # render only what the rows track
     for name, (layer, extra) in flights.items():
         d = os.path.join(a.out, name)
-        if os.path.exists(os.path.join(d, "truth.txt")):
+        if name not in needed or os.path.exists(os.path.join(d, "truth.txt")):
             continue
         opts = {"--path": "lawnmower", "--speed": "25", "--rate": "1", "--duration": "40", "--noise": "2", "--blur": "1",
                 "--exposure": "0.1", "--imu-tilt": "0.5"}
         opts.update(dict(zip(extra[::2], extra[1::2])))
         run([a.tl, "flight", "--map", MAP, "--camera", CAM, "--layer", layer, "--out", d] +
             [x for kv in opts.items() for x in kv])
-    wanted = set(a.rows.split(",")) if a.rows else None
     print("| flight | IMU | converged | refused (resets) | position RMSE / max m | angle RMSE deg | NEES mean / median |")
     print("|---|---|---|---|---|---|---|")
     results = {}
     for label, flight, layer in rows:
-        if wanted and label not in wanted:
+        if not runs(label):
             continue
         d = os.path.join(a.out, flight)
         with open(os.path.join(d, "truth.txt")) as f:
