@@ -193,7 +193,8 @@ int main(int argc, char** argv) {
         return 1;
       }
       loc.value()->set_refinement(refine);
-      loc.value()->set_second_look(cli::kDefaultSecondLook);  // the command line's default (it needs a pass)
+      // The command line's default (it needs a pass).
+      loc.value()->set_second_look(cli::kDefaultSecondLook, cli::kDefaultSecondLookMaxDisagreement);
       if (variant == kRefinedFinest) loc.value()->set_refinement_scope(cli::kRefineLevels, cli::kRefineMaxResidual);
       Method M;
       M.name = name;

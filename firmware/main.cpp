@@ -154,7 +154,7 @@ extern "C" int firmware_main() {
       return 2;
     }
     loc.value()->set_refinement(cli::kDefaultRefinePasses);  // as the command line runs it
-    loc.value()->set_second_look(cli::kDefaultSecondLook);
+    loc.value()->set_second_look(cli::kDefaultSecondLook, cli::kDefaultSecondLookMaxDisagreement);
     run.arena_after_setup = fw::arena_stats().used - before_setup;
     fw::print("\n%s: set-up took %u bytes of working memory\n", run.name, static_cast<unsigned>(run.arena_after_setup));
     for (int year = 0; year < 2; ++year)

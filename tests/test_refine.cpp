@@ -332,21 +332,22 @@ TEST_CASE("second look: an answer that failed the agreement test alone is confir
   // threshold no second start meets (1e-6 px): both looks fail, the frame is a failure as
   // before (the prior, not converged) and its unconfirmed answer is the first pass's, bit for
   // bit; the second look's own disagreement is measured. Then with the threshold between the
-  // two looks' disagreements: the second look confirms what the first could not.
+  // two looks' disagreements: the second look confirms what the first could not, unless its
+  // own threshold is below its disagreement.
   const Scene s = scene();
   auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
   REQUIRE(weights.ok());
-  auto make = [&](double threshold_px, bool second_look) {
+  auto make = [&](double threshold_px, bool second_look, double second_threshold_px = cli::kSecondLookAnyDisagreement) {
     iclk::TrackerOptions opt;
     opt.max_disagreement_px = threshold_px;
     auto loc = cli::Localizer::create(s.map, s.cam, "2016", opt, 2, &weights.value());
     REQUIRE(loc.ok());
     loc.value()->set_refinement(cli::kDefaultRefinePasses);
-    loc.value()->set_second_look(second_look);
+    loc.value()->set_second_look(second_look, second_threshold_px);
     return std::move(loc.value());
   };
-  auto run = [&](double threshold_px, bool second_look) {
-    auto out = make(threshold_px, second_look)->localize(s.live_2017.view(), s.prior);
+  auto run = [&](double threshold_px, bool second_look, double second_threshold_px = cli::kSecondLookAnyDisagreement) {
+    auto out = make(threshold_px, second_look, second_threshold_px)->localize(s.live_2017.view(), s.prior);
     REQUIRE(out.ok());
     return out.value();
   };
@@ -388,6 +389,19 @@ TEST_CASE("second look: an answer that failed the agreement test alone is confir
   // does not search. Bounds: nearer than the prior (12 m) and within 5 m of the first answer.
   CHECK(error_m < (s.prior.t_W_C - s.truth.t_W_C).norm());
   CHECK(moved_m < 5.0);
+  // The second look's own, tighter threshold (--second-look-max-disagreement): below its
+  // measured disagreement it fails as if its pass had, and the first pass's failure stands bit
+  // for bit; at it, it confirms as before.
+  const cli::LocalizeOutput tight = run(between, true, 0.5 * second), at = run(between, true, second);
+  CHECK_FALSE(tight.converged);
+  CHECK(tight.unconfirmed);
+  CHECK_FALSE(tight.second_look);
+  CHECK(tight.second_look_disagreement_px == second);
+  CHECK(std::string(tight.reason) == once.reason);
+  CHECK((tight.T_W_C.t_W_C - s.prior.t_W_C).norm() == 0);
+  CHECK(std::memcmp(tight.T_W_C_unconfirmed.t_W_C.data(), once.T_W_C_unconfirmed.t_W_C.data(), sizeof(double) * 3) == 0);
+  CHECK(at.second_look);
+  CHECK(std::memcmp(at.T_W_C.t_W_C.data(), looked.T_W_C.t_W_C.data(), sizeof(double) * 3) == 0);
   // No heap allocation a frame, the second look's render and pass included.
   {
     auto loc = make(between, true);

@@ -240,6 +240,24 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
     std::ifstream aj(dir + "/acquired.json");
     CHECK(nlohmann::json::parse(aj)["acquired"].get<int>() == 5);
   }
+  // --second-look start: while the track starts (fewer than two converged answers) each such
+  // frame takes a second look, its reference rendered at the answer; with a threshold no look
+  // meets, each look fails, so every frame reports the same estimate to the digit, taken
+  // unconfirmed as above, after more iterations (the second look's pass). track alone takes
+  // start; align and eval refuse it.
+  REQUIRE(run(five + "--max-disagreement 1e-9 --second-look start") == 0);
+  const auto looked = csv_rows(dir + "/sharp.csv");
+  REQUIRE(looked.size() == acquired.size());
+  for (std::size_t i = 0; i < looked.size(); ++i) {
+    CAPTURE(i);
+    for (int c = 1; c <= 7; ++c) CHECK(looked[i][static_cast<std::size_t>(c)] == acquired[i][static_cast<std::size_t>(c)]);
+    CHECK(looked[i][9] == acquired[i][9]);
+    CHECK(std::stoi(looked[i][10]) > std::stoi(acquired[i][10]));
+  }
+  check_refused(cmd + "--second-look maybe", dir + "/err.txt", "--second-look 'maybe' must be yes or no (or start)");
+  check_refused(tl + " eval --map " + map + " --camera " + cam +
+                    " --ref-layer 2016 --query-layer 2016 --count 1 --seed 1 --altitude 700:900 --second-look start",
+                dir + "/err.txt", "--second-look 'start' must be yes or no");
   check_refused(cmd + "--acquire maybe", dir + "/err.txt", "--acquire 'maybe' must be yes or no");
   check_refused(cmd + "--min-sharpness 1001", dir + "/err.txt", "--min-sharpness '1001' must be in [-1000, 1000]");
   check_refused(cmd + "--max-disagreement -1001", dir + "/err.txt", "--max-disagreement '-1001' must be in [-1000, 1000]");

@@ -159,7 +159,7 @@ Result<TrackFilterOptions> parse_track_filter(const Args& args) {
   return opt;
 }
 
-Result<Refinement> parse_refine(const Args& args) {
+Result<Refinement> parse_refine(const Args& args, bool tracking) {
   Refinement r;
   auto n = args.get_int("refine", kDefaultRefinePasses, 0, 5);
   if (!n.ok()) return Error{"--refine '" + args.get("refine") + "' must be 0 to 5 re-rendered passes"};
@@ -181,8 +181,21 @@ Result<Refinement> parse_refine(const Args& args) {
       return Error{"--refine-uniform '" + args.get("refine-uniform") + "' must be a final residual in [0, 2]"};
     r.uniform_max_residual = u.value();
   }
+  if (args.has("second-look-max-disagreement")) {
+    auto m = args.get_double("second-look-max-disagreement", 0.0);
+    if (!m.ok() || !(m.value() > 0 && m.value() <= 1000))
+      return Error{"--second-look-max-disagreement '" + args.get("second-look-max-disagreement") +
+                   "' must be in (0, 1000] px"};
+    r.second_look_max_disagreement = m.value();
+  }
   const std::string look = args.get("second-look", kDefaultSecondLook ? "yes" : "no");
-  if (look != "yes" && look != "no") return Error{"--second-look '" + look + "' must be yes or no"};
+  if (tracking && look == "start") {
+    r.second_look = false;  // until the track's first frame turns it on
+    r.second_look_at_start = true;
+    return r;
+  }
+  if (look != "yes" && look != "no")
+    return Error{"--second-look '" + look + "' must be yes or no" + (tracking ? " (or start)" : "")};
   r.second_look = look == "yes";
   return r;
 }

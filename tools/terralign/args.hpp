@@ -92,15 +92,20 @@ struct Refinement {
   double max_residual = 0;  // 0: the localizer's
   double uniform_max_residual = kRefineUniformOff;
   bool second_look = kDefaultSecondLook;  // --second-look yes|no
+  // --second-look start (track only): a second look only while the track starts, until two
+  // answers have converged (cmd_track turns it on and off a frame).
+  bool second_look_at_start = false;
+  double second_look_max_disagreement = kDefaultSecondLookMaxDisagreement;  // --second-look-max-disagreement PX
   void apply(Localizer& loc) const {
     loc.set_refinement(passes);
-    loc.set_second_look(second_look);
+    loc.set_second_look(second_look, second_look_max_disagreement);
     loc.set_refinement_scope(levels > 0 ? levels : loc.refinement_levels(),
                              max_residual > 0 ? max_residual : loc.refinement_max_residual());
     loc.set_uniform_refinement(uniform_max_residual);
   }
 };
-Result<Refinement> parse_refine(const Args& args);
+// `tracking`: track's, where --second-look may also be start.
+Result<Refinement> parse_refine(const Args& args, bool tracking = false);
 
 // The tracking filter's options (track): --accel-sigma A, the velocity's random walk in m/s per
 // root second, (0, 100]; --gate D2, at most 1e6 (negative: none); --init-sigma M, the position

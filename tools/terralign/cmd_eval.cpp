@@ -134,7 +134,7 @@ int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
                                  "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "input-scale", "nn-levels", "imu-tilt", "tilt-prior",
-                                 "prior-scale", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "blur", "noise", "exposure"}, {});
+                                 "prior-scale", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "second-look-max-disagreement", "blur", "noise", "exposure"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});

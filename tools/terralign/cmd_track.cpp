@@ -121,7 +121,7 @@ int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
                                  "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor",
                                  "registration-floor-per-residual",
-                                 "filter", "accel-sigma", "gate", "init-sigma", "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "nn-levels", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "acquire"}, {});
+                                 "filter", "accel-sigma", "gate", "init-sigma", "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "nn-levels", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "second-look-max-disagreement", "acquire"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
@@ -182,7 +182,7 @@ int run_track(const std::vector<std::string>& argv) {
   const geo::CameraModel cam = pinhole_of(cam_in.value());
   auto topt = parse_tracker_options(args.value());
   if (!topt.ok()) return usage_error("track", topt.error());
-  auto refine = parse_refine(args.value());
+  auto refine = parse_refine(args.value(), true);
   if (!refine.ok()) return usage_error("track", refine.error());
   std::vector<Eigen::Quaterniond> attitude;
   if (args->has("attitude")) {
@@ -283,6 +283,7 @@ int run_track(const std::vector<std::string>& argv) {
                  ", the camera " + std::to_string(cam.width) + " x " + std::to_string(cam.height);
       } else {
         ImageU8 live = cam_in->model == geo::DistortionModel::None ? std::move(img.value()) : undistort(img->view(), cam_in.value());
+        if (refine->second_look_at_start) loc.value()->set_second_look(converged < 2, refine->second_look_max_disagreement);
         auto out = loc.value()->localize(live.view(), prior, attitude.empty() ? nullptr : &attitude[i]);
         if (!out.ok()) {
           reason = out.error().message;

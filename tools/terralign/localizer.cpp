@@ -257,6 +257,7 @@ Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::
     }
     if (second_look) out.second_look_disagreement_px = r.disagreement_px;
     if (pass > 0 && !r.converged) break;
+    if (second_look && !(r.disagreement_px <= second_look_max_disagreement_px_)) break;  // the first pass's failure
     if (second_look) out.second_look = true;
     second_look = false;
     if (pass == 0) {  // the start, and the tests' measures (a refinement pass has none)
