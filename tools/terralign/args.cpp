@@ -189,14 +189,11 @@ Result<Refinement> parse_refine(const Args& args, bool tracking) {
     r.second_look_max_disagreement = m.value();
   }
   const std::string look = args.get("second-look", kDefaultSecondLook ? "yes" : "no");
-  if (tracking && look == "start") {
-    r.second_look = false;  // until the track's first frame turns it on
-    r.second_look_at_start = true;
-    return r;
-  }
-  if (look != "yes" && look != "no")
+  const bool at_start = tracking && look == "start";  // off until the track's first frame turns it on
+  if (!at_start && look != "yes" && look != "no")
     return Error{"--second-look '" + look + "' must be yes or no" + (tracking ? " (or start)" : "")};
   r.second_look = look == "yes";
+  r.second_look_at_start = at_start;
   return r;
 }
 
