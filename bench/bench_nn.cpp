@@ -6,7 +6,9 @@
 // convolutions against the direct kernel in the same run, the encoder's two images of a pair
 // at once (one a thread) against one after the other, and the M-estimator's
 // one-output-channel last layer with the one-channel kernel against the block kernel.
-//   build/release/bench/bench_nn [--tracker]   (--tracker: only the learned tracker's part)
+//   build/release/bench/bench_nn [--tracker [WEIGHTS]]
+// (--tracker: only the learned tracker's part; WEIGHTS: another weight file's networks in place
+// of the shipped one's, e.g. a smaller network's before it is trained, whose time is its size's)
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -133,7 +135,7 @@ void one_channel_layer(nn::ConvRowsFn fn, int block, const char* simd) {
 // One of the learned tracker's networks at 376 x 240 on 2 threads: Winograd's convolutions
 // against the direct kernel's, per layer, the two passes alternated 25 times (this host's slow
 // spells last seconds to minutes, so both see the same ones) and each layer's fastest pass.
-bool tracker_network(const nn::WeightFile& weights, const char* name) {
+bool tracker_network(const nn::WeightFile& weights, const char* path, const char* name) {
   auto wino = nn::Network::plan(weights, name, 376, 240, 2);
   auto direct = nn::Network::plan(weights, name, 376, 240, 2);
   if (!wino.ok() || !direct.ok()) return false;
@@ -151,9 +153,9 @@ bool tracker_network(const nn::WeightFile& weights, const char* name) {
       if (ms[k].empty()) ms[k].assign(st.size(), 1e9);
       for (std::size_t i = 0; i < st.size(); ++i) ms[k][i] = std::min(ms[k][i], st[i].ms);
     }
-  std::printf("learned tracker's %s (" TERRALIGN_DEFAULT_WEIGHTS ") at 376x240, 2 threads, %s, fastest of 25 alternated passes:\n\n"
+  std::printf("learned tracker's %s (%s) at 376x240, 2 threads, %s, fastest of 25 alternated passes:\n\n"
               "| layer | op | direct ms | Winograd ms | direct / Winograd |\n|---|---|---|---|---|\n",
-              name, wino.value()->simd_name());
+              name, path, wino.value()->simd_name());
   const auto st = wino.value()->step_times();
   double total[2] = {0, 0};
   for (std::size_t i = 0; i < st.size(); ++i) {
@@ -238,6 +240,7 @@ bool encoder_pair(const nn::WeightFile& weights) {
 
 int main(int argc, char** argv) {
   const bool tracker_only = argc > 1 && std::strcmp(argv[1], "--tracker") == 0;
+  const char* tracker_weights = tracker_only && argc > 2 ? argv[2] : TERRALIGN_DEFAULT_WEIGHTS;
   auto weights = nn::read_weights(TERRALIGN_SOURCE_DIR "/weights/lv19_tum_abc.tlw");
   if (!weights.ok()) {
     std::fprintf(stderr, "%s\n", weights.error().message.c_str());
@@ -283,16 +286,16 @@ int main(int argc, char** argv) {
       }
     }
   }
-  // The shipped learned tracker's two networks at its working size (376 x 240), per layer:
+  // The learned tracker's two networks (the shipped file's, or WEIGHTS') at its working size (376 x 240), per layer:
   // Winograd's kernel (the product's) against the direct one, alternated in the same run.
-  auto shipped = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
-  if (!shipped.ok()) {
-    std::fprintf(stderr, "%s\n", shipped.error().message.c_str());
+  auto tracker = nn::read_weights(tracker_weights);
+  if (!tracker.ok()) {
+    std::fprintf(stderr, "%s\n", tracker.error().message.c_str());
     return 1;
   }
   for (const char* name : {"encoder", "mestimator"})
-    if (!tracker_network(shipped.value(), name)) return 1;
-  if (!encoder_pair(shipped.value())) return 1;
+    if (!tracker_network(tracker.value(), tracker_weights, name)) return 1;
+  if (!encoder_pair(tracker.value())) return 1;
   std::printf("\n");
   one_channel_layer(nn::conv3x3_rows_scalar, 8, "scalar");
 #if defined(TERRALIGN_NN_AVX2)
