@@ -1,7 +1,8 @@
 #!/usr/bin/python3
 """Checks deep_iclk.widen_state, the warm start of a wider network (train_deep.py --widen):
 the widened model must end where the narrow one ends, and its new channels must be free to
-learn. Offline, like the rest of training/ (Debian's python3-torch; not part of the C++ suite):
+learn; and deep_iclk.narrow_state (train_deep.py --narrow), which must undo a widening bit for
+bit. Offline, like the rest of training/ (Debian's python3-torch; not part of the C++ suite):
 
   /usr/bin/python3 training/test_widen.py [weights/deep_iclk_s16.tlw]
 
@@ -65,6 +66,27 @@ def main():
         assert fresh > 0, f"{size}: no gradient reaches e2_1's weights on the new channels"
         print(f"{size}: the largest gradient on e2_1's weights from new channels {fresh:.2e}")
     print("widen_state: ok")
+    # narrow_state, its inverse where there is one: widening adds channels nothing reads (their
+    # outgoing weights are zero), so their scores are zero, and narrowing the widened tensors back
+    # to s16 must keep exactly s16's channels in s16's order: the same tensors, bit for bit.
+    for size in ("s16w48", "s16w64"):
+        wide = D.DeepICLK(size, iterations=20, channels=2)
+        wide.load_state_dict(D.widen_state(src, wide, torch.Generator().manual_seed(1)))
+        back = D.narrow_state(wide.state_dict(), narrow)
+        differ = [k for k in src if not torch.equal(back[k], src[k])]
+        assert not differ, f"{size} -> s16: narrow_state did not recover s16's tensors: {differ[:3]}"
+        print(f"{size} -> s16: narrow_state recovers s16's {len(src)} tensors bit for bit")
+    # s16w64 -> s8w48m8 (train_deep.py --narrow's use): every shape checked by load_state_dict;
+    # s16 -> s8w48m8 must be refused (s16's levels 2-4 are 32 wide, s8w48m8's 48), naming the conv.
+    w64 = {k: torch.from_numpy(v) for k, v in tlw.read(os.path.join(ROOT, "weights/deep_iclk_s16w64.tlw")).items()}
+    small = D.DeepICLK("s8w48m8", iterations=20, channels=2)
+    small.load_state_dict(D.narrow_state(w64, small))
+    try:
+        D.narrow_state(src, small)
+        raise AssertionError("narrow_state made 48 channels of s16's 32")
+    except ValueError as e:
+        assert "encoder.levels.2.0.0 is 32 x 16 in the source, 48 x 16 here" in str(e), e
+    print("narrow_state: ok")
 
 
 if __name__ == "__main__":

@@ -381,6 +381,9 @@ def main():
     p.add_argument("--widen", action="store_true",
                    help="--init is a narrower network of the same family (s16 for s16w48): start from "
                         "deep_iclk.widen_state, which computes what it computes, its new channels free to learn")
+    p.add_argument("--narrow", action="store_true",
+                   help="--init is a wider network of the same family (s16w64 for s8w48m8): start from "
+                        "deep_iclk.narrow_state, its strongest channels (magnitude pruning)")
     p.add_argument("--init", help="start from this checkpoint's (.pt) or weight file's (.tlw) weights where the shapes match (warm start)")
     a = p.parse_args()
     torch.set_num_threads(a.threads)
@@ -433,7 +436,12 @@ def main():
             else:
                 src = torch.load(a.init, map_location="cpu")["model"]
             own = model.state_dict()
-            if a.widen:
+            if a.widen and a.narrow:
+                p.error("--widen and --narrow exclude each other")
+            if a.narrow:
+                model.load_state_dict(D.narrow_state(src, model))
+                print(f"warm start from {a.init}, narrowed to {a.size} (its strongest channels)", flush=True)
+            elif a.widen:
                 model.load_state_dict(D.widen_state(src, model, torch.Generator().manual_seed(a.seed)))
                 print(f"warm start from {a.init}, widened to {a.size} (the same function)", flush=True)
             else:
