@@ -156,6 +156,7 @@ def narrow_state(src, model):
             raise ValueError(f"narrow_state: {key} came out {tuple(out[key].shape)}, not {tuple(v.shape)}")
     return out
 
+
 def widen_state(src, model, gen):
     """The state dict of `model` that computes what the narrower `src` (a state dict of the same
     family: the same levels, dilations and M-estimator, each encoder conv's width no larger)

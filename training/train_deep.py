@@ -386,6 +386,10 @@ def main():
                         "deep_iclk.narrow_state, its strongest channels (magnitude pruning)")
     p.add_argument("--init", help="start from this checkpoint's (.pt) or weight file's (.tlw) weights where the shapes match (warm start)")
     a = p.parse_args()
+    if a.widen and a.narrow:
+        p.error("--widen and --narrow exclude each other")
+    if (a.widen or a.narrow) and not a.init:
+        p.error("--widen and --narrow need --init, the network to start from")
     torch.set_num_threads(a.threads)
     torch.manual_seed(a.seed)
     os.makedirs(a.out, exist_ok=True)
@@ -436,8 +440,6 @@ def main():
             else:
                 src = torch.load(a.init, map_location="cpu")["model"]
             own = model.state_dict()
-            if a.widen and a.narrow:
-                p.error("--widen and --narrow exclude each other")
             if a.narrow:
                 model.load_state_dict(D.narrow_state(src, model))
                 print(f"warm start from {a.init}, narrowed to {a.size} (its strongest channels)", flush=True)
