@@ -286,8 +286,9 @@ int main(int argc, char** argv) {
       }
     }
   }
-  // The learned tracker's two networks (the shipped file's, or WEIGHTS') at its working size (376 x 240), per layer:
-  // Winograd's kernel (the product's) against the direct one, alternated in the same run.
+  // The learned tracker's two networks (the shipped file's, or WEIGHTS') at its working size
+  // (376 x 240), per layer: Winograd's kernel (the product's) against the direct one, alternated
+  // in the same run.
   auto tracker = nn::read_weights(tracker_weights);
   if (!tracker.ok()) {
     std::fprintf(stderr, "%s\n", tracker.error().message.c_str());
