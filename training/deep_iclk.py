@@ -114,20 +114,18 @@ def narrow_state(src, model):
                for g in range(groups)]
         return torch.cat(idx)
 
-    def chain(keys, last_groups, next_of_last):
-        """Narrows the convs `keys` (in order, each reading the one before); returns the last's kept
-        output channels. next_of_last: the key of the conv that reads the last one, or None."""
-        prev = None
+    def chain(keys, last_groups, next_of_last, prev=None):
+        """Narrows the convs `keys` (in order, each reading the one before; the first reads the
+        channels `prev` of its input, all where None); returns the last's kept output channels.
+        next_of_last: the key of the conv that reads the last one, or None."""
         for i, key in enumerate(keys):
             w, b = src[key + ".weight"], src[key + ".bias"]
             n_out, n_in = own[key + ".weight"].shape[:2]
-            if w.shape[0] < n_out or w.shape[1] < n_in:
-                raise ValueError(f"narrow_state: {key} is {w.shape[0]} x {w.shape[1]} in the source, "
-                                 f"{n_out} x {n_in} here")
             if prev is not None:
                 w = w[:, prev]
-            elif w.shape[1] != n_in:
-                raise ValueError(f"narrow_state: {key} reads {w.shape[1]} channels in the source, {n_in} here")
+            if w.shape[0] < n_out or w.shape[1] != n_in:
+                raise ValueError(f"narrow_state: {key} is {w.shape[0]} x {w.shape[1]} in the source, "
+                                 f"{n_out} x {n_in} here")
             nxt = keys[i + 1] if i + 1 < len(keys) else next_of_last
             w_next = src[nxt + ".weight"] if nxt is not None else None
             groups = last_groups if i + 1 == len(keys) else 1
@@ -140,11 +138,8 @@ def narrow_state(src, model):
     prev_level = None
     for level in range(levels):
         keys = [f"encoder.levels.{level}.{k}.0" for k in range(len(ENCODER_DILATIONS))]
-        if prev_level is not None:  # the level reads the one below's kept outputs
-            src = dict(src)
-            src[keys[0] + ".weight"] = src[keys[0] + ".weight"][:, prev_level]
         nxt = f"encoder.levels.{level + 1}.0.0" if level + 1 < levels else None
-        prev_level = chain(keys, K, nxt)
+        prev_level = chain(keys, K, nxt, prev_level)  # a level reads the one below's kept outputs
     mkeys = [f"mest.net.{k}.0" for k in range(3)]
     kept = chain(mkeys, 1, "mest.net.3")
     out["mest.net.3.weight"] = src["mest.net.3.weight"][:, kept].clone()
