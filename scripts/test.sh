@@ -20,8 +20,10 @@ build/consumer/consumer
 rm -rf "$prefix"
 
 if [ "${TERRALIGN_SKIP_SANITIZE:-0}" != "1" ]; then
-  cmake -S . -B build/sanitize -DCMAKE_BUILD_TYPE=RelWithDebInfo -DTERRALIGN_SANITIZE=ON \
-        -DTERRALIGN_WERROR=ON -DTERRALIGN_BUILD_BENCH=OFF
+  # Line tables only (-g1): the sanitizers' reports name file and line, and the build takes
+  # about an eighth less time than with full debug information (test_track.cpp: 128 s, 145 s).
+  cmake -S . -B build/sanitize -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O2 -g1 -DNDEBUG" \
+        -DTERRALIGN_SANITIZE=ON -DTERRALIGN_WERROR=ON -DTERRALIGN_BUILD_BENCH=OFF
   cmake --build build/sanitize -j "$jobs"
   # The three longest cases (scripts/end-to-end-cases.sh) are over half of this suite's time
   # under the sanitizers; they run in the release suite above and in clang's, and the same
