@@ -473,7 +473,9 @@ TEST_CASE("the agreement test: a second start nearby returns to a basin and sett
       const double u = 2 * kPiD * x * 0.5 / period_m, v = 2 * kPiD * y * 0.5 / period_m;
       const double s = lattice ? 50 * (std::sin(u) + std::sin(v))
                                : 90 * std::sin(x * 0.021) * std::cos(y * 0.013) + 40 * std::sin(x * 0.007 + y * 0.017);
-      p[0] = p[1] = p[2] = static_cast<std::uint8_t>(128 + s);
+      // Clamped: the smooth texture's peaks reach 128 + 130 (a float-to-byte conversion out of
+      // range is undefined; clang's UBSan stops on it).
+      p[0] = p[1] = p[2] = static_cast<std::uint8_t>(std::clamp(128 + s, 0.0, 255.0));
     }));
   };
   TrackerOptions opt;
