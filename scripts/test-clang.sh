@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# The second compiler: clang builds the whole tree (libraries, tools, tests, benches) in
-# release with warnings as errors, and the suite runs on that build. ARM SoC toolchains are
-# often clang's; GCC accepts a few things clang refuses (session 44 found three). Build
-# folder: build/clang (or $CLANG_BUILD).
+# clang builds the whole tree (libraries, tools, tests, benches) in release with warnings as
+# errors, and the suite runs on that build: to compare clang's code with GCC's, speed
+# included. CI's clang build is scripts/test.sh's sanitizer pass (since session 67); this
+# one is not in CI. Build folder: build/clang (or $CLANG_BUILD).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/install-deps.sh clang
