@@ -54,9 +54,9 @@ THREADED_TESTS='abuse|no-data texels|learned tracker: the C|learned tracker: sam
 # The cases that run the command-line program over a flight or an eval (tests/test_track.cpp:
 # track, eval, align on a flight's frames) run natively only: 1-11 s each on x86, 1.5-30
 # minutes each under qemu, where on session 63's AVX2 host they took CI past its 90 minutes.
-# They run in the x86 suites (release; clang's under ASan + UBSan, but for the three longest);
-# their code is the same on every ISA, and the NEON code they go through is tested here case by case (the
-# kernels against their scalar twins, the learned tracker's PyTorch parity, its
+# They run in the x86 suites (release; clang's under ASan + UBSan, but for the three
+# longest); their code is the same on every ISA, and the NEON code they go through is tested
+# here case by case (the kernels against their scalar twins, the learned tracker's PyTorch parity, its
 # 1-against-2-thread bytes, refinement, layers, the abuse test's 1000 poses).
 source scripts/end-to-end-cases.sh
 NATIVE_ONLY="$END_TO_END_CASES|a rendered flight is tracked, and a frame of pure noise"
