@@ -29,11 +29,13 @@ inline V activate(V v, Act act) {
 // The register tile's inner product: for input channels [0, cin), the values a[p * stride +
 // ci] of NP pixels (or tiles) times the weights of NB blocks of output channels (wp[b] + ci *
 // kBlock), added into acc. One broadcast a value and one load a weight vector feed
-// NP x NB x NV multiply-adds.
-template <class V, int NP, int NB>
+// NP x NB x NV multiply-adds. CIN > 0: cin is CIN, known to the compiler, which unrolls the
+// loop (the same operations in the same order).
+template <class V, int NP, int NB, int CIN = 0>
 inline void tile_products(V (&acc)[NP][NB * (V::kBlock / V::kWidth)], const float* a, std::ptrdiff_t stride,
                           const float* const* wp, int cin) {
   constexpr int BLK = V::kBlock, NV = BLK / V::kWidth;
+  if constexpr (CIN > 0) cin = CIN;
   for (int ci = 0; ci < cin; ++ci) {
     V wv[NB * NV];
     for (int b = 0; b < NB; ++b)
@@ -45,7 +47,7 @@ inline void tile_products(V (&acc)[NP][NB * (V::kBlock / V::kWidth)], const floa
   }
 }
 
-template <class V, int NP, int NB>
+template <class V, int NP, int NB, int CIN>
 inline void conv_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int y, int x, int block) {
   constexpr int BLK = V::kBlock;
   constexpr int NV = BLK / V::kWidth;  // vectors per block of channels
@@ -62,7 +64,7 @@ inline void conv_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int y
       const float* wp[NB];
       for (int b = 0; b < NB; ++b)
         wp[b] = w.packed.data() + (static_cast<std::size_t>(block + b) * 9 + static_cast<std::size_t>(ky * 3 + kx)) * static_cast<std::size_t>(cin) * BLK;
-      tile_products<V, NP, NB>(acc, ip, cp, wp, cin);
+      tile_products<V, NP, NB, CIN>(acc, ip, cp, wp, cin);
     }
   for (int p = 0; p < NP; ++p) {
     float* op = out.at(y, x + p) + block * BLK;
@@ -119,19 +121,33 @@ inline void for_block_groups(const ConvWeights& w, F&& f) {
   for (; block < blocks; ++block) f(std::integral_constant<int, 1>{}, block);
 }
 
-// The direct kernel over NP output pixels from x of row y, every block of output channels.
-template <class V, int NP>
+// The direct kernel over NP output pixels from x of row y, every block of output channels
+// (CIN: as tile_products()).
+template <class V, int NP, int CIN = 0>
 inline void conv_pixels(const Tensor& in, const ConvWeights& w, Tensor& out, int y, int x) {
-  for_block_groups<V>(w, [&](auto nb, int block) { conv_tile<V, NP, decltype(nb)::value>(in, w, out, y, x, block); });
+  for_block_groups<V>(w, [&](auto nb, int block) { conv_tile<V, NP, decltype(nb)::value, CIN>(in, w, out, y, x, block); });
 }
 
-// The direct kernel over one output row.
-template <class V>
-inline void conv_row(const Tensor& in, const ConvWeights& w, Tensor& out, int y) {
+template <class V, int CIN>
+inline void conv_row_cin(const Tensor& in, const ConvWeights& w, Tensor& out, int y) {
   constexpr int NP = V::kTilePixels;
   int x = 0;
-  for (; x + NP <= out.w; x += NP) conv_pixels<V, NP>(in, w, out, y, x);
-  for (; x < out.w; ++x) conv_pixels<V, 1>(in, w, out, y, x);
+  for (; x + NP <= out.w; x += NP) conv_pixels<V, NP, CIN>(in, w, out, y, x);
+  for (; x < out.w; ++x) conv_pixels<V, 1, CIN>(in, w, out, y, x);
+}
+
+// The direct kernel over one output row. Layers of 3, 4 and 8 inputs (the encoder's and the
+// M-estimator's first layers, and the small networks' 8-channel levels, all below Winograd's
+// kWinogradMinCin) have their channel loop unrolled: with so few channels its counting was a
+// large part of each tap's work (session 68: 5-22 % of these layers' time on AVX2).
+template <class V>
+inline void conv_row(const Tensor& in, const ConvWeights& w, Tensor& out, int y) {
+  switch (w.cin) {
+    case 3: conv_row_cin<V, 3>(in, w, out, y); break;
+    case 4: conv_row_cin<V, 4>(in, w, out, y); break;
+    case 8: conv_row_cin<V, 8>(in, w, out, y); break;
+    default: conv_row_cin<V, 0>(in, w, out, y);
+  }
 }
 
 // Winograd, step 1: the input transform B^T d B of NT tiles (top-left outputs (y, xs[t])),
