@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The learned tracker's two shipped weight files trained again in one command, each compared
+# The learned tracker's three shipped weight files trained again in one command, each compared
 # with the committed file, from session 23's s16 file (training/README.md, step 12's; in git as
 # committed in 934536e), where step 15's two-channel run s16c2 started:
 #   1. the training data (training/README.md, steps 1 and 7): NAIP's five training years and the
@@ -16,8 +16,10 @@
 #   4. weights/deep_iclk_s16.tlw (the firmware's): step 20's run of 600 steps with the tilt
 #      prior, from stage 3's file;
 #   5. weights/deep_iclk_s16w64.tlw (the default): step 24's three runs of 1200 steps (stage 4's
-#      file widened to s16w64, then two continuations).
-# Stages 3-5 end with the export under the committed file's note, the agreement threshold
+#      file widened to s16w64, then two continuations);
+#   6. weights/deep_iclk_s8w48m8.tlw (the small network, not the default): step 32's run of 2000
+#      steps from stage 5's file narrowed to s8w48m8.
+# Stages 3-6 end with the export under the committed file's note, the agreement threshold
 # calibrated (training/calibrate_sharpness.py), and every tensor and byte compared with the
 # committed file (training/same_tensors.py, cmp): the verdict, and a stage that differs stops
 # the command. Each run's log is compared with its committed one (training/runs/NAME/log.csv)
@@ -28,9 +30,10 @@
 # --work DIR (default /work/train): the data, the runs and the weight files; each stage is
 # skipped where its result is there, and a run stopped midway resumes from its checkpoint.
 # --from STEP: 15 (the default) starts with step 15's s16c2 run, from step 12's file; 16, 17 or
-# 20 from the file of that step: 16 runs stages 3-5 from the file committed in 3c0722d, 17
-# stages 4 and 5 from the file committed in 1ada086, 20 stage 5 alone from the committed
-# weights/deep_iclk_s16.tlw (session 50's command).
+# 20 from the file of that step: 16 runs stages 3-6 from the file committed in 3c0722d, 17
+# stages 4-6 from the file committed in 1ada086, 20 stages 5 and 6 from the committed
+# weights/deep_iclk_s16.tlw (session 50's command), 24 stage 6 alone from the committed
+# weights/deep_iclk_s16w64.tlw.
 # --check STEPS: only the first run's first STEPS steps, whose log (training loss every 50
 # steps, validation every 300, 400 or 600) is then compared with the committed one line by
 # line, the times aside; a training loss mean may be 1e-4 off (step 17's log has three such,
@@ -41,7 +44,8 @@
 # /usr/bin/python3, not a pyenv python3), ../shared/data beside the checkout and, from step 15,
 # 16 or 17, the checkout's git history. On two cores: about 5 minutes of data a renderer (and
 # 4 to build session 23's); about 55 minutes of training for stage 2, 50 for stage 3, 20 for
-# stage 4 and 2.6 hours for stage 5 (session 38: 2475, 3360 and 3441 s); 2-5 minutes of
+# stage 4, 2.6 hours for stage 5 (session 38: 2475, 3360 and 3441 s) and 65 minutes for stage 6
+# (session 66, on an AVX2 host: 3901 s); 2-5 minutes of
 # calibration a file; 7.4 GB of data. A byte-for-byte result also needs PyTorch's oneDNN to run
 # the kernels it ran here (AVX-512; training/README.md). The chain before step 12's file is not
 # one command: its runs (sessions 3-23, training/README.md steps 2-12) were trained by earlier
@@ -56,13 +60,13 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --work) work=${2:?--work needs a directory}; shift 2 ;;
     --check) check=${2:?--check needs a number of steps}; shift 2 ;;
-    --from) from=${2:?--from needs a training step: 15, 16, 17 or 20}; shift 2 ;;
+    --from) from=${2:?--from needs a training step: 15, 16, 17, 20 or 24}; shift 2 ;;
     *) echo "reproduce.sh: unknown argument '$1' (--work DIR, --from STEP, --check STEPS)" >&2; exit 2 ;;
   esac
 done
 case "$from" in
-  15|16|17|20) ;;
-  *) echo "reproduce.sh: --from '$from' is not 15, 16, 17 or 20 (training/README.md's steps)" >&2; exit 2 ;;
+  15|16|17|20|24) ;;
+  *) echo "reproduce.sh: --from '$from' is not 15, 16, 17, 20 or 24 (training/README.md's steps)" >&2; exit 2 ;;
 esac
 case "$check" in
   ''|*[!0-9]*) echo "reproduce.sh: --check '$check' is not a number of steps" >&2; exit 2 ;;
@@ -288,13 +292,20 @@ if [ "$from" -le 16 ]; then
 fi
 # Stage 4: s16 (step 20), from stage 3's file.
 s16=weights/deep_iclk_s16.tlw
-if [ "$from" -ne 20 ]; then
+if [ "$from" -lt 20 ]; then
   run s16tilt s16 600 33 "$s16_17" --val-every 300 --gap-power 3 --tilt-prior 3
   ship deep_iclk_s16.tlw weights/deep_iclk_s16.tlw s16tilt
   s16="$work/deep_iclk_s16.tlw"
 fi
 # Stage 5: s16w64 (step 24), from stage 4's file.
-run s16w64 s16w64 1200 38 "$s16" --val-every 300 --gap-power 3 --tilt-prior 3 --widen
-run s16w64b s16w64 1200 39 "$work/runs/s16w64/last.pt" --val-every 300 --gap-power 3 --tilt-prior 3
-run s16w64c s16w64 1200 40 "$work/runs/s16w64b/last.pt" --val-every 300 --gap-power 3 --tilt-prior 3
-ship deep_iclk_s16w64.tlw weights/deep_iclk_s16w64.tlw s16w64 s16w64b s16w64c
+s16w64=weights/deep_iclk_s16w64.tlw
+if [ "$from" -lt 24 ]; then
+  run s16w64 s16w64 1200 38 "$s16" --val-every 300 --gap-power 3 --tilt-prior 3 --widen
+  run s16w64b s16w64 1200 39 "$work/runs/s16w64/last.pt" --val-every 300 --gap-power 3 --tilt-prior 3
+  run s16w64c s16w64 1200 40 "$work/runs/s16w64b/last.pt" --val-every 300 --gap-power 3 --tilt-prior 3
+  ship deep_iclk_s16w64.tlw weights/deep_iclk_s16w64.tlw s16w64 s16w64b s16w64c
+  s16w64="$work/deep_iclk_s16w64.tlw"
+fi
+# Stage 6: s8w48m8 (step 32), from stage 5's file narrowed.
+run s8w48m8 s8w48m8 2000 41 "$s16w64" --val-every 500 --gap-power 3 --tilt-prior 3 --narrow
+ship deep_iclk_s8w48m8.tlw weights/deep_iclk_s8w48m8.tlw s8w48m8
