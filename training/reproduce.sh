@@ -166,6 +166,11 @@ run() {
   local name=$1 size=$2 steps=$3 seed=$4 init=$5; shift 5
   local out="$work/runs/$name" stop=()
   [ "$check" -gt 0 ] && stop=(--stop-at "$check")
+  # A check resumed from a checkpoint already there would compare an old log with itself.
+  if [ "$check" -gt 0 ] && [ -e "$out/last.pt" ]; then
+    echo "reproduce.sh: --check needs a fresh run, but $out/last.pt is there (give --work a new directory)" >&2
+    exit 1
+  fi
   if [ "$check" -eq 0 ] && [ -f "$out/last.pt" ] &&
      [ "$($py -c "import sys, torch; print(torch.load(sys.argv[1])['step'])" "$out/last.pt")" = "$steps" ]; then
     echo "run $name: done"; return
