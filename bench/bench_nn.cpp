@@ -2,8 +2,8 @@
 // achieved GFLOP/s as a fraction of this CPU's FMA peak (measured by an FMA loop in the same
 // run), at 752x480 and 160x120, 1 and 2 threads; beside PyTorch on the CPU with two threads
 // (training/bench_torch_encoder.py, where /usr/bin/python3 has torch), with the speed ratio.
-// Then the shipped learned tracker's encoder and M-estimator per layer, Winograd's
-// convolutions against the direct kernel in the same run, the encoder's two images of a pair
+// Then the shipped learned tracker's encoder and M-estimator per layer, the product's
+// convolutions (Winograd's F(4x4)) against the direct kernel and F(2x2) in the same run, the encoder's two images of a pair
 // at once (one a thread) against one after the other, and the M-estimator's
 // one-output-channel last layer with the one-channel kernel against the block kernel.
 //   build/release/bench/bench_nn [--tracker [WEIGHTS]]
@@ -132,39 +132,45 @@ void one_channel_layer(nn::ConvRowsFn fn, int block, const char* simd) {
               b, b / a);
 }
 
-// One of the learned tracker's networks at 376 x 240 on 2 threads: Winograd's convolutions
-// against the direct kernel's, per layer, the two passes alternated 25 times (this host's slow
-// spells last seconds to minutes, so both see the same ones) and each layer's fastest pass.
+// One of the learned tracker's networks at 376 x 240 on 2 threads: the product's convolutions
+// (Winograd's F(4x4) where it suits, kernels.hpp) against the direct kernel's and against
+// F(2x2), per layer, the three passes
+// alternated 25 times (this host's slow spells last seconds to minutes, so all see the same
+// ones) and each layer's fastest pass.
 bool tracker_network(const nn::WeightFile& weights, const char* path, const char* name) {
-  auto wino = nn::Network::plan(weights, name, 376, 240, 2);
-  auto direct = nn::Network::plan(weights, name, 376, 240, 2);
-  if (!wino.ok() || !direct.ok()) return false;
-  direct.value()->use_direct_convolutions();
-  nn::Network* nets[2] = {direct.value().get(), wino.value().get()};
-  std::vector<double> ms[2];
+  auto product = nn::Network::plan(weights, name, 376, 240, 2);
+  auto two = nn::Network::plan(weights, name, 376, 240, 2, nn::Simd::Auto, nn::Memory::Shared, nullptr, 2);
+  auto direct = nn::Network::plan(weights, name, 376, 240, 2, nn::Simd::Auto, nn::Memory::Shared, nullptr, 0);
+  if (!product.ok() || !two.ok() || !direct.ok()) return false;
+  nn::Network* nets[3] = {direct.value().get(), two.value().get(), product.value().get()};
+  std::vector<double> ms[3];
   for (nn::Network* n : nets) {
     n->forward();
     n->set_profiling(true);
   }
   for (int pass = 0; pass < 25; ++pass)
-    for (int k = 0; k < 2; ++k) {
+    for (int k = 0; k < 3; ++k) {
       nets[k]->forward();
       const auto st = nets[k]->step_times();
       if (ms[k].empty()) ms[k].assign(st.size(), 1e9);
       for (std::size_t i = 0; i < st.size(); ++i) ms[k][i] = std::min(ms[k][i], st[i].ms);
     }
   std::printf("learned tracker's %s (%s) at 376x240, 2 threads, %s, fastest of 25 alternated passes:\n\n"
-              "| layer | op | direct ms | Winograd ms | direct / Winograd |\n|---|---|---|---|---|\n",
-              name, path, wino.value()->simd_name());
-  const auto st = wino.value()->step_times();
-  double total[2] = {0, 0};
+              "| layer | op | tile | direct ms | F(2x2) ms | product ms | direct / product | F(2x2) / product |\n"
+              "|---|---|---|---|---|---|---|---|\n",
+              name, path, product.value()->simd_name());
+  const auto st = product.value()->step_times();
+  double total[3] = {0, 0, 0};
+  auto ratio = [](double a, double b) { return b > 0 ? a / b : 0.0; };
   for (std::size_t i = 0; i < st.size(); ++i) {
-    total[0] += ms[0][i];
-    total[1] += ms[1][i];
-    std::printf("| %s | %s | %.3f | %.3f | %.2f |\n", st[i].name.c_str(), st[i].op.c_str(), ms[0][i], ms[1][i],
-                ms[1][i] > 0 ? ms[0][i] / ms[1][i] : 0.0);
+    for (int k = 0; k < 3; ++k) total[k] += ms[k][i];
+    const int m = st[i].winograd_tile;
+    const std::string tile = m > 0 ? std::to_string(m) + "x" + std::to_string(m) : "";
+    std::printf("| %s | %s | %s | %.3f | %.3f | %.3f | %.2f | %.2f |\n", st[i].name.c_str(), st[i].op.c_str(), tile.c_str(),
+                ms[0][i], ms[1][i], ms[2][i], ratio(ms[0][i], ms[2][i]), ratio(ms[1][i], ms[2][i]));
   }
-  std::printf("| all | | %.3f | %.3f | **%.2f** |\n\n", total[0], total[1], total[1] > 0 ? total[0] / total[1] : 0.0);
+  std::printf("| all | | | %.3f | %.3f | %.3f | **%.2f** | **%.2f** |\n\n", total[0], total[1], total[2],
+              ratio(total[0], total[2]), ratio(total[1], total[2]));
   return true;
 }
 
@@ -249,8 +255,8 @@ int main(int argc, char** argv) {
   const bool wide = nn::nn_cpu_has_avx512();
   const double peak1 = peak_gflops(1, wide), peak2 = peak_gflops(2, wide);
   std::printf("FMA peak (%s, measured): %.1f GFLOP/s on 1 thread, %.1f on 2\n", wide ? "AVX-512" : "AVX2", peak1, peak2);
-  std::printf("(GMAC and GFLOP/s count a direct convolution's 9 multiply-adds a tap; the layers of 16 input\n"
-              "channels or more run Winograd's F(2x2, 3x3), 4 of those 9, so they can exceed the FMA peak)\n\n");
+  std::printf("(GMAC and GFLOP/s count a direct convolution's 9 multiply-adds an output; the layers of 16 input\n"
+              "channels or more run Winograd's F(4x4, 3x3), 2.25 of those 9, so they can exceed the FMA peak)\n\n");
   for (auto [w, h] : {std::pair<int, int>{752, 480}, {160, 120}}) {
     if (tracker_only) break;
     for (int threads : {1, 2}) {

@@ -4,9 +4,10 @@
 // Two kernels. The direct one: register blocking of NP output pixels of one row x NB blocks
 // of V::kBlock output channels; for every tap and input channel, one broadcast of the input
 // value per pixel and one load of the weights per vector feed NP x NB x NV multiply-adds.
-// Winograd's F(2x2, 3x3) (kernels.hpp) for the layers that suit it: the same register tile,
-// over NT tiles of 2 x 2 outputs instead of NP pixels and 16 transformed taps instead of 9.
-// Both read the halo (zeros) at borders.
+// Winograd's F(4x4, 3x3) (or F(2x2, 3x3), kernels.hpp) for the layers that suit it: the same
+// register tile, over NT tiles of 4 x 4 (2 x 2) outputs instead of NP pixels and 36 (16)
+// transformed taps instead of 9. Both read the halo (zeros) at borders; Winograd's tiles that
+// reach past it read a gathered patch.
 #pragma once
 
 #include <algorithm>
@@ -150,123 +151,194 @@ inline void conv_row(const Tensor& in, const ConvWeights& w, Tensor& out, int y)
   }
 }
 
-// Winograd, step 1: the input transform B^T d B of NT tiles (top-left outputs (y, xs[t])),
-// into U[e][t][ci] for the 16 transformed taps e = 4 i + j. B^T's rows combine a tile's input
-// rows (0 - 2), (1 + 2), (2 - 1), (1 - 3), and its columns the same way; input row/column i of
-// a tile is y + (i - 1) d / x + (i - 1) d. Additions only: every build gives the same bits.
-template <class V>
-inline void winograd_combine(const V* d, V* u, int stride) {
-  u[0] = d[0] - d[2 * stride];
-  u[stride] = d[stride] + d[2 * stride];
-  u[2 * stride] = d[2 * stride] - d[stride];
-  u[3 * stride] = d[stride] - d[3 * stride];
+// Winograd's F(m x m, 3x3), m = 2 or 4 (kernels.hpp): an m x m output tile from a T x T input
+// tile, T = m + 2, through T x T transformed taps. Step 1, the input transform B^T d B of NT
+// tiles (top-left outputs (y, xs[t])), into U[e][t][ci] for the taps e = T i + j; input
+// row/column i of a tile is y + (i - 1) d / x + (i - 1) d. B^T, applied to T values `stride`
+// apart: for m = 2 its rows combine (0 - 2), (1 + 2), (2 - 1), (1 - 3); for m = 4 (Lavin and
+// Gray's points 0, 1, -1, 2, -2) 4 (0 - 2) + (4 - 2), (4 - 4 x 2) +- (3 - 4 x 1),
+// (4 - 2) +- 2 (3 - 1), 4 (1 - 3) + (5 - 3). Additions, and multiply-adds by powers of two,
+// which round once with or without FMA: every build gives the same bits.
+template <int M, class V>
+inline void winograd_in(const V* d, V* u, int stride) {
+  if constexpr (M == 2) {
+    u[0] = d[0] - d[2 * stride];
+    u[stride] = d[stride] + d[2 * stride];
+    u[2 * stride] = d[2 * stride] - d[stride];
+    u[3 * stride] = d[stride] - d[3 * stride];
+  } else {
+    static_assert(M == 4, "Winograd's output tile is 2 x 2 or 4 x 4");
+    const V d0 = d[0], d1 = d[stride], d2 = d[2 * stride], d3 = d[3 * stride], d4 = d[4 * stride], d5 = d[5 * stride];
+    const V four = V::set1(4.0f), minus_four = V::set1(-4.0f);
+    const V t1 = fmadd(minus_four, d2, d4), t2 = fmadd(minus_four, d1, d3), t3 = d4 - d2, t31 = d3 - d1, t4 = t31 + t31;
+    u[0] = fmadd(four, d0 - d2, t3);
+    u[stride] = t1 + t2;
+    u[2 * stride] = t1 - t2;
+    u[3 * stride] = t3 + t4;
+    u[4 * stride] = t3 - t4;
+    u[5 * stride] = fmadd(four, d1 - d3, d5 - d3);
+  }
+}
+
+// A^T, T values `stride` apart into m: for m = 2 (0 + 1) + 2, (1 - 2) - 3; for m = 4 with
+// s = 1 + 2, t = 3 + 4, a = 1 - 2, b = 3 - 4: (0 + s) + t, a + 2 b, s + 4 t, (a + 8 b) + 5.
+template <int M, class V>
+inline void winograd_out(const V* m, int stride, V* o) {
+  if constexpr (M == 2) {
+    o[0] = (m[0] + m[stride]) + m[2 * stride];
+    o[1] = (m[stride] - m[2 * stride]) - m[3 * stride];
+  } else {
+    const V s = m[stride] + m[2 * stride], a = m[stride] - m[2 * stride];
+    const V t = m[3 * stride] + m[4 * stride], b = m[3 * stride] - m[4 * stride];
+    o[0] = (m[0] + s) + t;
+    o[1] = fmadd(V::set1(2.0f), b, a);
+    o[2] = fmadd(V::set1(4.0f), t, s);
+    o[3] = fmadd(V::set1(8.0f), b, a) + m[5 * stride];
+  }
 }
 
 // One tile's transform for T::kWidth channels from p (input row stride `row`, column
 // stride `step`) into u (taps `tap` floats apart). T: the kernel's wrapper, or VecScalar for
 // the channels left over (the same operations).
-template <class T>
+template <class T, int M>
 inline void winograd_transform(const float* p, std::ptrdiff_t row, std::ptrdiff_t step, float* u, std::ptrdiff_t tap) {
-  T v[16], r[16];
-  for (int i = 0; i < 4; ++i)
-    for (int j = 0; j < 4; ++j) v[4 * i + j] = T::load(p + i * row + j * step);
-  for (int j = 0; j < 4; ++j) winograd_combine(v + j, r + j, 4);          // rows
-  for (int i = 0; i < 4; ++i) winograd_combine(r + 4 * i, v + 4 * i, 1);  // columns
-  for (int e = 0; e < 16; ++e) v[e].store(u + e * tap);
+  constexpr int N = M + 2;
+  T v[N * N], r[N * N];
+  for (int i = 0; i < N; ++i)
+    for (int j = 0; j < N; ++j) v[N * i + j] = T::load(p + i * row + j * step);
+  for (int j = 0; j < N; ++j) winograd_in<M>(v + j, r + j, N);          // rows
+  for (int i = 0; i < N; ++i) winograd_in<M>(r + N * i, v + N * i, 1);  // columns
+  for (int e = 0; e < N * N; ++e) v[e].store(u + e * tap);
 }
 
-template <class V, int NT>
-inline void winograd_input(const Tensor& in, const ConvWeights& w, int y, const int* xs, float* U) {
-  const int d = w.dilation, cin = w.cin;
-  const std::ptrdiff_t row = in.row * d, step = static_cast<std::ptrdiff_t>(d) * in.cp;
+// A tile: its outputs' top-left column x, how many of its m columns are inside the image, and
+// where its input is read (row stride `row`, column stride `step`): the input tensor, or a
+// patch gathered with zeros outside the image where the tile reaches past the tensor's halo.
+struct WinogradTile {
+  int x, cols;
+  const float* p;
+  std::ptrdiff_t row, step;
+};
+
+template <class V, int M, int NT>
+inline void winograd_input(const WinogradTile* tiles, int cin, float* U) {
   const std::ptrdiff_t tap = static_cast<std::ptrdiff_t>(NT) * cin;  // floats between U's taps
   for (int t = 0; t < NT; ++t) {
-    const float* p = in.at(y - d, xs[t] - d);
+    const WinogradTile& tile = tiles[t];
     float* u = U + static_cast<std::ptrdiff_t>(t) * cin;
     int c = 0;
-    for (; c + V::kWidth <= cin; c += V::kWidth) winograd_transform<V>(p + c, row, step, u + c, tap);
-    for (; c < cin; ++c) winograd_transform<VecScalar>(p + c, row, step, u + c, tap);
+    for (; c + V::kWidth <= cin; c += V::kWidth) winograd_transform<V, M>(tile.p + c, tile.row, tile.step, u + c, tap);
+    for (; c < cin; ++c) winograd_transform<VecScalar, M>(tile.p + c, tile.row, tile.step, u + c, tap);
   }
 }
 
-// Winograd, step 2, for NB blocks of output channels from `block`: the 16 products of U and
+// Winograd, step 2, for NB blocks of output channels from `block`: the T x T products of U and
 // the transformed filters (a register tile each, tile_products()) into M[e][t][channel], then the
-// output transform A^T m A (A^T's rows: 0 + 1 + 2, 1 - 2 - 3), the bias and the activation.
-template <class V, int NT, int NB>
-inline void winograd_block(const ConvWeights& w, const float* U, int block, float* M, Tensor& out, int y, const int* xs) {
-  constexpr int BLK = V::kBlock, W = V::kWidth, NV = BLK / W, K = NB * NV;
+// output transform A^T m A (rows, then columns), the bias and the activation, stored for the
+// tile's rows [lo, hi) (rows y + i d) and its columns inside the image.
+template <class V, int M, int NT, int NB>
+inline void winograd_block(const ConvWeights& w, const float* U, int block, float* Mp, Tensor& out, int y, int lo, int hi,
+                           const WinogradTile* tiles) {
+  constexpr int BLK = V::kBlock, W = V::kWidth, NV = BLK / W, K = NB * NV, N = M + 2, E = N * N;
   const int cin = w.cin, d = w.dilation;
-  for (int e = 0; e < 16; ++e) {
+  for (int e = 0; e < E; ++e) {
     V acc[NT][K];
     for (int t = 0; t < NT; ++t)
       for (int k = 0; k < K; ++k) acc[t][k] = V::set1(0.0f);
     const float* wp[NB];
     for (int b = 0; b < NB; ++b)
-      wp[b] = w.winograd.data() + (static_cast<std::size_t>(block + b) * 16 + static_cast<std::size_t>(e)) * static_cast<std::size_t>(cin) * BLK;
+      wp[b] = w.winograd.data() + (static_cast<std::size_t>(block + b) * E + static_cast<std::size_t>(e)) * static_cast<std::size_t>(cin) * BLK;
     tile_products<V, NT, NB>(acc, U + static_cast<std::ptrdiff_t>(e) * NT * cin, cin, wp, cin);
     for (int t = 0; t < NT; ++t)
-      for (int k = 0; k < K; ++k) acc[t][k].store(M + ((e * NT + t) * K + k) * W);
+      for (int k = 0; k < K; ++k) acc[t][k].store(Mp + ((e * NT + t) * K + k) * W);
   }
   for (int t = 0; t < NT; ++t)
     for (int k = 0; k < K; ++k) {
-      V m[16], c[8];
-      for (int e = 0; e < 16; ++e) m[e] = V::load(M + ((e * NT + t) * K + k) * W);
-      for (int i = 0; i < 4; ++i) {  // columns of each row
-        c[2 * i] = (m[4 * i] + m[4 * i + 1]) + m[4 * i + 2];
-        c[2 * i + 1] = (m[4 * i + 1] - m[4 * i + 2]) - m[4 * i + 3];
-      }
+      V m[E], c[N * M];
+      for (int e = 0; e < E; ++e) m[e] = V::load(Mp + ((e * NT + t) * K + k) * W);
+      for (int i = 0; i < N; ++i) winograd_out<M>(m + N * i, 1, c + M * i);  // the columns of each row
       const int ch = block * BLK + k * W;
       const V bias = V::load(w.bias.data() + ch);
-      for (int j = 0; j < 2; ++j) {  // then rows, per output column
-        const V top = (c[j] + c[2 + j]) + c[4 + j], bottom = (c[2 + j] - c[4 + j]) - c[6 + j];
-        activate(top + bias, w.act).store(out.at(y, xs[t] + j * d) + ch);
-        activate(bottom + bias, w.act).store(out.at(y + d, xs[t] + j * d) + ch);
+      for (int j = 0; j < tiles[t].cols; ++j) {  // then the rows, per output column
+        V o[M];
+        winograd_out<M>(c + j, M, o);
+        for (int i = lo; i < hi; ++i) activate(o[i] + bias, w.act).store(out.at(y + i * d, tiles[t].x + j * d) + ch);
       }
     }
 }
 
-// NT tiles of rows y and y + d, in the caller's scratch (conv_scratch_floats()).
-template <class V, int NT>
-inline void winograd_tiles(const Tensor& in, const ConvWeights& w, Tensor& out, int y, const int* xs, float* scratch) {
+// Floats of the scratch's parts (conv_scratch_floats()): the transformed inputs U, the
+// products M, the gathered patches.
+template <int M>
+constexpr std::ptrdiff_t winograd_u_floats(int cin) {
+  return ((M + 2) * (M + 2) * static_cast<std::ptrdiff_t>(kWinogradTiles) * cin + 15) / 16 * 16;
+}
+template <int M>
+constexpr std::ptrdiff_t winograd_m_floats() {
+  return (M + 2) * (M + 2) * static_cast<std::ptrdiff_t>(kWinogradTiles) * kWinogradChannels;
+}
+
+// NT tiles of rows y, y + d, .. y + (m - 1) d, in the caller's scratch.
+template <class V, int M, int NT>
+inline void winograd_tiles(const ConvWeights& w, Tensor& out, int y, int lo, int hi, const WinogradTile* tiles, float* scratch) {
   constexpr int BLK = V::kBlock, NB = V::kTileBlocks;
   static_assert(NT <= kWinogradTiles && NB * BLK <= kWinogradChannels, "conv_scratch_floats() sizes a smaller tile");
   float* U = scratch;
-  float* M = scratch + (16 * static_cast<std::ptrdiff_t>(kWinogradTiles) * w.cin + 15) / 16 * 16;
-  winograd_input<V, NT>(in, w, y, xs, U);
-  for_block_groups<V>(w, [&](auto nb, int block) { winograd_block<V, NT, decltype(nb)::value>(w, U, block, M, out, y, xs); });
+  float* Mp = scratch + winograd_u_floats<M>(w.cin);
+  winograd_input<V, M, NT>(tiles, w.cin, U);
+  for_block_groups<V>(w, [&](auto nb, int block) { winograd_block<V, M, NT, decltype(nb)::value>(w, U, block, Mp, out, y, lo, hi, tiles); });
 }
 
-// Winograd over rows [y0, y1): pairs (y, y + d) with y mod 2d < d both inside the band run as
-// tiles; a row whose partner is outside the image (or the band) and a column whose partner is
-// outside the image run the direct kernel.
-template <class V>
+// Winograd over rows [y0, y1). Row groups (y, y + d, .. y + (m - 1) d) start at the rows y with
+// y mod m d < d, and column groups the same way, whatever the band: every tile is whole (its
+// rows and columns past the image computed from zeros, and not stored), so a tile gives the
+// same bytes in whichever band computes it, and a band computes each tile it has a row of
+// (bands on multiples of conv_row_align() share none). Tiles whose input reaches past the
+// tensor's halo (at the bottom and right edges, for d > 1) read a patch gathered with zeros.
+template <class V, int M>
 inline void winograd_rows(const Tensor& in, const ConvWeights& w, Tensor& out, int y0, int y1, float* scratch) {
-  constexpr int NT = V::kTilePixels;
-  const int d = w.dilation;
-  for (int y = y0; y < y1; ++y) {
-    const bool top = y % (2 * d) < d;
-    const int partner = top ? y + d : y - d;
-    if (partner < y0 || partner >= y1) {
-      conv_row<V>(in, w, out, y);
-      continue;
-    }
-    if (!top) continue;  // its pair ran with the row above
-    int xs[NT];
+  constexpr int NT = V::kTilePixels, N = M + 2;
+  const int d = w.dilation, span = M * d, cin = w.cin;
+  const std::ptrdiff_t patch = static_cast<std::ptrdiff_t>(N) * N * cin;
+  float* patches = scratch + winograd_u_floats<M>(cin) + winograd_m_floats<M>();
+  const int end = std::min(y1, out.h);
+  for (int y = y0; y < end; ++y) {
+    const int first = y - (y % span) / d * d;  // the group's top row
+    if (y != first && y - d >= y0) continue;   // the group ran with an earlier row of this band
+    const int lo = (y - first) / d;
+    int hi = lo;
+    while (hi < M && first + hi * d < end) ++hi;
+    const bool rows_readable = first + M * d < in.h + kHalo;
+    WinogradTile tiles[NT];
     int n = 0;
     for (int x = 0; x < out.w; ++x) {
-      if (x % (2 * d) >= d) continue;  // the right column of a tile
-      if (x + d >= out.w) {
-        conv_pixels<V, 1>(in, w, out, y, x);
-        conv_pixels<V, 1>(in, w, out, y + d, x);
-        continue;
+      if (x % span >= d) continue;  // another column of a tile
+      WinogradTile& tile = tiles[n];
+      tile.x = x;
+      tile.cols = std::min(M, (out.w - 1 - x) / d + 1);
+      if (rows_readable && x + M * d < in.w + kHalo) {
+        tile.p = in.at(first - d, x - d);
+        tile.row = in.row * d;
+        tile.step = static_cast<std::ptrdiff_t>(d) * in.cp;
+      } else {
+        float* q = patches + n * patch;
+        for (int i = 0; i < N; ++i)
+          for (int j = 0; j < N; ++j) {
+            const int r = first + (i - 1) * d, c = x + (j - 1) * d;
+            float* o = q + (i * N + j) * cin;
+            if (r < in.h && c < in.w) std::copy(in.at(r, c), in.at(r, c) + cin, o);
+            else std::fill(o, o + cin, 0.0f);
+          }
+        tile.p = q;
+        tile.row = static_cast<std::ptrdiff_t>(N) * cin;
+        tile.step = cin;
       }
-      xs[n++] = x;
-      if (n == NT) {
-        winograd_tiles<V, NT>(in, w, out, y, xs, scratch);
+      if (++n == NT) {
+        winograd_tiles<V, M, NT>(w, out, first, lo, hi, tiles, scratch);
         n = 0;
       }
     }
-    for (int t = 0; t < n; ++t) winograd_tiles<V, 1>(in, w, out, y, xs + t, scratch);
+    for (int t = 0; t < n; ++t) winograd_tiles<V, M, 1>(w, out, first, lo, hi, tiles + t, scratch);
   }
 }
 
@@ -285,7 +357,8 @@ inline void conv3x3_rows(const Tensor& in, const ConvWeights& w, Tensor& out, in
   // and concat read cp; the bias and the weights of padded channels are zero, and ELU(0) = 0.
   if (!w.winograd.empty()) {
     TERRALIGN_ASSERT(scratch, "conv3x3_rows: Winograd's layer without scratch memory");
-    winograd_rows<V>(in, w, out, y0, y1, scratch);
+    if (w.winograd_tile == 4) winograd_rows<V, 4>(in, w, out, y0, y1, scratch);
+    else winograd_rows<V, 2>(in, w, out, y0, y1, scratch);
     return;
   }
   for (int y = y0; y < y1; ++y) conv_row<V>(in, w, out, y);

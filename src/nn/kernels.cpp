@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include <terralign/geo/assert.hpp>
 #include <terralign/geo/cpu.hpp>
 
 namespace terralign::nn {
@@ -33,16 +34,20 @@ bool nn_cpu_has_avx512() {
 
 bool winograd_suits(int cin, int cout) { return cin >= kWinogradMinCin && cout > 1; }
 
-int conv_row_align(const ConvWeights& w) { return w.winograd.empty() ? 1 : 2 * w.dilation; }
+int conv_row_align(const ConvWeights& w) { return w.winograd.empty() ? 1 : w.winograd_tile * w.dilation; }
 
 std::size_t conv_scratch_floats(const ConvWeights& w) {
   if (w.winograd.empty()) return 0;
-  // U: 16 taps x tiles x cin, rounded up to 16 floats; then M: 16 taps x tiles x channels.
-  const std::size_t u = (16 * static_cast<std::size_t>(kWinogradTiles) * static_cast<std::size_t>(w.cin) + 15) / 16 * 16;
-  return u + 16 * static_cast<std::size_t>(kWinogradTiles) * kWinogradChannels;
+  // U: T x T taps x tiles x cin, rounded up to 16 floats; then M: T x T taps x tiles x
+  // channels; then the edge tiles' patches: tiles x T x T x cin.
+  const std::size_t taps = static_cast<std::size_t>((w.winograd_tile + 2) * (w.winograd_tile + 2));
+  const std::size_t u = (taps * static_cast<std::size_t>(kWinogradTiles) * static_cast<std::size_t>(w.cin) + 15) / 16 * 16;
+  return 2 * u + taps * static_cast<std::size_t>(kWinogradTiles) * kWinogradChannels;
 }
 
-ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act, int block) {
+ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act, int block,
+                      int winograd_tile) {
+  TERRALIGN_ASSERT(winograd_tile == 0 || winograd_tile == 2 || winograd_tile == 4, "pack_conv: Winograd's tile is 2 x 2 or 4 x 4");
   ConvWeights w;
   w.block = block;
   w.cin = cin;
@@ -51,28 +56,37 @@ ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, i
   w.act = act;
   const int blocks = (cout + block - 1) / block;
   const std::size_t B = static_cast<std::size_t>(block);
-  w.packed.assign(static_cast<std::size_t>(blocks) * 9 * static_cast<std::size_t>(cin) * B, 0.0f);
+  const bool winograd = winograd_tile > 0 && winograd_suits(cin, cout);
   w.bias.assign(static_cast<std::size_t>(blocks) * B, 0.0f);
-  for (int co = 0; co < cout; ++co) {
-    w.bias[static_cast<std::size_t>(co)] = bias ? bias[co] : 0.0f;
+  for (int co = 0; co < cout; ++co) w.bias[static_cast<std::size_t>(co)] = bias ? bias[co] : 0.0f;
+  if (!winograd) w.packed.assign(static_cast<std::size_t>(blocks) * 9 * static_cast<std::size_t>(cin) * B, 0.0f);
+  for (int co = 0; co < cout && !winograd; ++co) {
     for (int ci = 0; ci < cin; ++ci)
       for (int k = 0; k < 9; ++k)
         w.packed[((static_cast<std::size_t>(co / block) * 9 + static_cast<std::size_t>(k)) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * B + static_cast<std::size_t>(co % block)] =
             oihw[(static_cast<std::size_t>(co) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * 9 + static_cast<std::size_t>(k)];
   }
-  if (winograd_suits(cin, cout)) {
-    // U = G g G^T per filter, in double, rounded once.
-    constexpr double G[4][3] = {{1, 0, 0}, {0.5, 0.5, 0.5}, {0.5, -0.5, 0.5}, {0, 0, 1}};
-    w.winograd.assign(static_cast<std::size_t>(blocks) * 16 * static_cast<std::size_t>(cin) * B, 0.0f);
+  if (winograd) {
+    // U = G g G^T per filter, in double, rounded once. F(2x2)'s G has rows (1, 0, 0),
+    // (1, 1, 1) / 2, (1, -1, 1) / 2, (0, 0, 1); F(4x4)'s (Lavin and Gray) (1/4, 0, 0),
+    // -(1, 1, 1) / 6, -(1, -1, 1) / 6, (1/24, 1/12, 1/6), (1/24, -1/12, 1/6), (0, 0, 1).
+    constexpr double G2[4][3] = {{1, 0, 0}, {0.5, 0.5, 0.5}, {0.5, -0.5, 0.5}, {0, 0, 1}};
+    constexpr double G4[6][3] = {{0.25, 0, 0},           {-1.0 / 6, -1.0 / 6, -1.0 / 6}, {-1.0 / 6, 1.0 / 6, -1.0 / 6},
+                                 {1.0 / 24, 1.0 / 12, 1.0 / 6}, {1.0 / 24, -1.0 / 12, 1.0 / 6},  {0, 0, 1}};
+    const int T = winograd_tile + 2;
+    auto G = [&](int i, int k) { return winograd_tile == 4 ? G4[i][k] : G2[i][k]; };
+    w.winograd_tile = winograd_tile;
+    const std::size_t taps = static_cast<std::size_t>(T * T);
+    w.winograd.assign(static_cast<std::size_t>(blocks) * taps * static_cast<std::size_t>(cin) * B, 0.0f);
     for (int co = 0; co < cout; ++co)
       for (int ci = 0; ci < cin; ++ci) {
         const float* g = oihw + (static_cast<std::size_t>(co) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * 9;
-        for (int i = 0; i < 4; ++i)
-          for (int j = 0; j < 4; ++j) {
+        for (int i = 0; i < T; ++i)
+          for (int j = 0; j < T; ++j) {
             double u = 0;
             for (int ky = 0; ky < 3; ++ky)
-              for (int kx = 0; kx < 3; ++kx) u += G[i][ky] * static_cast<double>(g[ky * 3 + kx]) * G[j][kx];
-            w.winograd[((static_cast<std::size_t>(co / block) * 16 + static_cast<std::size_t>(i * 4 + j)) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * B + static_cast<std::size_t>(co % block)] =
+              for (int kx = 0; kx < 3; ++kx) u += G(i, ky) * static_cast<double>(g[ky * 3 + kx]) * G(j, kx);
+            w.winograd[((static_cast<std::size_t>(co / block) * taps + static_cast<std::size_t>(i * T + j)) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * B + static_cast<std::size_t>(co % block)] =
                 static_cast<float>(u);
           }
       }

@@ -99,7 +99,10 @@ int Network::index_of(const std::string& name) const {
 }
 
 Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const std::string& net, int width, int height,
-                                               int threads, Simd simd, Memory memory, ThreadPool* pool) {
+                                               int threads, Simd simd, Memory memory, ThreadPool* pool,
+                                               int winograd_tile) {
+  if (winograd_tile != 0 && winograd_tile != 2 && winograd_tile != 4)
+    return Error{"network " + net + ": Winograd's tile " + std::to_string(winograd_tile) + " is not 0 (direct), 2 or 4"};
   TERRALIGN_TRY_ASSIGN(const auto nets, parse_architecture(weights.architecture, weights.name));
   // Every tensor must belong to a conv of some network.
   std::set<std::string> used;
@@ -194,7 +197,7 @@ Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const 
       if (bt->shape != bs)
         return Error{at + ": tensor " + bt->name + " is " + bt->shape_text() + ", the layer needs " + text(bs)};
       step.conv = static_cast<int>(N->convs_.size());
-      N->convs_.push_back(pack_conv(wt->data.data(), bt->data.data(), cin, c, node.dilation, node.act, block));
+      N->convs_.push_back(pack_conv(wt->data.data(), bt->data.data(), cin, c, node.dilation, node.act, block, winograd_tile));
     }
     Tensor t;
     const bool padded = node.op == "conv";
@@ -334,7 +337,7 @@ struct StepCtx {
   float* scratch;        // band i's: scratch + i * scratch_floats
   std::size_t scratch_floats;
   int bands;
-  int align;  // band edges on multiples of this (a Winograd convolution's row pairs)
+  int align;  // band edges on multiples of this (a Winograd convolution's row groups: no tile computed twice)
 };
 constexpr int kMaxConcat = 16;
 }  // namespace
@@ -345,8 +348,9 @@ std::vector<Network::StepTime> Network::step_times() const {
     const Step& s = steps_[i];
     if (s.node->op == "input") continue;
     const Tensor& o = tensors_[static_cast<std::size_t>(s.out)];
-    const double m = s.conv >= 0 ? 9.0 * o.h * o.w * o.c * convs_[static_cast<std::size_t>(s.conv)].cin : 0.0;
-    out.push_back({names_[i], s.node->op, step_ms_[i], m});
+    const ConvWeights* c = s.conv >= 0 ? &convs_[static_cast<std::size_t>(s.conv)] : nullptr;
+    const double m = c ? 9.0 * o.h * o.w * o.c * c->cin : 0.0;
+    out.push_back({names_[i], s.node->op, step_ms_[i], m, c && !c->winograd.empty() ? c->winograd_tile : 0});
   }
   return out;
 }

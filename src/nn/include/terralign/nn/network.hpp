@@ -67,10 +67,13 @@ class Network {
   // count replaces `threads`), which must outlive the network and is not used by two callers
   // at once; else the network starts a pool of its own. One pool for the networks and the
   // solver of a pipeline keeps one worker awake between them, where a pool each woke a
-  // sleeping thread at every hand-over.
+  // sleeping thread at every hand-over. `winograd_tile`: Winograd's output tile (kernels.hpp)
+  // for the layers it suits, 4 (the product's) or 2; 0: every layer by the direct kernel (the
+  // peers that bench_nn measures the product against, and tests compare it with).
   static Result<std::unique_ptr<Network>> plan(const WeightFile& weights, const std::string& net, int width, int height,
                                                int threads = 2, Simd simd = Simd::Auto,
-                                               Memory memory = Memory::Shared, ThreadPool* pool = nullptr);
+                                               Memory memory = Memory::Shared, ThreadPool* pool = nullptr,
+                                               int winograd_tile = 4);
 
   // The input tensor to fill (h x w x c, see tensor.hpp), or null for an unknown name.
   Tensor* input(const std::string& name);
@@ -98,11 +101,6 @@ class Network {
   // forward() before bind() is a programming error.
   std::size_t external_floats() const { return external_floats_; }
   void bind(float* memory);
-  // Every convolution by the direct kernel, none by Winograd's (kernels.hpp): the peer that
-  // bench_nn measures Winograd against, and the reference tests compare it with. Set-up only.
-  void use_direct_convolutions() {
-    for (auto& c : convs_) c.winograd.clear();
-  }
   // Multiply-accumulates of one forward pass (3x3 convs, counted as the direct kernel's), for
   // benchmarks.
   double macs() const;
@@ -111,6 +109,7 @@ class Network {
   struct StepTime {
     std::string name, op;
     double ms, macs;
+    int winograd_tile;  // 2 or 4: a convolution by Winograd's kernel; 0: not
   };
   std::vector<StepTime> step_times() const;
 
