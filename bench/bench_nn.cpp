@@ -3,14 +3,17 @@
 // run), at 752x480 and 160x120, 1 and 2 threads; beside PyTorch on the CPU with two threads
 // (training/bench_torch_encoder.py, where /usr/bin/python3 has torch), with the speed ratio.
 // Then the shipped learned tracker's encoder and M-estimator per layer, the product's
-// convolutions (Winograd's F(4x4)) against the direct kernel and F(2x2) in the same run, the encoder's two images of a pair
-// at once (one a thread) against one after the other, and the M-estimator's
-// one-output-channel last layer with the one-channel kernel against the block kernel.
+// convolutions (Winograd's F(4x4)) against the direct kernel and F(2x2) in the same run, the
+// encoder's two images of a pair at once (one a thread) against one after the other, F(4x4)
+// against F(2x2) on single layers
+// of s16w64's shapes, and the M-estimator's one-output-channel last layer with the
+// one-channel kernel against the block kernel.
 //   build/release/bench/bench_nn [--tracker [WEIGHTS]]
 // (--tracker: only the learned tracker's part; WEIGHTS: another weight file's networks in place
 // of the shipped one's, e.g. a smaller network's before it is trained, whose time is its size's)
 #include <algorithm>
 #include <chrono>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -130,6 +133,46 @@ void one_channel_layer(nn::ConvRowsFn fn, int block, const char* simd) {
   }
   std::printf("16 -> 1 conv at %dx%d, 1 thread, %s: one-channel kernel %.3f ms, block kernel %.3f ms: %.1fx\n", w, h, simd, a,
               b, b / a);
+}
+
+// Winograd's F(4x4) against F(2x2) and the direct kernel on one layer, one thread, in the same
+// run, alternated: the shapes of s16w64's levels (64 -> 64 on the coarse ones, whose maps leave
+// the most tiles reaching past the edges), ELU, dilation 2.
+void winograd_layers(nn::ConvRowsFn fn, int block, const char* simd) {
+  struct Shape {
+    int w, h, c;
+  };
+  for (const Shape sh : {Shape{376, 240, 16}, Shape{188, 120, 32}, Shape{94, 60, 64}, Shape{47, 30, 64}, Shape{23, 15, 64}}) {
+    nn::Tensor in, out;
+    in.allocate(sh.h, sh.w, sh.c);
+    out.allocate(sh.h, sh.w, sh.c);
+    std::mt19937 rng(7);
+    std::normal_distribution<float> n01(0, 1);
+    for (int y = 0; y < sh.h; ++y)
+      for (int x = 0; x < sh.w; ++x)
+        for (int c = 0; c < sh.c; ++c) in.at(y, x)[c] = n01(rng);
+    std::vector<float> wt(9 * static_cast<std::size_t>(sh.c) * static_cast<std::size_t>(sh.c)), bias(static_cast<std::size_t>(sh.c), 0.1f);
+    for (auto& v : wt) v = n01(rng) * 0.1f;
+    nn::ConvWeights cw[3];
+    const int tiles[3] = {0, 2, 4};
+    std::size_t scratch_floats = 0;
+    for (int k = 0; k < 3; ++k) {
+      cw[k] = nn::pack_conv(wt.data(), bias.data(), sh.c, sh.c, 2, nn::Act::Elu, block, tiles[k]);
+      scratch_floats = std::max(scratch_floats, nn::conv_scratch_floats(cw[k]));
+    }
+    std::vector<float> scratch(scratch_floats + 16);
+    float* aligned = scratch.data();
+    while (reinterpret_cast<std::uintptr_t>(aligned) % 64 != 0) ++aligned;
+    double ms[3] = {1e9, 1e9, 1e9};
+    for (int rep = 0; rep < 20; ++rep)
+      for (int k = 0; k < 3; ++k) {
+        const auto t0 = std::chrono::steady_clock::now();
+        fn(in, cw[k], out, 0, sh.h, aligned);
+        ms[k] = std::min(ms[k], std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+      }
+    std::printf("%d -> %d conv, dilation 2, at %dx%d, 1 thread, %s: direct %.3f ms, F(2x2) %.3f, F(4x4) %.3f: F(2x2) / F(4x4) %.2fx\n",
+                sh.c, sh.c, sh.w, sh.h, simd, ms[0], ms[1], ms[2], ms[1] / ms[2]);
+  }
 }
 
 // One of the learned tracker's networks at 376 x 240 on 2 threads: the product's convolutions
@@ -303,6 +346,15 @@ int main(int argc, char** argv) {
   for (const char* name : {"encoder", "mestimator"})
     if (!tracker_network(tracker.value(), tracker_weights, name)) return 1;
   if (!encoder_pair(tracker.value())) return 1;
+  std::printf("\n");
+  winograd_layers(nn::conv3x3_rows_scalar, 8, "scalar");
+#if defined(TERRALIGN_NN_AVX2)
+  if (nn::nn_cpu_has_avx2()) winograd_layers(nn::conv3x3_rows_avx2, 8, "avx2");
+  if (nn::nn_cpu_has_avx512()) winograd_layers(nn::conv3x3_rows_avx512, 16, "avx512");
+#endif
+#if defined(TERRALIGN_NN_NEON)
+  winograd_layers(nn::conv3x3_rows_neon, 8, "neon");
+#endif
   std::printf("\n");
   one_channel_layer(nn::conv3x3_rows_scalar, 8, "scalar");
 #if defined(TERRALIGN_NN_AVX2)

@@ -153,7 +153,7 @@ inline void conv_row(const Tensor& in, const ConvWeights& w, Tensor& out, int y)
 
 // Winograd's F(m x m, 3x3), m = 2 or 4 (kernels.hpp): an m x m output tile from a T x T input
 // tile, T = m + 2, through T x T transformed taps. Step 1, the input transform B^T d B of NT
-// tiles (top-left outputs (y, xs[t])), into U[e][t][ci] for the taps e = T i + j; input
+// tiles (top-left outputs (y, x)), into U[e][t][ci] for the taps e = T i + j; input
 // row/column i of a tile is y + (i - 1) d / x + (i - 1) d. B^T, applied to T values `stride`
 // apart: for m = 2 its rows combine (0 - 2), (1 + 2), (2 - 1), (1 - 3); for m = 4 (Lavin and
 // Gray's points 0, 1, -1, 2, -2) 4 (0 - 2) + (4 - 2), (4 - 4 x 2) +- (3 - 4 x 1),
