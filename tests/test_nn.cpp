@@ -337,10 +337,12 @@ TEST_CASE("the layers Winograd suits (16 input channels or more, more than one o
   CHECK(direct.winograd.empty());
   CHECK(!direct.packed.empty());
   CHECK(conv_scratch_floats(direct) == 0);
-  // The transformed inputs of 8 tiles ((m + 2)^2 x 8 x 32), the products of 64 channels
-  // ((m + 2)^2 x 8 x 64) and 8 tiles' gathered patches ((m + 2)^2 x 8 x 32).
-  CHECK(conv_scratch_floats(pack_conv(wt.data(), bias.data(), 32, 16, 2, Act::Elu, 16, 2)) == 16 * 8 * (32 + 64 + 32));
-  CHECK(conv_scratch_floats(pack_conv(wt.data(), bias.data(), 32, 16, 2, Act::Elu, 16)) == 36 * 8 * (32 + 64 + 32));
+  // The transformed inputs of 6 tiles ((m + 2)^2 x 6 x 32), the products of a register tile's
+  // output channels (16 blocks: 64, 8 blocks: 16; (m + 2)^2 x 6 x channels) and 6 tiles'
+  // gathered patches ((m + 2)^2 x 6 x 32).
+  CHECK(conv_scratch_floats(pack_conv(wt.data(), bias.data(), 32, 16, 2, Act::Elu, 16, 2)) == 16 * 6 * (32 + 64 + 32));
+  CHECK(conv_scratch_floats(pack_conv(wt.data(), bias.data(), 32, 16, 2, Act::Elu, 16)) == 36 * 6 * (32 + 64 + 32));
+  CHECK(conv_scratch_floats(pack_conv(wt.data(), bias.data(), 32, 16, 2, Act::Elu, 8)) == 36 * 6 * (32 + 16 + 32));
 }
 
 TEST_CASE("a forward pass gives the same bytes on 1 and 2 threads and on a pool shared with another network, and allocates nothing") {

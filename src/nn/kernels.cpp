@@ -42,7 +42,7 @@ std::size_t conv_scratch_floats(const ConvWeights& w) {
   // channels; then the edge tiles' patches: tiles x T x T x cin.
   const std::size_t taps = static_cast<std::size_t>((w.winograd_tile + 2) * (w.winograd_tile + 2));
   const std::size_t u = (taps * static_cast<std::size_t>(kWinogradTiles) * static_cast<std::size_t>(w.cin) + 15) / 16 * 16;
-  return 2 * u + taps * static_cast<std::size_t>(kWinogradTiles) * kWinogradChannels;
+  return 2 * u + taps * static_cast<std::size_t>(kWinogradTiles) * static_cast<std::size_t>(winograd_channels(w.block));
 }
 
 ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act, int block,

@@ -45,11 +45,13 @@ struct ConvWeights {
 // compute no tile twice. F(4x4)'s transforms scale its terms by up to 8 x 5 x 5 (G's by 1/24
 // and 1/6): its rounding is some ten times F(2x2)'s, still a few parts in a million of a
 // layer's output. The transformed tiles live in scratch memory the caller gives,
-// conv_scratch_floats() a thread: up to kWinogradTiles tiles and kWinogradChannels output
-// channels at a time (every vector wrapper's register tile fits).
+// conv_scratch_floats() a thread: up to kWinogradTiles tiles (every vector wrapper's register
+// tile) and winograd_channels() output channels at a time.
 constexpr int kWinogradMinCin = 16;
-constexpr int kWinogradTiles = 8;
-constexpr int kWinogradChannels = 64;
+constexpr int kWinogradTiles = 6;
+// The output channels of a Winograd register tile for weights packed in blocks of `block`:
+// AVX-512's four blocks of 16, the other wrappers' two blocks of 8.
+constexpr int winograd_channels(int block) { return block == 16 ? 64 : 16; }
 bool winograd_suits(int cin, int cout);
 // Row splits of a convolution's output that keep its row groups whole (so that no tile is
 // computed in two bands): multiples of this.
