@@ -47,7 +47,7 @@ std::size_t conv_scratch_floats(const ConvWeights& w) {
 
 ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act, int block,
                       int winograd_tile) {
-  TERRALIGN_ASSERT(winograd_tile == 0 || winograd_tile == 2 || winograd_tile == 4, "pack_conv: Winograd's tile is 2 x 2 or 4 x 4");
+  TERRALIGN_ASSERT(winograd_tile == 0 || winograd_tile == 2 || winograd_tile == 4, "pack_conv: Winograd's tile is 0 (direct), 2 or 4");
   ConvWeights w;
   w.block = block;
   w.cin = cin;
@@ -59,12 +59,13 @@ ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, i
   const bool winograd = winograd_tile > 0 && winograd_suits(cin, cout);
   w.bias.assign(static_cast<std::size_t>(blocks) * B, 0.0f);
   for (int co = 0; co < cout; ++co) w.bias[static_cast<std::size_t>(co)] = bias ? bias[co] : 0.0f;
-  if (!winograd) w.packed.assign(static_cast<std::size_t>(blocks) * 9 * static_cast<std::size_t>(cin) * B, 0.0f);
-  for (int co = 0; co < cout && !winograd; ++co) {
-    for (int ci = 0; ci < cin; ++ci)
-      for (int k = 0; k < 9; ++k)
-        w.packed[((static_cast<std::size_t>(co / block) * 9 + static_cast<std::size_t>(k)) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * B + static_cast<std::size_t>(co % block)] =
-            oihw[(static_cast<std::size_t>(co) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * 9 + static_cast<std::size_t>(k)];
+  if (!winograd) {  // Winograd's layers keep only their transformed filters (below)
+    w.packed.assign(static_cast<std::size_t>(blocks) * 9 * static_cast<std::size_t>(cin) * B, 0.0f);
+    for (int co = 0; co < cout; ++co)
+      for (int ci = 0; ci < cin; ++ci)
+        for (int k = 0; k < 9; ++k)
+          w.packed[((static_cast<std::size_t>(co / block) * 9 + static_cast<std::size_t>(k)) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * B + static_cast<std::size_t>(co % block)] =
+              oihw[(static_cast<std::size_t>(co) * static_cast<std::size_t>(cin) + static_cast<std::size_t>(ci)) * 9 + static_cast<std::size_t>(k)];
   }
   if (winograd) {
     // U = G g G^T per filter, in double, rounded once. F(2x2)'s G has rows (1, 0, 0),

@@ -36,9 +36,9 @@ struct ConvWeights {
 // multiplications by powers of two). Used for layers of at least kWinogradMinCin input
 // channels and more than one output channel: with fewer inputs the transforms cost more than
 // they save (8 -> 8 at 376 x 240 on AVX-512, one thread, F(2x2): 3.1 ms against the direct
-// kernel's 2.5; 16 -> 16: 3.0 against 4.2). The product runs F(4x4) (session 69: 1.26-1.68x
-// F(2x2)'s speed on AVX2, 16 to 64 channels, 23 x 15 to 376 x 240; F(2x2) stays for
-// benchmarks and tests). With dilation d a tile's outputs are (y + i d, x + j d), 0 <= i, j <
+// kernel's 2.5; 16 -> 16: 3.0 against 4.2). The product runs F(4x4) (session 69, bench_nn's single
+// layers of 16 to 64 channels, 23 x 15 to 376 x 240: 1.2-1.5x F(2x2)'s speed with AVX2,
+// 1.5-1.7x with the scalar kernel; F(2x2) stays for benchmarks and tests). With dilation d a tile's outputs are (y + i d, x + j d), 0 <= i, j <
 // m: rows are grouped from y with y mod m d < d (the same for columns), whatever the band, and
 // every tile is computed whole (past the image's edge from zeros, stored only inside it), so
 // the bytes do not depend on how the rows are split; bands on multiples of conv_row_align()
