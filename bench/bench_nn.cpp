@@ -135,6 +135,19 @@ void one_channel_layer(nn::ConvRowsFn fn, int block, const char* simd) {
               b, b / a);
 }
 
+// f(kernel, weight block, name) for every convolution kernel this build and CPU have.
+template <class F>
+void for_each_kernel(F&& f) {
+  f(nn::conv3x3_rows_scalar, 8, "scalar");
+#if defined(TERRALIGN_NN_AVX2)
+  if (nn::nn_cpu_has_avx2()) f(nn::conv3x3_rows_avx2, 8, "avx2");
+  if (nn::nn_cpu_has_avx512()) f(nn::conv3x3_rows_avx512, 16, "avx512");
+#endif
+#if defined(TERRALIGN_NN_NEON)
+  f(nn::conv3x3_rows_neon, 8, "neon");
+#endif
+}
+
 // Winograd's F(4x4) against F(2x2) and the direct kernel on one layer, one thread, in the same
 // run, alternated: the shapes of s16w64's levels (64 -> 64 on the coarse ones, whose maps leave
 // the most tiles reaching past the edges), ELU, dilation 2.
@@ -347,22 +360,8 @@ int main(int argc, char** argv) {
     if (!tracker_network(tracker.value(), tracker_weights, name)) return 1;
   if (!encoder_pair(tracker.value())) return 1;
   std::printf("\n");
-  winograd_layers(nn::conv3x3_rows_scalar, 8, "scalar");
-#if defined(TERRALIGN_NN_AVX2)
-  if (nn::nn_cpu_has_avx2()) winograd_layers(nn::conv3x3_rows_avx2, 8, "avx2");
-  if (nn::nn_cpu_has_avx512()) winograd_layers(nn::conv3x3_rows_avx512, 16, "avx512");
-#endif
-#if defined(TERRALIGN_NN_NEON)
-  winograd_layers(nn::conv3x3_rows_neon, 8, "neon");
-#endif
+  for_each_kernel(winograd_layers);
   std::printf("\n");
-  one_channel_layer(nn::conv3x3_rows_scalar, 8, "scalar");
-#if defined(TERRALIGN_NN_AVX2)
-  if (nn::nn_cpu_has_avx2()) one_channel_layer(nn::conv3x3_rows_avx2, 8, "avx2");
-  if (nn::nn_cpu_has_avx512()) one_channel_layer(nn::conv3x3_rows_avx512, 16, "avx512");
-#endif
-#if defined(TERRALIGN_NN_NEON)
-  one_channel_layer(nn::conv3x3_rows_neon, 8, "neon");
-#endif
+  for_each_kernel(one_channel_layer);
   return 0;
 }
