@@ -267,24 +267,14 @@ inline void winograd_block(const ConvWeights& w, const float* U, int block, floa
     }
 }
 
-// Floats of the scratch's parts (conv_scratch_floats()): the transformed inputs U, the
-// products M, the gathered patches.
-template <int M>
-constexpr std::ptrdiff_t winograd_u_floats(int cin) {
-  return ((M + 2) * (M + 2) * static_cast<std::ptrdiff_t>(kWinogradTiles) * cin + 15) / 16 * 16;
-}
-template <int M>
-constexpr std::ptrdiff_t winograd_m_floats(int block) {
-  return (M + 2) * (M + 2) * static_cast<std::ptrdiff_t>(kWinogradTiles) * winograd_channels(block);
-}
-
-// NT tiles of rows y, y + d, .. y + (m - 1) d, in the caller's scratch.
+// NT tiles of rows y, y + d, .. y + (m - 1) d, in the caller's scratch (conv_scratch_floats():
+// U, then M, then the patches).
 template <class V, int M, int NT>
 inline void winograd_tiles(const ConvWeights& w, Tensor& out, int y, int lo, int hi, const WinogradTile* tiles, float* scratch) {
   constexpr int BLK = V::kBlock, NB = V::kTileBlocks;
   static_assert(NT <= kWinogradTiles && NB * BLK <= winograd_channels(BLK), "conv_scratch_floats() sizes a smaller tile");
   float* U = scratch;
-  float* Mp = scratch + winograd_u_floats<M>(w.cin);
+  float* Mp = scratch + winograd_u_floats(M, w.cin);
   winograd_input<V, M, NT>(tiles, w.cin, U);
   for_block_groups<V>(w, [&](auto nb, int block) { winograd_block<V, M, NT, decltype(nb)::value>(w, U, block, Mp, out, y, lo, hi, tiles); });
 }
@@ -300,7 +290,7 @@ inline void winograd_rows(const Tensor& in, const ConvWeights& w, Tensor& out, i
   constexpr int NT = V::kTilePixels, N = M + 2;
   const int d = w.dilation, span = M * d, cin = w.cin;
   const std::ptrdiff_t patch = static_cast<std::ptrdiff_t>(N) * N * cin;
-  float* patches = scratch + winograd_u_floats<M>(cin) + winograd_m_floats<M>(w.block);
+  float* patches = scratch + winograd_u_floats(M, cin) + winograd_m_floats(M, w.block);
   const int end = std::min(y1, out.h);
   for (int y = y0; y < end; ++y) {
     const int first = y - (y % span) / d * d;  // the group's top row

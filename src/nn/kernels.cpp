@@ -38,11 +38,8 @@ int conv_row_align(const ConvWeights& w) { return w.winograd.empty() ? 1 : w.win
 
 std::size_t conv_scratch_floats(const ConvWeights& w) {
   if (w.winograd.empty()) return 0;
-  // U: T x T taps x tiles x cin, rounded up to 16 floats; then M: T x T taps x tiles x
-  // channels; then the edge tiles' patches: tiles x T x T x cin.
-  const std::size_t taps = static_cast<std::size_t>((w.winograd_tile + 2) * (w.winograd_tile + 2));
-  const std::size_t u = (taps * static_cast<std::size_t>(kWinogradTiles) * static_cast<std::size_t>(w.cin) + 15) / 16 * 16;
-  return 2 * u + taps * static_cast<std::size_t>(kWinogradTiles) * static_cast<std::size_t>(winograd_channels(w.block));
+  // U: T x T taps x tiles x cin; M: T x T taps x tiles x channels; the patches: tiles x T x T x cin.
+  return 2 * winograd_u_floats(w.winograd_tile, w.cin) + winograd_m_floats(w.winograd_tile, w.block);
 }
 
 ConvWeights pack_conv(const float* oihw, const float* bias, int cin, int cout, int dilation, Act act, int block,

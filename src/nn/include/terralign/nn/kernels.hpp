@@ -56,8 +56,16 @@ bool winograd_suits(int cin, int cout);
 // Row splits of a convolution's output that keep its row groups whole (so that no tile is
 // computed in two bands): multiples of this.
 int conv_row_align(const ConvWeights& w);
-// Floats of scratch one thread's call of the convolution needs (0: none).
+// Floats of scratch one thread's call of the convolution needs (0: none): for Winograd's
+// output tile `tile`, the transformed inputs U (rounded up to 16 floats), the products M, then
+// the edge tiles' gathered patches (as many floats as U).
 std::size_t conv_scratch_floats(const ConvWeights& w);
+constexpr std::size_t winograd_u_floats(int tile, int cin) {
+  return (static_cast<std::size_t>((tile + 2) * (tile + 2)) * kWinogradTiles * static_cast<std::size_t>(cin) + 15) / 16 * 16;
+}
+constexpr std::size_t winograd_m_floats(int tile, int block) {
+  return static_cast<std::size_t>((tile + 2) * (tile + 2)) * kWinogradTiles * static_cast<std::size_t>(winograd_channels(block));
+}
 
 // From PyTorch's OIHW layout (cout x cin x 3 x 3) and a bias of cout.
 // winograd_tile: Winograd's output tile where winograd_suits() (2 or 4), 0: the direct kernel.
