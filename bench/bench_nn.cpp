@@ -5,9 +5,8 @@
 // Then the shipped learned tracker's encoder and M-estimator per layer, the product's
 // convolutions (Winograd's F(4x4)) against the direct kernel and F(2x2) in the same run, the
 // encoder's two images of a pair at once (one a thread) against one after the other, F(4x4)
-// against F(2x2) on single layers
-// of s16w64's shapes, and the M-estimator's one-output-channel last layer with the
-// one-channel kernel against the block kernel.
+// against F(2x2) on single layers of s16w64's shapes, and the M-estimator's
+// one-output-channel last layer with the one-channel kernel against the block kernel.
 //   build/release/bench/bench_nn [--tracker [WEIGHTS]]
 // (--tracker: only the learned tracker's part; WEIGHTS: another weight file's networks in place
 // of the shipped one's, e.g. a smaller network's before it is trained, whose time is its size's)
