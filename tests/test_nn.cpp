@@ -1,5 +1,6 @@
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <random>
 #include <tuple>
 
@@ -576,25 +577,37 @@ TEST_CASE("mean over channels: in equal groups of consecutive channels, and refu
 }
 
 TEST_CASE("every conv kernel's ELU matches expm1 to 5e-7 (the vector wrappers' exp)") {
-  // A 1 -> 1 channel conv whose only non-zero weight is the centre tap: out = ELU(in).
+  // A 1 -> 1 channel conv whose only non-zero weight is the centre tap: out = ELU(in). The
+  // inputs run from -100 (past the clamp at -87, where 2^n would leave the normal range) to 100
+  // (past 88, where the vector kernels' discarded exp overflows), densest across the
+  // polynomial's range near 0; then 0, 0 and NaN (the 3 x 3 footprint multiplies the NaN's
+  // neighbour by zero, and 0 x NaN is NaN: the middle one is not checked).
   std::vector<float> w(9, 0.0f);
   w[4] = 1.0f;
   const float bias = 0.0f;
   Tensor in, out;
-  const int n = 400;
+  const int n = 4003;
   in.allocate(1, n, 1);
   out.allocate(1, n, 1);
-  for (int i = 0; i < n; ++i) in.at(0, i)[0] = -20.0f + 21.0f * static_cast<float>(i) / n;  // -20 .. 1
+  for (int i = 0; i < n - 3; ++i) {
+    const float u = -1.0f + 2.0f * static_cast<float>(i) / (n - 4);  // -1 .. 1
+    in.at(0, i)[0] = 100.0f * u * u * u;
+  }
+  in.at(0, n - 3)[0] = 0.0f;
+  in.at(0, n - 2)[0] = 0.0f;
+  in.at(0, n - 1)[0] = std::numeric_limits<float>::quiet_NaN();
   for (const auto& [kernel, fn, block] : conv_kernels()) {
     const char* const name = kernel;  // CAPTURE may not capture a structured binding (C++17)
     CAPTURE(name);
     conv(fn, in, pack_conv(w.data(), &bias, 1, 1, 1, Act::Elu, block), out, 0, 1);
     double worst = 0;
-    for (int i = 0; i < n; ++i) {
+    for (int i = 0; i < n - 3; ++i) {
       const double x = in.at(0, i)[0];
       const double want = x > 0 ? x : std::expm1(x);
       worst = std::max(worst, std::abs(out.at(0, i)[0] - want) / std::max(std::abs(want), 1e-3));
     }
     CHECK(worst < 5e-7);
+    CHECK(out.at(0, n - 3)[0] == 0.0f);
+    CHECK(std::isnan(out.at(0, n - 1)[0]));
   }
 }

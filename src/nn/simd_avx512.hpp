@@ -18,12 +18,12 @@ inline __m512 taylor6_avx512(__m512 t) {
 
 // exp(x) - 1 for x <= 0, as expm1_neg_avx2 (the same reduction and polynomial).
 inline __m512 expm1_neg_avx512(__m512 x) {
-  x = _mm512_max_ps(x, _mm512_set1_ps(-87.0f));
-  const __m512 n = _mm512_roundscale_ps(_mm512_mul_ps(x, _mm512_set1_ps(1.44269504088896341f)), _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
-  const __m512 r = _mm512_fnmadd_ps(n, _mm512_set1_ps(0.693359375f), x);
-  const __m512 rr = _mm512_fnmadd_ps(n, _mm512_set1_ps(-2.12194440e-4f), r);
-  const __m512 s = _mm512_castsi512_ps(_mm512_slli_epi32(_mm512_add_epi32(_mm512_cvtps_epi32(n), _mm512_set1_epi32(127)), 23));
-  return _mm512_fmadd_ps(s, taylor6_avx512(rr), _mm512_sub_ps(s, _mm512_set1_ps(1.0f)));
+  const __m512 shifter = _mm512_set1_ps(12583039.0f);  // 1.5 2^23 + 127
+  x = _mm512_max_ps(_mm512_set1_ps(-87.0f), x);
+  const __m512 nb = _mm512_fmadd_ps(x, _mm512_set1_ps(1.44269504088896341f), shifter);
+  const __m512 r = _mm512_fnmadd_ps(_mm512_sub_ps(nb, shifter), _mm512_set1_ps(0.693147180559945309f), x);
+  const __m512 s = _mm512_castsi512_ps(_mm512_slli_epi32(_mm512_castps_si512(nb), 23));
+  return _mm512_fmadd_ps(s, taylor6_avx512(r), _mm512_sub_ps(s, _mm512_set1_ps(1.0f)));
 }
 
 struct VecAvx512 {
@@ -39,8 +39,8 @@ struct VecAvx512 {
   friend VecAvx512 operator-(VecAvx512 a, VecAvx512 b) { return {_mm512_sub_ps(a.v, b.v)}; }
   friend VecAvx512 fmadd(VecAvx512 a, VecAvx512 b, VecAvx512 c) { return {_mm512_fmadd_ps(a.v, b.v, c.v)}; }
   friend VecAvx512 elu(VecAvx512 a) {
-    const __m512 neg = expm1_neg_avx512(_mm512_min_ps(a.v, _mm512_setzero_ps()));
-    return {_mm512_mask_blend_ps(_mm512_cmp_ps_mask(a.v, _mm512_setzero_ps(), _CMP_GT_OQ), neg, a.v)};
+    // As VecAvx2's: expm1 of a positive a is garbage, and the blend drops it.
+    return {_mm512_mask_blend_ps(_mm512_cmp_ps_mask(a.v, _mm512_setzero_ps(), _CMP_GT_OQ), expm1_neg_avx512(a.v), a.v)};
   }
   friend VecAvx512 relu(VecAvx512 a) { return {_mm512_max_ps(a.v, _mm512_setzero_ps())}; }
   friend float lane0(VecAvx512 a) { return _mm512_cvtss_f32(a.v); }

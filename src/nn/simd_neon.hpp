@@ -18,12 +18,12 @@ inline float32x4_t taylor6_neon(float32x4_t t) {
 
 // exp(x) - 1 for x <= 0, the same range reduction and polynomial as expm1_neg_avx2.
 inline float32x4_t expm1_neg_neon(float32x4_t x) {
-  x = vmaxq_f32(x, vdupq_n_f32(-87.0f));
-  const float32x4_t n = vrndnq_f32(vmulq_f32(x, vdupq_n_f32(1.44269504088896341f)));
-  const float32x4_t r = vfmsq_f32(x, n, vdupq_n_f32(0.693359375f));
-  const float32x4_t rr = vfmsq_f32(r, n, vdupq_n_f32(-2.12194440e-4f));
-  const float32x4_t s = vreinterpretq_f32_s32(vshlq_n_s32(vaddq_s32(vcvtnq_s32_f32(n), vdupq_n_s32(127)), 23));
-  return vfmaq_f32(vsubq_f32(s, vdupq_n_f32(1.0f)), s, taylor6_neon(rr));
+  const float32x4_t shifter = vdupq_n_f32(12583039.0f);  // 1.5 2^23 + 127
+  x = vmaxq_f32(vdupq_n_f32(-87.0f), x);
+  const float32x4_t nb = vfmaq_f32(shifter, x, vdupq_n_f32(1.44269504088896341f));
+  const float32x4_t r = vfmsq_f32(x, vsubq_f32(nb, shifter), vdupq_n_f32(0.693147180559945309f));
+  const float32x4_t s = vreinterpretq_f32_s32(vshlq_n_s32(vreinterpretq_s32_f32(nb), 23));
+  return vfmaq_f32(vsubq_f32(s, vdupq_n_f32(1.0f)), s, taylor6_neon(r));
 }
 
 struct VecNeon {
@@ -40,8 +40,8 @@ struct VecNeon {
   friend VecNeon fmadd(VecNeon a, VecNeon b, VecNeon c) { return {vfmaq_f32(c.v, a.v, b.v)}; }
   friend VecNeon elu(VecNeon a) {
     const float32x4_t zero = vdupq_n_f32(0.0f);
-    const float32x4_t neg = expm1_neg_neon(vminq_f32(a.v, zero));
-    return {vbslq_f32(vcgtq_f32(a.v, zero), a.v, neg)};
+    // As VecAvx2's: expm1 of a positive a is garbage, and the select drops it.
+    return {vbslq_f32(vcgtq_f32(a.v, zero), a.v, expm1_neg_neon(a.v))};
   }
   friend VecNeon relu(VecNeon a) { return {vmaxq_f32(a.v, vdupq_n_f32(0.0f))}; }
   friend float lane0(VecNeon a) { return vgetq_lane_f32(a.v, 0); }
