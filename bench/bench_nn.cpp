@@ -5,8 +5,9 @@
 // Then the shipped learned tracker's encoder and M-estimator per layer, the product's
 // convolutions (Winograd's F(4x4)) against the direct kernel and F(2x2) in the same run, the
 // encoder's two images of a pair at once (one a thread) against one after the other, F(4x4)
-// against F(2x2) on single layers of s16w64's shapes, and the M-estimator's
-// one-output-channel last layer with the one-channel kernel against the block kernel.
+// against F(2x2) on single layers of s16w64's shapes (and ELU's share of each), and the
+// M-estimator's one-output-channel last layer with the one-channel kernel against the block
+// kernel.
 //   build/release/bench/bench_nn [--tracker [WEIGHTS]]
 // (--tracker: only the learned tracker's part; WEIGHTS: another weight file's networks in place
 // of the shipped one's, e.g. a smaller network's before it is trained, whose time is its size's)
@@ -149,7 +150,8 @@ void for_each_kernel(F&& f) {
 
 // Winograd's F(4x4) against F(2x2) and the direct kernel on one layer, one thread, in the same
 // run, alternated: the shapes of s16w64's levels (64 -> 64 on the coarse ones, whose maps leave
-// the most tiles reaching past the edges), ELU, dilation 2.
+// the most tiles reaching past the edges), ELU, dilation 2; and F(4x4) without the activation,
+// whose difference is ELU's cost.
 void winograd_layers(nn::ConvRowsFn fn, int block, const char* simd) {
   struct Shape {
     int w, h, c;
@@ -165,25 +167,27 @@ void winograd_layers(nn::ConvRowsFn fn, int block, const char* simd) {
         for (int c = 0; c < sh.c; ++c) in.at(y, x)[c] = n01(rng);
     std::vector<float> wt(9 * static_cast<std::size_t>(sh.c) * static_cast<std::size_t>(sh.c)), bias(static_cast<std::size_t>(sh.c), 0.1f);
     for (auto& v : wt) v = n01(rng) * 0.1f;
-    nn::ConvWeights cw[3];
-    const int tiles[3] = {0, 2, 4};
+    // direct, F(2x2), F(4x4), and F(4x4) without the activation (ELU's share of the layer)
+    nn::ConvWeights cw[4];
+    const int tiles[4] = {0, 2, 4, 4};
     std::size_t scratch_floats = 0;
-    for (int k = 0; k < 3; ++k) {
-      cw[k] = nn::pack_conv(wt.data(), bias.data(), sh.c, sh.c, 2, nn::Act::Elu, block, tiles[k]);
+    for (int k = 0; k < 4; ++k) {
+      cw[k] = nn::pack_conv(wt.data(), bias.data(), sh.c, sh.c, 2, k == 3 ? nn::Act::None : nn::Act::Elu, block, tiles[k]);
       scratch_floats = std::max(scratch_floats, nn::conv_scratch_floats(cw[k]));
     }
     std::vector<float> scratch(scratch_floats + 16);
     float* aligned = scratch.data();
     while (reinterpret_cast<std::uintptr_t>(aligned) % 64 != 0) ++aligned;
-    double ms[3] = {1e9, 1e9, 1e9};
+    double ms[4] = {1e9, 1e9, 1e9, 1e9};
     for (int rep = 0; rep < 20; ++rep)
-      for (int k = 0; k < 3; ++k) {
+      for (int k = 0; k < 4; ++k) {
         const auto t0 = std::chrono::steady_clock::now();
         fn(in, cw[k], out, 0, sh.h, aligned);
         ms[k] = std::min(ms[k], std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
       }
-    std::printf("%d -> %d conv, dilation 2, at %dx%d, 1 thread, %s: direct %.3f ms, F(2x2) %.3f, F(4x4) %.3f: F(2x2) / F(4x4) %.2fx\n",
-                sh.c, sh.c, sh.w, sh.h, simd, ms[0], ms[1], ms[2], ms[1] / ms[2]);
+    std::printf("%d -> %d conv, dilation 2, at %dx%d, 1 thread, %s: direct %.3f ms, F(2x2) %.3f, F(4x4) %.3f: F(2x2) / F(4x4) %.2fx; "
+                "F(4x4) without ELU %.3f: ELU %.0f %% of the layer\n",
+                sh.c, sh.c, sh.w, sh.h, simd, ms[0], ms[1], ms[2], ms[1] / ms[2], ms[3], 100.0 * (ms[2] - ms[3]) / ms[2]);
   }
 }
 
