@@ -238,7 +238,9 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   }
   {
     std::ifstream aj(dir + "/acquired.json");
-    CHECK(nlohmann::json::parse(aj)["acquired"].get<int>() == 5);
+    const nlohmann::json aj_summary = nlohmann::json::parse(aj);
+    CHECK(aj_summary["acquired"].get<int>() == 5);
+    CHECK(aj_summary["restarted"].get<int>() == 0);  // none converged: each is the first start
   }
   // --second-look start: while the track starts (fewer than two converged answers) each such
   // frame takes a second look, its reference rendered at the answer; with a threshold no look
@@ -259,6 +261,7 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
                     " --ref-layer 2016 --query-layer 2016 --count 1 --seed 1 --altitude 700:900 --second-look start",
                 dir + "/err.txt", "--second-look 'start' must be yes or no");
   check_refused(cmd + "--acquire maybe", dir + "/err.txt", "--acquire 'maybe' must be yes or no");
+  check_refused(cmd + "--restart-after -1", dir + "/err.txt", "--restart-after '-1' must be an integer in [0, 1000]");
   check_refused(cmd + "--min-sharpness 1001", dir + "/err.txt", "--min-sharpness '1001' must be in [-1000, 1000]");
   check_refused(cmd + "--max-disagreement -1001", dir + "/err.txt", "--max-disagreement '-1001' must be in [-1000, 1000]");
   check_refused(cmd + "--coarse-search 17", dir + "/err.txt", "--coarse-search '17' must be an integer in [-1, 16]");

@@ -1,6 +1,7 @@
 // The tracking filter (cli::TrackFilter, `terralign track --filter kalman`): its prediction
 // against extrapolating the last two answers, its covariance's honesty where the motion is
-// the model's, the gate and the new start after refused answers, coasting, bad input.
+// the model's, the gate and the new start after refused answers, coasting, bad input; and
+// when a track starts and starts again (cli::TrackStart).
 #include <cmath>
 #include <cstdint>
 #include <string>
@@ -16,6 +17,7 @@
 using namespace terralign;
 using cli::TrackFilter;
 using cli::TrackFilterOptions;
+using cli::TrackStart;
 
 namespace {
 
@@ -234,4 +236,55 @@ TEST_CASE("the tracking filter coasts with a growing covariance, and turns bad a
   CHECK(std::string(u.why).find("positive semi-definite") != std::string::npos);
   CHECK((f.pose().t_W_C - at.t_W_C).norm() == 0.0);
   CHECK(f.pose().t_W_C.allFinite());
+}
+
+TEST_CASE("a track starts until two answers converge, and starts again after N frames in a row without an answer") {
+  TrackStart s(3);
+  CHECK(s.starting());
+  CHECK_FALSE(s.again());
+  // An unconfirmed answer taken to start is no converged one: still starting.
+  s.frame(false, true);
+  CHECK(s.starting());
+  s.frame(true, true);
+  CHECK(s.starting());
+  s.frame(true, true);
+  CHECK_FALSE(s.starting());
+  CHECK(s.converged() == 2);
+  // Frames without an answer (failed, refused, unreadable): two are coasted through, the third
+  // in a row makes the next frame a start again, and it stays one until an answer is taken.
+  s.frame(false, false);
+  s.frame(false, false);
+  CHECK(s.coasted() == 2);
+  CHECK_FALSE(s.starting());
+  s.frame(false, false);
+  CHECK(s.starting());
+  CHECK(s.again());
+  s.frame(false, false);
+  CHECK(s.again());
+  CHECK(s.coasted() == 4);
+  // Taken (converged, or unconfirmed as the new start): tracking again.
+  s.frame(false, true);
+  CHECK_FALSE(s.starting());
+  CHECK(s.coasted() == 0);
+  CHECK(s.converged() == 2);
+  // A taken answer between failures resets the count.
+  s.frame(false, false);
+  s.frame(false, false);
+  s.frame(true, true);
+  s.frame(false, false);
+  s.frame(false, false);
+  CHECK_FALSE(s.starting());
+  // Before two have converged, a start is the first one, not a start again, however long it
+  // has gone without an answer.
+  TrackStart first(3);
+  for (int k = 0; k < 5; ++k) first.frame(false, false);
+  CHECK(first.starting());
+  CHECK_FALSE(first.again());
+  // 0: never again.
+  TrackStart never(0);
+  never.frame(true, true);
+  never.frame(true, true);
+  for (int k = 0; k < 100; ++k) never.frame(false, false);
+  CHECK_FALSE(never.starting());
+  CHECK(never.coasted() == 100);
 }

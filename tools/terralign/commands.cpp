@@ -167,8 +167,8 @@ const std::vector<Command>& commands() {
        "                       [--coarse-search PX] [--min-step PX] [--nn-levels L] [--refine N]\n"
        "                       [--refine-levels L] [--refine-max-residual R] [--refine-uniform R]\n"
        "                       [--filter kalman|none] [--accel-sigma A] [--gate D2]\n"
-       "                       [--init-sigma M] [--acquire yes|no] [--second-look yes|no|start]\n"
-       "                       [--second-look-max-disagreement PX]\n\n"
+       "                       [--init-sigma M] [--acquire yes|no] [--restart-after N]\n"
+       "                       [--second-look yes|no|start] [--second-look-max-disagreement PX]\n\n"
        "LIST has 'timestamp image-path' lines; --init is the pose at the first frame's time.\n"
        "--filter kalman (the default; auto is the same): each frame's prior is a Kalman filter's\n"
        "prediction (pose, velocity and turn rate; constant velocity and turn rate, white\n"
@@ -190,7 +190,7 @@ const std::vector<Command>& commands() {
        "world axes); dp (m)]; zero where there is none), the aligner's answer where it converged\n"
        "or --acquire took it (answer_x .. answer_qz), the gate's squared distance (gate_d2) and\n"
        "the layer it aligned to (--layer A,B,...: the first that converged, as align's). With\n"
-       "--truth, the summary (stderr and --json) has frames, converged_fraction, acquired,\n"
+       "--truth, the summary (stderr and --json) has frames, converged_fraction, acquired, restarted,\n"
        "position_rmse_m, angle_rmse_deg, the maxima, nees_mean and nees_median (over the frames\n"
        "with a covariance), and with the filter refused and resets.\n"
        "--init-velocity \"vx vy vz\": the velocity at --init (m/s along the map's axes, e.g. a GPS's\n"
@@ -201,6 +201,10 @@ const std::vector<Command>& commands() {
        "(disagreement / threshold)^2: the frame reports itself not converged, its reason says the\n"
        "answer was taken, and the summary counts such frames (acquired). Otherwise a track whose\n"
        "first frames fail that test waits at --init while the aircraft flies on. no: never.\n"
+       "--restart-after N (default 0: never): a track that has taken no answer for N frames in a\n"
+       "row starts again as it started: --acquire takes such an unconfirmed answer, which the\n"
+       "filter's gate still tests (its reason says so; the summary counts it in restarted too).\n"
+       "Across 11 years it holds some lost tracks and worsens others (README, \"Starting again\").\n"
        "--method nn tracks with the learned tracker (--weights as for align).\n"
        "--attitude FILE: an attitude reference (an IMU) that outlives the GPS, 'timestamp qw qx qy\n"
        "qz' a line, one per frame at its timestamp; a prior not yet predicted from two converged\n"
@@ -221,8 +225,8 @@ const std::vector<Command>& commands() {
        "flights: 33-40 of 40, at about twice the iterations).\n"
        "--refine-levels L, --refine-max-residual R, --refine-uniform R, --second-look yes|no and\n"
        "--second-look-max-disagreement PX: as align's. --second-look start: a second look only\n"
-       "until two answers have converged, while the track starts (where --acquire would otherwise\n"
-       "take the answer unconfirmed).\n",
+       "until two answers have converged or while it starts again (--restart-after), where\n"
+       "--acquire would otherwise take the answer unconfirmed.\n",
        run_track},
       {"dataset", "render training pairs for the learned tracker (every ordered pair of years)",
        "usage: terralign dataset --map MAP.json --camera CAMERA.json --count N --seed S --out DIR\n"

@@ -100,4 +100,32 @@ class TrackFilter {
   int refused_in_row_ = 0;
 };
 
+// Whether a track is starting (`terralign track --acquire`, `--second-look start`): until two
+// answers have converged, and again once `restart_after` frames in a row have taken no answer
+// (0: never again). While it starts, an answer the agreement test alone failed may stand in
+// for a converged one; started again, the filter's gate still tests it, and two refused in a
+// row start the filter again (TrackFilterOptions::reset_after_refusals). A track whose
+// prediction took one wrong answer otherwise coasts away on it while every later answer fails
+// the agreement test (the README's lawnmower across 11 years with the IMU, session 70: 123.6 m
+// RMSE, lost; 24.5 m with a restart after 3). Over random flights the answers a restart takes
+// are mostly wrong, and `track` leaves it off by default (docs/history.md, session 71).
+class TrackStart {
+ public:
+  explicit TrackStart(int restart_after) : restart_after_(restart_after) {}
+  // Before a frame: whether it may start the track, and whether that is a start again.
+  bool starting() const { return converged_ < 2 || again(); }
+  bool again() const { return converged_ >= 2 && restart_after_ > 0 && coasted_ >= restart_after_; }
+  // After it: whether its answer converged (and was taken), and whether any answer was taken.
+  void frame(bool converged, bool taken) {
+    if (converged) ++converged_;
+    coasted_ = taken ? 0 : coasted_ + 1;
+  }
+  int converged() const { return converged_; }
+  int coasted() const { return coasted_; }  // frames in a row without an answer taken
+
+ private:
+  int restart_after_;
+  int converged_ = 0, coasted_ = 0;
+};
+
 }  // namespace terralign::cli
