@@ -294,6 +294,76 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   check_refused(cmd + "--nn-levels 7", dir + "/err.txt", "--nn-levels '7' must be an integer in [0, 6]");
 }
 
+TEST_CASE("track --restart-after N: after N frames in a row without an answer an unconfirmed one starts the track again") {
+  // Frames 0-1 converge; frames 2-5 are noise, whose answers fail (frames 2, 3 and 5 the
+  // agreement test alone: "ambiguous: a start nearby settles elsewhere"); frames 6-7 are the
+  // flight again.
+  const Flight flight = fly("restart", "--duration 8 --noise 2 --seed 4");
+  const std::string& dir = flight.dir;
+  std::mt19937 rng(11);
+  ImageU8 noise(752, 480, 3);
+  for (int k = 2; k <= 5; ++k) {
+    for (auto& v : noise.pixels()) v = static_cast<std::uint8_t>(rng() & 255);
+    REQUIRE(geo::save_png(dir + "/frames/00000" + std::to_string(k) + ".png", noise.view()).ok());
+  }
+  const std::string track = flight.tl + " track --method nn --map " + flight.map + " --camera " + flight.cam +
+                            " --layer 2016 --init \"" + first_truth_pose(dir) + "\" --images " + dir + "/list.txt --out " +
+                            dir + "/poses.csv --json " + dir + "/summary.json ";
+  auto summary = [&] {
+    std::ifstream js(dir + "/summary.json");
+    return nlohmann::json::parse(js);
+  };
+  // Every cell of two tracks' frames but the time (column 11).
+  auto same_frame = [](const std::vector<std::string>& a, const std::vector<std::string>& b) {
+    if (a.size() != b.size()) return false;
+    for (std::size_t c = 0; c < a.size(); ++c)
+      if (c != 11 && a[c] != b[c]) return false;
+    return true;
+  };
+  // By default (0) the track coasts through the noise: no answer of frames 2-5 is taken.
+  REQUIRE(run(track) == 0);
+  const auto coasted = csv_rows(dir + "/poses.csv");
+  REQUIRE(coasted.size() == 8);
+  for (std::size_t i = 0; i < coasted.size(); ++i) {
+    CAPTURE(i);
+    CHECK(coasted[i][8] == (i >= 2 && i <= 5 ? "0" : "1"));
+    if (i >= 2 && i <= 5) CHECK(coasted[i][51].empty());
+  }
+  CHECK(coasted[5][9].find("ambiguous: a start nearby settles elsewhere") != std::string::npos);
+  CHECK(summary()["restarted"].get<int>() == 0);
+  // --restart-after 3: frame 5, after three frames without an answer, takes its unconfirmed
+  // answer: the frame reports it, not converged, its reason says so, the gate's distance is
+  // recorded (the gate took it: an unconfirmed answer's covariance is scaled up by its
+  // disagreement, so even noise's passes; README "Starting again"), and the JSON counts one
+  // restart among the acquired. Frames 0-4 are the default's to the digit.
+  REQUIRE(run(track + "--restart-after 3") == 0);
+  const auto restarted = csv_rows(dir + "/poses.csv");
+  REQUIRE(restarted.size() == 8);
+  for (std::size_t i = 0; i < 5; ++i) {
+    CAPTURE(i);
+    CHECK(same_frame(restarted[i], coasted[i]));
+  }
+  CHECK(restarted[5][8] == "0");
+  CHECK(restarted[5][9].find("its answer taken unconfirmed to start the track again after 3 frames without one") !=
+        std::string::npos);
+  for (int c = 1; c <= 7; ++c) CHECK(restarted[5][static_cast<std::size_t>(c)] == restarted[5][static_cast<std::size_t>(50 + c)]);
+  REQUIRE(restarted[5].size() > 58);
+  CHECK(std::stod(restarted[5][58]) <= 22.46);
+  const nlohmann::json j = summary();
+  CHECK(j["restarted"].get<int>() == 1);
+  CHECK(j["acquired"].get<int>() == 1);
+  // --restart-after 4: frame 5 has three frames without an answer behind it, not four, so
+  // nothing restarts and every frame is the default's.
+  REQUIRE(run(track + "--restart-after 4") == 0);
+  const auto later = csv_rows(dir + "/poses.csv");
+  REQUIRE(later.size() == coasted.size());
+  for (std::size_t i = 0; i < later.size(); ++i) {
+    CAPTURE(i);
+    CHECK(same_frame(later[i], coasted[i]));
+  }
+  CHECK(summary()["restarted"].get<int>() == 0);
+}
+
 // Apart from the tracking runs above, so that each half has its own time limit and the two can
 // run side by side (under qemu the whole took 1267 s of ctest's 1800 in session 55's CI).
 TEST_CASE("align on a flight's first frame takes the learned tracker's converged tests, and --agree-px reaches both trackers") {
