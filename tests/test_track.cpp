@@ -296,9 +296,10 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
 
 TEST_CASE("track --restart-after N: after N frames in a row without an answer an unconfirmed one starts the track again") {
   // Frames 0-1 converge; frames 2-5 are noise, whose answers fail (frames 2, 3 and 5 the
-  // agreement test alone: "ambiguous: a start nearby settles elsewhere"); frames 6-7 are the
-  // flight again.
-  const Flight flight = fly("restart", "--duration 8 --noise 2 --seed 4");
+  // agreement test alone: "ambiguous: a start nearby settles elsewhere"). Six frames, which is
+  // all the runs need, to keep them cheap under qemu (N's other side, one frame short of it,
+  // is TrackStart's test in test_track_filter.cpp).
+  const Flight flight = fly("restart", "--duration 6 --noise 2 --seed 4");
   const std::string& dir = flight.dir;
   std::mt19937 rng(11);
   ImageU8 noise(752, 480, 3);
@@ -323,7 +324,7 @@ TEST_CASE("track --restart-after N: after N frames in a row without an answer an
   // By default (0) the track coasts through the noise: no answer of frames 2-5 is taken.
   REQUIRE(run(track) == 0);
   const auto coasted = csv_rows(dir + "/poses.csv");
-  REQUIRE(coasted.size() == 8);
+  REQUIRE(coasted.size() == 6);
   for (std::size_t i = 0; i < coasted.size(); ++i) {
     CAPTURE(i);
     CHECK(coasted[i][8] == (i >= 2 && i <= 5 ? "0" : "1"));
@@ -338,7 +339,7 @@ TEST_CASE("track --restart-after N: after N frames in a row without an answer an
   // restart among the acquired. Frames 0-4 are the default's to the digit.
   REQUIRE(run(track + "--restart-after 3") == 0);
   const auto restarted = csv_rows(dir + "/poses.csv");
-  REQUIRE(restarted.size() == 8);
+  REQUIRE(restarted.size() == 6);
   for (std::size_t i = 0; i < 5; ++i) {
     CAPTURE(i);
     CHECK(same_frame(restarted[i], coasted[i]));
@@ -352,16 +353,6 @@ TEST_CASE("track --restart-after N: after N frames in a row without an answer an
   const nlohmann::json j = summary();
   CHECK(j["restarted"].get<int>() == 1);
   CHECK(j["acquired"].get<int>() == 1);
-  // --restart-after 4: frame 5 has three frames without an answer behind it, not four, so
-  // nothing restarts and every frame is the default's.
-  REQUIRE(run(track + "--restart-after 4") == 0);
-  const auto later = csv_rows(dir + "/poses.csv");
-  REQUIRE(later.size() == coasted.size());
-  for (std::size_t i = 0; i < later.size(); ++i) {
-    CAPTURE(i);
-    CHECK(same_frame(later[i], coasted[i]));
-  }
-  CHECK(summary()["restarted"].get<int>() == 0);
 }
 
 // Apart from the tracking runs above, so that each half has its own time limit and the two can
