@@ -288,3 +288,122 @@ TEST_CASE("a track starts until two answers converge, and starts again after N f
   CHECK_FALSE(never.starting());
   CHECK(never.coasted() == 100);
 }
+
+TEST_CASE("two answers agree with the motion between them: the squared distance of their change from the prediction's") {
+  // The prediction moves 25 m east and turns 1 degree about the vertical between the frames.
+  const Eigen::Quaterniond q1 = exp_so3(Eigen::Vector3d(0.02, 0, 0.3));
+  const Eigen::Quaterniond turn = exp_so3(Eigen::Vector3d(0, 0, 1 * kDeg));
+  const geo::Pose p1 = pose_at(Eigen::Vector3d(100, 200, 800), q1);
+  const geo::Pose p2 = pose_at(Eigen::Vector3d(125, 200, 800), (turn * q1).normalized());
+  const TrackFilter::Mat6 c = covariance_of(0.01, 1.0), none = TrackFilter::Mat6::Zero();
+  // Two answers off the predictions by the same error (as across years, one error for both):
+  // they agree exactly where the error is a shift, and to first order where it turns too (the
+  // common 0.06 rad turn and the motion's 1 degree leave 1e-3 rad between them, at most 0.005
+  // over the answers' 2 x 1e-4 rad^2).
+  const Eigen::Vector3d shift(40, -30, 5);
+  const geo::Pose a1 = pose_at(p1.t_W_C + shift, p1.q_W_C), a2 = pose_at(p2.t_W_C + shift, p2.q_W_C);
+  CHECK(cli::motion_disagreement_d2(a1, c, p1, a2, c, p2, none) == doctest::Approx(0).scale(1e-9));
+  const Eigen::Quaterniond off = exp_so3(Eigen::Vector3d(0.03, -0.01, 0.05));
+  const geo::Pose r1 = pose_at(a1.t_W_C, (off * p1.q_W_C).normalized()), r2 = pose_at(a2.t_W_C, (off * p2.q_W_C).normalized());
+  CHECK(cli::motion_disagreement_d2(r1, c, p1, r2, c, p2, none) < 0.005);
+  // The second 3 m further north: 3^2 over the two answers' 1 m^2 each, 4.5.
+  const geo::Pose north = pose_at(a2.t_W_C + Eigen::Vector3d(0, 3, 0), a2.q_W_C);
+  CHECK(cli::motion_disagreement_d2(a1, c, p1, north, c, p2, none) == doctest::Approx(4.5).epsilon(1e-6));
+  // The motion's own variance adds to theirs: 9 / (1 + 1 + 7).
+  TrackFilter::Mat6 motion = TrackFilter::Mat6::Zero();
+  motion.diagonal().tail<3>().setConstant(7.0);
+  CHECK(cli::motion_disagreement_d2(a1, c, p1, north, c, p2, motion) == doctest::Approx(1.0).epsilon(1e-6));
+  // Turned 0.02 rad more about the vertical: 0.02^2 over 2 x 0.01^2, 2 (first order in the
+  // rotation: within 1e-3 of it).
+  const geo::Pose turned = pose_at(a2.t_W_C, (exp_so3(Eigen::Vector3d(0, 0, 0.02)) * a2.q_W_C).normalized());
+  CHECK(cli::motion_disagreement_d2(a1, c, p1, turned, c, p2, none) == doctest::Approx(2.0).epsilon(1e-3));
+  // A wrong answer 60 m off where the first was right is far beyond the bound.
+  const geo::Pose wrong = pose_at(a2.t_W_C + Eigen::Vector3d(60, 0, 0), a2.q_W_C);
+  CHECK(cli::motion_disagreement_d2(a1, c, p1, wrong, c, p2, none) > cli::kMotionAgreementD2);
+  // No covariance at all, or a NaN in an answer: infinite, never an agreement.
+  CHECK(std::isinf(cli::motion_disagreement_d2(a1, none, p1, a2, none, p2, none)));
+  const geo::Pose nan = pose_at(Eigen::Vector3d(NAN, 0, 0), a2.q_W_C);
+  CHECK(std::isinf(cli::motion_disagreement_d2(a1, c, p1, nan, c, p2, none)));
+}
+
+TEST_CASE("the tracking filter's motion covariance: its velocity and turn rate's uncertainty over dt, and the process noise") {
+  // Without a velocity: 30 m/s horizontal, 5 m/s vertical, 5 deg/s of turn rate (the start's
+  // sigmas), and the process noise's dt^3 / 3 (1 m/s per root second, 5 deg/s per root second).
+  const geo::Pose start = pose_at(Eigen::Vector3d(0, 0, 800), Eigen::Quaterniond::Identity());
+  const TrackFilter f(start, 0.0, nullptr, TrackFilterOptions{});
+  const double dt = 2, q = dt * dt * dt / 3, r2 = 5 * kDeg * 5 * kDeg;
+  const TrackFilter::Mat6 M = f.motion_covariance(dt);
+  CHECK(M(3, 3) == doctest::Approx(dt * dt * 900 + q));
+  CHECK(M(4, 4) == doctest::Approx(dt * dt * 900 + q));
+  CHECK(M(5, 5) == doctest::Approx(dt * dt * 25 + q));
+  for (int k = 0; k < 3; ++k) CHECK(M(k, k) == doctest::Approx(dt * dt * r2 + r2 * q));
+  CHECK((M - M.transpose()).norm() == 0.0);
+  CHECK(M(0, 3) == 0.0);  // the start's velocity and turn rate are independent
+  // Coasting, the velocity's uncertainty grows, and with it the motion's.
+  TrackFilter g = f;
+  g.predict(3.0);
+  CHECK(g.motion_covariance(dt)(3, 3) > M(3, 3));
+}
+
+TEST_CASE("starting again with agreement holds an unconfirmed answer, and takes the next where the two agree with the motion") {
+  const geo::Pose p1 = pose_at(Eigen::Vector3d(0, 0, 800), Eigen::Quaterniond::Identity());
+  const geo::Pose p2 = pose_at(Eigen::Vector3d(25, 0, 800), Eigen::Quaterniond::Identity());
+  const geo::Pose p3 = pose_at(Eigen::Vector3d(50, 0, 800), Eigen::Quaterniond::Identity());
+  const Eigen::Vector3d off(30, 10, 0);  // the answers' common error
+  auto answer = [&](const geo::Pose& p, const Eigen::Vector3d& e) { return pose_at(p.t_W_C + e, p.q_W_C); };
+  const TrackFilter::Mat6 c = covariance_of(0.01, 2.0);
+  // Two converged, then one frame without an answer: with N = 1 the next starts again.
+  auto coasting = [](TrackStart& s) {
+    s.frame(true, true);
+    s.frame(true, true);
+    s.frame(false, false);
+    REQUIRE(s.again());
+  };
+  TrackStart s(1, true);
+  coasting(s);
+  // The first answer is held: nothing to agree with.
+  auto c1 = s.confirm(answer(p1, off), c, p1, 10, nullptr);
+  CHECK_FALSE(c1.take);
+  CHECK(std::isnan(c1.d2));
+  CHECK(s.held() == 1);
+  s.frame(false, false);
+  // The next, 60 m from where the first and the motion put it: held in its place.
+  auto c2 = s.confirm(answer(p2, off + Eigen::Vector3d(60, 0, 0)), c, p2, 11, nullptr);
+  CHECK_FALSE(c2.take);
+  CHECK(c2.d2 == doctest::Approx(3600.0 / 8));
+  CHECK(s.held() == 2);
+  s.frame(false, false);
+  // The third agrees with the second (the same error): taken, and the start ends with it.
+  auto c3 = s.confirm(answer(p3, off + Eigen::Vector3d(60, 0, 0)), c, p3, 12, nullptr);
+  CHECK(c3.take);
+  CHECK(c3.d2 == doctest::Approx(0.0).scale(1));
+  s.frame(false, true);
+  CHECK_FALSE(s.again());
+  CHECK(s.held() == 2);
+  // A held answer counts only for the very next frame: a frame between without one (failed,
+  // or its answer not unconfirmed) drops it.
+  TrackStart t(1, true);
+  coasting(t);
+  CHECK_FALSE(t.confirm(answer(p1, off), c, p1, 10, nullptr).take);
+  t.frame(false, false);
+  t.frame(false, false);
+  const auto later = t.confirm(answer(p3, off), c, p3, 12, nullptr);
+  CHECK_FALSE(later.take);
+  CHECK(std::isnan(later.d2));
+  // With a filter, its motion covariance widens the test: 60 m over 1 s of a 30 m/s sigma.
+  TrackStart u(1, true);
+  coasting(u);
+  const TrackFilter f(p1, 10.0, nullptr, TrackFilterOptions{});
+  CHECK_FALSE(u.confirm(answer(p1, off), c, p1, 10, &f).take);
+  u.frame(false, false);
+  const auto widened = u.confirm(answer(p2, off + Eigen::Vector3d(60, 0, 0)), c, p2, 11, &f);
+  CHECK(widened.take);
+  CHECK(widened.d2 == doctest::Approx(3600.0 / (8 + 900 + 1.0 / 3)));
+  // Without agreement, and at a first start with it, every unconfirmed answer is taken.
+  TrackStart plain(1, false);
+  coasting(plain);
+  CHECK(plain.confirm(answer(p1, off), c, p1, 10, nullptr).take);
+  TrackStart first(1, true);
+  CHECK(first.confirm(answer(p1, off), c, p1, 10, nullptr).take);
+  CHECK(first.held() == 0);
+}
