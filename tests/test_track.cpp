@@ -296,10 +296,9 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
 
 TEST_CASE("track --restart-after N: after N frames in a row without an answer an unconfirmed one starts the track again") {
   // Frames 0-1 converge; frames 2-5 are noise, whose answers fail (frames 2, 3 and 5 the
-  // agreement test alone: "ambiguous: a start nearby settles elsewhere"). Six frames and two
-  // runs, which is all the case needs, to keep it cheap under qemu (N's other side, one frame
-  // short of it, and the agreement of two answers are TrackStart's test in
-  // test_track_filter.cpp).
+  // agreement test alone: "ambiguous: a start nearby settles elsewhere"). Six frames, which is
+  // all the runs need, to keep them cheap under qemu (N's other side, one frame short of it,
+  // is TrackStart's test in test_track_filter.cpp).
   const Flight flight = fly("restart", "--duration 6 --noise 2 --seed 4");
   const std::string& dir = flight.dir;
   std::mt19937 rng(11);
@@ -310,7 +309,7 @@ TEST_CASE("track --restart-after N: after N frames in a row without an answer an
   }
   const std::string track = flight.tl + " track --method nn --map " + flight.map + " --camera " + flight.cam +
                             " --layer 2016 --init \"" + first_truth_pose(dir) + "\" --images " + dir + "/list.txt --out " +
-                            dir + "/poses.csv --json " + dir + "/summary.json --restart-after 3 ";
+                            dir + "/poses.csv --json " + dir + "/summary.json ";
   auto summary = [&] {
     std::ifstream js(dir + "/summary.json");
     return nlohmann::json::parse(js);
@@ -322,10 +321,7 @@ TEST_CASE("track --restart-after N: after N frames in a row without an answer an
       if (c != 11 && a[c] != b[c]) return false;
     return true;
   };
-  // With the agreement (--restart-agreement yes, the default) the track coasts through the
-  // noise: no answer of frames 2-5 is taken. Frame 5, after three frames without an answer,
-  // starts again, but its answer has none before it to agree with: it is held (its reason says
-  // so, the JSON counts it), not taken.
+  // By default (0) the track coasts through the noise: no answer of frames 2-5 is taken.
   REQUIRE(run(track) == 0);
   const auto coasted = csv_rows(dir + "/poses.csv");
   REQUIRE(coasted.size() == 6);
@@ -334,17 +330,14 @@ TEST_CASE("track --restart-after N: after N frames in a row without an answer an
     CHECK(coasted[i][8] == (i >= 2 && i <= 5 ? "0" : "1"));
     if (i >= 2 && i <= 5) CHECK(coasted[i][51].empty());
   }
-  CHECK(coasted[5][9].find("ambiguous: a start nearby settles elsewhere; its answer held to start the track again if the "
-                           "next agrees with it") != std::string::npos);
-  nlohmann::json j = summary();
-  CHECK(j["restarted"].get<int>() == 0);
-  CHECK(j["restart_held"].get<int>() == 1);
-  // --restart-agreement no: frame 5 takes its unconfirmed answer: the frame reports it, not
-  // converged, its reason says so, the gate's distance is recorded (the gate took it: an
-  // unconfirmed answer's covariance is scaled up by its disagreement, so even noise's passes;
-  // README "Starting again"), and the JSON counts one restart among the acquired. Frames 0-4
-  // are the first run's to the digit.
-  REQUIRE(run(track + "--restart-agreement no") == 0);
+  CHECK(coasted[5][9].find("ambiguous: a start nearby settles elsewhere") != std::string::npos);
+  CHECK(summary()["restarted"].get<int>() == 0);
+  // --restart-after 3: frame 5, after three frames without an answer, takes its unconfirmed
+  // answer: the frame reports it, not converged, its reason says so, the gate's distance is
+  // recorded (the gate took it: an unconfirmed answer's covariance is scaled up by its
+  // disagreement, so even noise's passes; README "Starting again"), and the JSON counts one
+  // restart among the acquired. Frames 0-4 are the default's to the digit.
+  REQUIRE(run(track + "--restart-after 3") == 0);
   const auto restarted = csv_rows(dir + "/poses.csv");
   REQUIRE(restarted.size() == 6);
   for (std::size_t i = 0; i < 5; ++i) {
@@ -357,11 +350,9 @@ TEST_CASE("track --restart-after N: after N frames in a row without an answer an
   for (int c = 1; c <= 7; ++c) CHECK(restarted[5][static_cast<std::size_t>(c)] == restarted[5][static_cast<std::size_t>(50 + c)]);
   REQUIRE(restarted[5].size() > 58);
   CHECK(std::stod(restarted[5][58]) <= 22.46);
-  j = summary();
+  const nlohmann::json j = summary();
   CHECK(j["restarted"].get<int>() == 1);
   CHECK(j["acquired"].get<int>() == 1);
-  CHECK(j["restart_held"].get<int>() == 0);
-  check_refused(track + "--restart-agreement maybe", dir + "/err.txt", "--restart-agreement 'maybe' must be yes or no");
 }
 
 // Apart from the tracking runs above, so that each half has its own time limit and the two can

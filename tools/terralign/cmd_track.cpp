@@ -121,7 +121,7 @@ int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
                                  "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor",
                                  "registration-floor-per-residual",
-                                 "filter", "accel-sigma", "gate", "init-sigma", "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "nn-levels", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "second-look-max-disagreement", "acquire", "restart-after", "restart-agreement"}, {});
+                                 "filter", "accel-sigma", "gate", "init-sigma", "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "nn-levels", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "second-look-max-disagreement", "acquire", "restart-after"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
@@ -169,14 +169,6 @@ int run_track(const std::vector<std::string>& argv) {
   // median 37 m off, where coasting was 21 m off (docs/history.md, session 71).
   auto restart_after = args->get_int("restart-after", 0, 0, 1000);
   if (!restart_after.ok()) return usage_error("track", restart_after.error());
-  // --restart-agreement yes (the default): a restart holds its first unconfirmed answer and
-  // takes the next frame's only where the two agree with the motion predicted between them
-  // (motion_disagreement_d2, on the answers' covariances before the agreement test's scaling);
-  // no: it takes the first, as session 71 did.
-  const std::string restart_agreement_arg = args->get("restart-agreement", "yes");
-  if (restart_agreement_arg != "yes" && restart_agreement_arg != "no")
-    return usage_error("track", Error{"--restart-agreement '" + restart_agreement_arg + "' must be yes or no"});
-  const bool restart_agreement = restart_agreement_arg == "yes";
   auto iters = args->get_int("iterations", 20, 1, 1000);
   auto threads = args->get_int("threads", 2, 1, 64);
   if (!iters.ok()) return usage_error("track", iters.error());
@@ -250,7 +242,7 @@ int run_track(const std::vector<std::string>& argv) {
   geo::Pose last = init.value(), prev = init.value();
   double t_last = frames->front().t, t_prev = t_last;
   int known = 0;
-  TrackStart start(restart_after.value(), restart_agreement);
+  TrackStart start(restart_after.value());
   if (init_velocity) {
     prev.t_W_C -= *init_velocity;
     t_prev = t_last - 1;
@@ -315,20 +307,7 @@ int run_track(const std::vector<std::string>& argv) {
           const bool again = unconfirmed && start.again();
           const geo::Pose& T = ok ? out->T_W_C : out->T_W_C_unconfirmed;
           const Eigen::Matrix<double, 6, 6>& P = ok ? out->covariance : out->covariance_unconfirmed;
-          // Starting again, the answer before must agree with this one (--restart-agreement);
-          // where there is none, or it does not, this one waits for the next.
-          TrackStart::Confirmation confirmed;
-          if (unconfirmed)
-            confirmed = start.confirm(T, out->covariance_unconfirmed_unscaled, prior, f.t, filter ? &*filter : nullptr);
-          if (!confirmed.take) {
-            char d[160];
-            if (std::isfinite(confirmed.d2))
-              std::snprintf(d, sizeof d, "; its answer held to start the track again: the last disagrees (squared distance %.4g)", confirmed.d2);
-            else
-              std::snprintf(d, sizeof d, "; its answer held to start the track again if the next agrees with it");
-            reason += d;
-          }
-          taken = ok || (unconfirmed && confirmed.take);
+          taken = ok || unconfirmed;
           if (taken) {
             answer = T;
             answer_layer = &layers[static_cast<std::size_t>(out->layer)];
@@ -361,12 +340,8 @@ int run_track(const std::vector<std::string>& argv) {
             ++acquired;
             if (again) ++restarted;
             const std::string after = again ? " again after " + std::to_string(start.coasted()) + " frames without one" : "";
-            char d[160];
-            if (std::isfinite(confirmed.d2))
-              std::snprintf(d, sizeof d, " (second start %.3g px away; agrees with the last, squared distance %.4g)",
-                            out->disagreement_px, confirmed.d2);
-            else
-              std::snprintf(d, sizeof d, " (the second start %.3g px away)", out->disagreement_px);
+            char d[96];
+            std::snprintf(d, sizeof d, " (the second start %.3g px away)", out->disagreement_px);
             reason += "; its answer taken unconfirmed to start the track" + after + d;
           }
         }
@@ -446,7 +421,6 @@ int run_track(const std::vector<std::string>& argv) {
   j["filter"] = filter_mode;
   j["acquired"] = acquired;  // unconfirmed answers taken to start the track (--acquire)
   j["restarted"] = restarted;  // of them, those that started it again (--restart-after)
-  j["restart_held"] = start.held();  // unconfirmed answers held for the next to agree with (--restart-agreement)
   if (filter) {
     j["refused"] = refused;
     j["resets"] = resets;
