@@ -133,55 +133,6 @@ void TrackFilter::reset(const geo::Pose& measured, const Mat6& covariance) {
   ++updates_;
 }
 
-TrackFilter::Mat6 TrackFilter::motion_covariance(double dt) const {
-  // The change is [w dt; v dt] plus the process noise's integral (predict's Q, its pose block).
-  Mat6 M;
-  M.topLeftCorner<3, 3>() = P_.block<3, 3>(9, 9);
-  M.topRightCorner<3, 3>() = P_.block<3, 3>(9, 6);
-  M.bottomLeftCorner<3, 3>() = P_.block<3, 3>(6, 9);
-  M.bottomRightCorner<3, 3>() = P_.block<3, 3>(6, 6);
-  M *= dt * dt;
-  const double q00 = dt * dt * dt / 3;
-  M.diagonal().head<3>().array() += std::pow(opt_.angular_accel_sigma_deg * kDeg, 2) * q00;
-  M.diagonal().tail<3>().array() += opt_.accel_sigma * opt_.accel_sigma * q00;
-  return M;
-}
-
-double motion_disagreement_d2(const geo::Pose& a1, const TrackFilter::Mat6& c1, const geo::Pose& p1,
-                              const geo::Pose& a2, const TrackFilter::Mat6& c2, const geo::Pose& p2,
-                              const TrackFilter::Mat6& motion) {
-  Eigen::Matrix<double, 6, 1> y;
-  const Eigen::Quaterniond da = a2.q_W_C * a1.q_W_C.conjugate(), dp = p2.q_W_C * p1.q_W_C.conjugate();
-  y.head<3>() = log_so3(da * dp.conjugate());
-  y.tail<3>() = (a2.t_W_C - a1.t_W_C) - (p2.t_W_C - p1.t_W_C);
-  const TrackFilter::Mat6 S = c1 + c2 + motion;
-  const Eigen::LDLT<TrackFilter::Mat6> ldlt(0.5 * (S + S.transpose()));
-  if (!y.allFinite() || ldlt.info() != Eigen::Success || !ldlt.isPositive() || !(ldlt.vectorD().minCoeff() > 0))
-    return INFINITY;
-  const double d2 = y.dot(ldlt.solve(y));
-  return std::isfinite(d2) ? d2 : INFINITY;
-}
-
-TrackStart::Confirmation TrackStart::confirm(const geo::Pose& answer, const TrackFilter::Mat6& covariance,
-                                             const geo::Pose& prediction, double t, const TrackFilter* filter) {
-  Confirmation c;
-  if (!agreement_ || !again()) return c;
-  if (held_) {
-    const TrackFilter::Mat6 motion = filter ? filter->motion_covariance(t - held_t_) : TrackFilter::Mat6::Zero();
-    c.d2 = motion_disagreement_d2(held_answer_, held_covariance_, held_prediction_, answer, covariance, prediction, motion);
-  }
-  c.take = c.d2 <= kMotionAgreementD2;
-  if (!c.take) {
-    held_answer_ = answer;
-    held_prediction_ = prediction;
-    held_covariance_ = covariance;
-    held_t_ = t;
-    held_now_ = true;
-    ++held_count_;
-  }
-  return c;
-}
-
 geo::Pose TrackFilter::pose() const {
   geo::Pose p;
   p.q_W_C = q_;

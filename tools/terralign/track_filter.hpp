@@ -80,10 +80,6 @@ class TrackFilter {
   // with the start's uncertainty: where the prediction, not the answers, went wrong.
   void reset(const geo::Pose& measured, const Mat6& covariance);
 
-  // The covariance of the pose's change ([dtheta; dp]) over the next dt seconds as the filter
-  // predicts it: its turn rate's and velocity's uncertainty times dt, and the process noise.
-  Mat6 motion_covariance(double dt) const;
-
   geo::Pose pose() const;
   Mat6 pose_covariance() const { return P_.topLeftCorner<6, 6>(); }
   const Eigen::Vector3d& velocity() const { return v_; }
@@ -104,17 +100,6 @@ class TrackFilter {
   int refused_in_row_ = 0;
 };
 
-// Whether two answers a frame apart agree with the motion predicted between them: the squared
-// Mahalanobis distance of the answers' change (a1 to a2) from the predictions' (p1 to p2),
-// [dtheta; dp] in the map's axes, on the two answers' covariances and the motion's
-// (TrackFilter::motion_covariance; zero without a filter). Infinite where that covariance is
-// not positive definite.
-double motion_disagreement_d2(const geo::Pose& a1, const TrackFilter::Mat6& c1, const geo::Pose& p1,
-                              const geo::Pose& a2, const TrackFilter::Mat6& c2, const geo::Pose& p2,
-                              const TrackFilter::Mat6& motion);
-// Its bound: the chi-square quantile of 6 degrees of freedom at p = 0.999, as the gate's.
-constexpr double kMotionAgreementD2 = 22.46;
-
 // Whether a track is starting (`terralign track --acquire`, `--second-look start`): until two
 // answers have converged, and again once `restart_after` frames in a row have taken no answer
 // (0: never again). While it starts, an answer the agreement test alone failed may stand in
@@ -124,49 +109,23 @@ constexpr double kMotionAgreementD2 = 22.46;
 // the agreement test (the README's lawnmower across 11 years with the IMU, session 70: 123.6 m
 // RMSE, lost; 24.5 m with a restart after 3). Over random flights the answers a restart takes
 // are mostly wrong, and `track` leaves it off by default (docs/history.md, session 71).
-//
-// With `agreement`, starting again takes no answer alone (confirm): it holds the first and
-// takes the next frame's only where the two agree with the motion predicted between them.
 class TrackStart {
  public:
-  explicit TrackStart(int restart_after, bool agreement = false)
-      : restart_after_(restart_after), agreement_(agreement) {}
+  explicit TrackStart(int restart_after) : restart_after_(restart_after) {}
   // Before a frame: whether it may start the track, and whether that is a start again.
   bool starting() const { return converged_ < 2 || again(); }
   bool again() const { return converged_ >= 2 && restart_after_ > 0 && coasted_ >= restart_after_; }
-
-  // A frame's unconfirmed answer that may start the track: whether to take it. Starting again
-  // with agreement, an answer is taken only where the frame before held one and the two agree
-  // with the motion (motion_disagreement_d2 <= kMotionAgreementD2, on `covariance`, the
-  // answer's own before the agreement test's scaling, and the filter's motion covariance where
-  // there is a filter); else it is held for the next frame's. `d2` is NaN where there was none
-  // to test against.
-  struct Confirmation {
-    bool take = true;
-    double d2 = NAN;
-  };
-  Confirmation confirm(const geo::Pose& answer, const TrackFilter::Mat6& covariance, const geo::Pose& prediction,
-                       double t, const TrackFilter* filter);
-
   // After it: whether its answer converged (and was taken), and whether any answer was taken.
   void frame(bool converged, bool taken) {
     if (converged) ++converged_;
     coasted_ = taken ? 0 : coasted_ + 1;
-    held_ = held_now_ && !taken;  // held answers count only from the frame just before
-    held_now_ = false;
   }
   int converged() const { return converged_; }
   int coasted() const { return coasted_; }  // frames in a row without an answer taken
-  int held() const { return held_count_; }  // answers held for the next to agree with
 
  private:
   int restart_after_;
-  bool agreement_;
-  int converged_ = 0, coasted_ = 0, held_count_ = 0;
-  bool held_ = false, held_now_ = false;
-  geo::Pose held_answer_, held_prediction_;
-  TrackFilter::Mat6 held_covariance_ = TrackFilter::Mat6::Zero();
-  double held_t_ = 0;
+  int converged_ = 0, coasted_ = 0;
 };
 
 }  // namespace terralign::cli
