@@ -288,15 +288,12 @@ Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::
     if (!r.converged) {  // failure as data: the prior (T_W_C), no covariance
       if (pass == 0 && r.unconfirmed) {
         geo::Pose at;
-        Eigen::Matrix<double, 6, 6> cov, unscaled;
+        Eigen::Matrix<double, 6, 6> cov;
         in_world(r.unconfirmed_params, r.unconfirmed_covariance, at, cov);
-        const double s2 = r.unconfirmed_scale * r.unconfirmed_scale;
-        in_world(r.unconfirmed_params, r.unconfirmed_covariance / s2, at, unscaled);
         if (!out.unconfirmed) {
           out.unconfirmed = true;
           out.T_W_C_unconfirmed = at;
           out.covariance_unconfirmed = cov;
-          out.covariance_unconfirmed_unscaled = unscaled;
         }
         if (deep_ && second_look_ && pass < refine_passes_) {  // set_second_look
           ref_pose = at;

@@ -42,8 +42,6 @@ struct LocalizeOutput {
   bool unconfirmed = false;
   geo::Pose T_W_C_unconfirmed;
   Eigen::Matrix<double, 6, 6> covariance_unconfirmed = Eigen::Matrix<double, 6, 6>::Zero();
-  // The same answer's covariance before that scaling: its precision, had it converged.
-  Eigen::Matrix<double, 6, 6> covariance_unconfirmed_unscaled = Eigen::Matrix<double, 6, 6>::Zero();
   // The learned tracker's second look (Localizer::set_second_look) at the answer layer's
   // unconfirmed first answer: whether it confirmed the answer (then converged), and where it
   // ran, the disagreement its own agreement test measured (NaN where it did not run, INFINITY
