@@ -1157,6 +1157,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
               R.unconfirmed = true;
               R.unconfirmed_params = p;
               R.unconfirmed_covariance = scaled;
+              R.unconfirmed_scale = scale;
             }
             return R;
           }

@@ -294,6 +294,7 @@ Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::
           out.unconfirmed = true;
           out.T_W_C_unconfirmed = at;
           out.covariance_unconfirmed = cov;
+          out.unconfirmed_scale = r.unconfirmed_scale;
         }
         if (deep_ && second_look_ && pass < refine_passes_) {  // set_second_look
           ref_pose = at;

@@ -42,6 +42,8 @@ struct LocalizeOutput {
   bool unconfirmed = false;
   geo::Pose T_W_C_unconfirmed;
   Eigen::Matrix<double, 6, 6> covariance_unconfirmed = Eigen::Matrix<double, 6, 6>::Zero();
+  // Its disagreement over the agreement test's threshold (above 1; the sigmas' factor).
+  double unconfirmed_scale = 1;
   // The learned tracker's second look (Localizer::set_second_look) at the answer layer's
   // unconfirmed first answer: whether it confirmed the answer (then converged), and where it
   // ran, the disagreement its own agreement test measured (NaN where it did not run, INFINITY

@@ -222,6 +222,7 @@ struct TrackResult {
   bool unconfirmed = false;
   Params unconfirmed_params = Warp::identity();
   Eigen::Matrix<double, DoF, DoF> unconfirmed_covariance = Eigen::Matrix<double, DoF, DoF>::Zero();
+  double unconfirmed_scale = 1;  // disagreement_px / max_disagreement_px, the sigmas' factor
   // The pose the coarsest level started from: the initial one, or the coarse search's pick
   // (TrackerOptions::coarse_search_px).
   Params coarse_start = Warp::identity();
