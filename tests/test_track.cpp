@@ -262,6 +262,9 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
                 dir + "/err.txt", "--second-look 'start' must be yes or no");
   check_refused(cmd + "--acquire maybe", dir + "/err.txt", "--acquire 'maybe' must be yes or no");
   check_refused(cmd + "--restart-after -1", dir + "/err.txt", "--restart-after '-1' must be an integer in [0, 1000]");
+  for (const char* ratio : {"0.9", "nan", "x"})
+    check_refused(cmd + "--restart-max-ratio " + ratio, dir + "/err.txt",
+                  std::string("--restart-max-ratio '") + ratio + "' must be in [1, 1000]");
   check_refused(cmd + "--min-sharpness 1001", dir + "/err.txt", "--min-sharpness '1001' must be in [-1000, 1000]");
   check_refused(cmd + "--max-disagreement -1001", dir + "/err.txt", "--max-disagreement '-1001' must be in [-1000, 1000]");
   check_refused(cmd + "--coarse-search 17", dir + "/err.txt", "--coarse-search '17' must be an integer in [-1, 16]");
@@ -294,7 +297,7 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   check_refused(cmd + "--nn-levels 7", dir + "/err.txt", "--nn-levels '7' must be an integer in [0, 6]");
 }
 
-TEST_CASE("track --restart-after N: after N frames in a row without an answer an unconfirmed one starts the track again") {
+TEST_CASE("track --restart-after N: after N frames in a row without an answer an unconfirmed one near its second start starts the track again") {
   // Frames 0-1 converge; frames 2-5 are noise, whose answers fail (frames 2, 3 and 5 the
   // agreement test alone: "ambiguous: a start nearby settles elsewhere"). Six frames, which is
   // all the runs need, to keep them cheap under qemu (N's other side, one frame short of it,
@@ -321,8 +324,8 @@ TEST_CASE("track --restart-after N: after N frames in a row without an answer an
       if (c != 11 && a[c] != b[c]) return false;
     return true;
   };
-  // By default (0) the track coasts through the noise: no answer of frames 2-5 is taken.
-  REQUIRE(run(track) == 0);
+  // With --restart-after 0 the track coasts through the noise: no answer of frames 2-5 is taken.
+  REQUIRE(run(track + "--restart-after 0") == 0);
   const auto coasted = csv_rows(dir + "/poses.csv");
   REQUIRE(coasted.size() == 6);
   for (std::size_t i = 0; i < coasted.size(); ++i) {
@@ -332,12 +335,32 @@ TEST_CASE("track --restart-after N: after N frames in a row without an answer an
   }
   CHECK(coasted[5][9].find("ambiguous: a start nearby settles elsewhere") != std::string::npos);
   CHECK(summary()["restarted"].get<int>() == 0);
-  // --restart-after 3: frame 5, after three frames without an answer, takes its unconfirmed
-  // answer: the frame reports it, not converged, its reason says so, the gate's distance is
-  // recorded (the gate took it: an unconfirmed answer's covariance is scaled up by its
-  // disagreement, so even noise's passes; README "Starting again"), and the JSON counts one
-  // restart among the acquired. Frames 0-4 are the default's to the digit.
-  REQUIRE(run(track + "--restart-after 3") == 0);
+  // By default (--restart-after 3 --restart-max-ratio 1.3) frame 5, after three frames without
+  // an answer, may start the track again, but noise's second start settled far from its answer
+  // (2.24x the threshold here): the frame's answer is not taken, its reason says why, and
+  // every cell of the track but that reason and the time is the coasting one's.
+  REQUIRE(run(track) == 0);
+  const auto refused = csv_rows(dir + "/poses.csv");
+  REQUIRE(refused.size() == 6);
+  for (std::size_t i = 0; i < refused.size(); ++i) {
+    CAPTURE(i);
+    std::vector<std::string> a = refused[i], b = coasted[i];
+    if (i == 5) a[9] = b[9] = "";
+    CHECK(same_frame(a, b));
+  }
+  const std::string why = "; not taken to start the track again: its disagreement is ";
+  const std::size_t at = refused[5][9].find(why);
+  REQUIRE(at != std::string::npos);
+  CHECK(refused[5][9].substr(0, at) + "\"" == coasted[5][9]);  // the same failure (the CSV quotes a reason)
+  CHECK(std::stod(refused[5][9].substr(at + why.size())) > 1.3);
+  CHECK(refused[5][9].find("x the threshold (at most 1.3)") != std::string::npos);
+  CHECK(summary()["restarted"].get<int>() == 0);
+  // Without the bound (--restart-max-ratio 1000, session 71's restart) frame 5 takes its
+  // unconfirmed answer: the frame reports it, not converged, its reason says so, the gate's
+  // distance is recorded (the gate took it: an unconfirmed answer's covariance is scaled up by
+  // its disagreement, so even noise's passes; README "Starting again"), and the JSON counts one
+  // restart among the acquired. Frames 0-4 are the coasting track's to the digit.
+  REQUIRE(run(track + "--restart-max-ratio 1000") == 0);
   const auto restarted = csv_rows(dir + "/poses.csv");
   REQUIRE(restarted.size() == 6);
   for (std::size_t i = 0; i < 5; ++i) {

@@ -121,7 +121,7 @@ int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
                                  "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor",
                                  "registration-floor-per-residual",
-                                 "filter", "accel-sigma", "gate", "init-sigma", "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "nn-levels", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "second-look-max-disagreement", "acquire", "restart-after"}, {});
+                                 "filter", "accel-sigma", "gate", "init-sigma", "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "nn-levels", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "second-look-max-disagreement", "acquire", "restart-after", "restart-max-ratio"}, {});
   if (!args.ok()) return usage_error("track", args.error());
   for (const char* k : {"map", "camera", "layer", "images", "init"})
     if (!args->has(k)) return usage_error("track", Error{std::string("missing required option --") + k});
@@ -160,15 +160,22 @@ int run_track(const std::vector<std::string>& argv) {
   const std::string acquire_arg = args->get("acquire", "yes");
   if (acquire_arg != "yes" && acquire_arg != "no")
     return usage_error("track", Error{"--acquire '" + acquire_arg + "' must be yes or no"});
-  // --restart-after N (0, the default: never): a track that has taken no answer for N frames
+  // --restart-after N (default 3; 0: never): a track that has taken no answer for N frames
   // in a row starts again as it started (TrackStart): --acquire takes an unconfirmed answer,
-  // which the gate still tests, and --second-look start looks again. With N = 3 (75 m of dead
-  // reckoning at 25 m/s) the README's lawnmower across 11 years with the IMU holds (123.6 ->
-  // 24.5 m RMSE), but over 96 random flights a row across 11 years it loses 14 -> 15 without
-  // the IMU, 2 -> 2 with it, and the IMU row's mean grows by 1 m: the answers it takes lie a
-  // median 37 m off, where coasting was 21 m off (docs/history.md, session 71).
-  auto restart_after = args->get_int("restart-after", 0, 0, 1000);
+  // which the gate still tests, and --second-look start looks again; but only an answer whose
+  // disagreement is within --restart-max-ratio R (default 1.3) times the agreement test's
+  // threshold. Without that bound (session 71's restart) the answers it took lay a median 37 m
+  // off where coasting was 21 m off, and it did not pay over random flights; on seeds 21-24,
+  // the 24 of 57 within 1.3x lay 18.2 m off against coasting's 19.7 m, the rest 40 m and more.
+  // With both, over 192 fresh random flights across 11 years (seeds 25-32), lost 8 -> 6
+  // without the IMU and 0 -> 1 with it, medians and means within 0.35 m, and the README's
+  // lawnmower across 11 years 45.3 -> 39.4 m RMSE without the IMU, 123.6 -> 29.9 m with it
+  // (docs/history.md, session 73).
+  auto restart_after = args->get_int("restart-after", kDefaultRestartAfter, 0, 1000);
   if (!restart_after.ok()) return usage_error("track", restart_after.error());
+  auto restart_max_ratio = args->get_double("restart-max-ratio", kDefaultRestartMaxRatio);
+  if (!restart_max_ratio.ok() || !(restart_max_ratio.value() >= 1 && restart_max_ratio.value() <= 1000))
+    return usage_error("track", Error{"--restart-max-ratio '" + args->get("restart-max-ratio") + "' must be in [1, 1000]"});
   auto iters = args->get_int("iterations", 20, 1, 1000);
   auto threads = args->get_int("threads", 2, 1, 64);
   if (!iters.ok()) return usage_error("track", iters.error());
@@ -303,8 +310,16 @@ int run_track(const std::vector<std::string>& argv) {
           iterations = out->iterations;
           // Starting, or starting again, an unconfirmed answer stands in for a converged one;
           // the frame still reports itself not converged.
-          const bool unconfirmed = !ok && acquire && start.starting() && out->unconfirmed;
+          // Starting again, only an answer whose second start settled near it.
+          const bool near = !start.again() || out->unconfirmed_scale <= restart_max_ratio.value();
+          const bool unconfirmed = !ok && acquire && start.starting() && out->unconfirmed && near;
           const bool again = unconfirmed && start.again();
+          if (!ok && acquire && out->unconfirmed && !near) {
+            char d[128];
+            std::snprintf(d, sizeof d, "; not taken to start the track again: its disagreement is %.3g x the threshold (at most %.3g)",
+                          out->unconfirmed_scale, restart_max_ratio.value());
+            reason += d;
+          }
           const geo::Pose& T = ok ? out->T_W_C : out->T_W_C_unconfirmed;
           const Eigen::Matrix<double, 6, 6>& P = ok ? out->covariance : out->covariance_unconfirmed;
           taken = ok || unconfirmed;

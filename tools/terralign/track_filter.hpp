@@ -107,8 +107,11 @@ class TrackFilter {
 // row start the filter again (TrackFilterOptions::reset_after_refusals). A track whose
 // prediction took one wrong answer otherwise coasts away on it while every later answer fails
 // the agreement test (the README's lawnmower across 11 years with the IMU, session 70: 123.6 m
-// RMSE, lost; 24.5 m with a restart after 3). Over random flights the answers a restart takes
-// are mostly wrong, and `track` leaves it off by default (docs/history.md, session 71).
+// RMSE, lost). Over random flights most answers a restart takes are wrong, but not those whose
+// second start settled within 1.3x the agreement test's threshold, and `track` starts again
+// after 3 frames only with one of those (docs/history.md, sessions 71 and 73).
+constexpr int kDefaultRestartAfter = 3;         // track --restart-after
+constexpr double kDefaultRestartMaxRatio = 1.3;  // track --restart-max-ratio
 class TrackStart {
  public:
   explicit TrackStart(int restart_after) : restart_after_(restart_after) {}
