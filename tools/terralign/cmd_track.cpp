@@ -309,8 +309,8 @@ int run_track(const std::vector<std::string>& argv) {
           reason = out->reason;
           iterations = out->iterations;
           // Starting, or starting again, an unconfirmed answer stands in for a converged one;
-          // the frame still reports itself not converged.
-          // Starting again, only an answer whose second start settled near it.
+          // the frame still reports itself not converged. Starting again, only one whose second
+          // start settled near it (--restart-max-ratio).
           const bool near = !start.again() || out->unconfirmed_scale <= restart_max_ratio.value();
           const bool unconfirmed = !ok && acquire && start.starting() && out->unconfirmed && near;
           const bool again = unconfirmed && start.again();
