@@ -4,7 +4,9 @@
 
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <string>
+#include <system_error>
 #include <sys/stat.h>
 
 namespace terralign::test {
@@ -22,14 +24,30 @@ inline std::string shared_data(const std::string& rel) {
   return ::stat(p.c_str(), &st) == 0 ? p : std::string();
 }
 
-// A scratch folder for a test's output files.
+// A scratch folder for a test's output files, one a test process, removed with everything
+// in it when the process exits normally (each ctest entry is a process; a flight's frames
+// take about 10 MB). TERRALIGN_KEEP_TEST_FILES=1 keeps it to look at; a test that crashed
+// leaves it too. Where no folder can be made the tests write into /tmp itself, which is
+// never removed.
 inline std::string temp_dir() {
-  static std::string dir = [] {
-    char tmpl[] = "/tmp/terralign-test-XXXXXX";
-    const char* d = ::mkdtemp(tmpl);
-    return std::string(d ? d : "/tmp");
-  }();
-  return dir;
+  struct Scratch {
+    std::string path;
+    bool made = false;
+    Scratch() {
+      char tmpl[] = "/tmp/terralign-test-XXXXXX";
+      const char* d = ::mkdtemp(tmpl);
+      made = d != nullptr;
+      path = made ? std::string(d) : std::string("/tmp");
+    }
+    ~Scratch() {
+      const char* keep = std::getenv("TERRALIGN_KEEP_TEST_FILES");
+      if (!made || (keep && *keep && std::string(keep) != "0")) return;
+      std::error_code ec;
+      std::filesystem::remove_all(path, ec);  // best effort: a leftover folder fails no test
+    }
+  };
+  static const Scratch scratch;
+  return scratch.path;
 }
 
 // A file's whole contents ("" when it cannot be read).
