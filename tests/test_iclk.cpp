@@ -406,6 +406,93 @@ TEST_CASE("the tilt prior holds the answer's roll and pitch to the prior's and l
   CHECK(b.dot(cov_rot * b) <= s2 * (1 + 1e-9));
 }
 
+TEST_CASE("the altitude prior holds the answer's height to an altimeter's and leaves the rest free") {
+  auto naip = geo::load_map(test::source_path("data/naip_west/map.json"));
+  REQUIRE(naip.ok());
+  const geo::CameraModel cam = test::paper_camera();
+  const geo::Pose truth = geo::pose_from_ypr({487450, 5207437, 570 + 800}, 30, 2, -3);
+  // The live camera's height above the reference camera along the world's up, in metres.
+  auto height = [](const geo::Pose& prior, const SE3<double>& T_live_ref) {
+    return (prior.R().transpose() * Vec3<double>::UnitZ()).dot(T_live_ref.inverse().t);
+  };
+  TrackerOptions opt;
+  opt.iterations = 50;
+  opt.coarse_search_px = 3;
+  // 1. The prior at the truth's height, heading 1.5 degrees and 15 m horizontally off: a
+  //    tight prior (0.05 m) still finds the rest, to the EPE the solver reaches without it
+  //    (below 0.1 px, as the tilt prior's test), and keeps the height within 0.05 m.
+  const geo::Pose level = geo::pose_from_ypr({487450 + 12, 5207437 - 9, 570 + 800}, 31.5, 2, -3);
+  const Pair p = render_pair(naip.value(), cam, level, truth, "2016", "2016");
+  CHECK(epe_px(p, SE3<double>::identity()) > 10);
+  opt.altitude_prior_m = 0.05;
+  {
+    Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, opt);
+    tracker.set_up(level.R().transpose() * Vec3<double>::UnitZ());
+    tracker.set_height(0);
+    const auto& res = tracker.align(p.ref_grey.view(), p.depth.view(), p.live_grey.view(), p.K, SE3<double>::identity());
+    REQUIRE(res.converged);
+    MESSAGE("right height, 0.05 m prior: EPE " << epe_px(p, res.params) << " px, height moved " << height(level, res.params)
+                                               << " m");
+    CHECK(epe_px(p, res.params) < 0.1);
+    CHECK(std::abs(height(level, res.params)) < 0.05);
+  }
+  // 2. The prior 8 m above the truth. Without the prior, or without an up vector or a height,
+  //    the answer comes down the whole 8 m, the same bits each way. With a prior it is the
+  //    weighted mean of the two (MAP): this same-year pair alone places the height to a few
+  //    centimetres, so a 0.001 m prior keeps it within 0.05 m of the prior's.
+  const geo::Pose high = geo::pose_from_ypr({487450 + 12, 5207437 - 9, 570 + 808}, 31.5, 2, -3);
+  const Pair q = render_pair(naip.value(), cam, high, truth, "2016", "2016");
+  const double want = height(high, q.T_live_ref_true);
+  CHECK(want == doctest::Approx(-8.0).epsilon(0.05));
+  SE3<double> answer[4];
+  Eigen::Matrix<double, 6, 6> cov = Eigen::Matrix<double, 6, 6>::Zero();
+  for (int k = 0; k < 4; ++k) {  // no prior; a prior without an up vector; without a height; the prior
+    opt.altitude_prior_m = k == 0 ? 0.0 : 0.001;
+    opt.registration_floor_px = 0;  // the covariance of the image term and the prior alone
+    opt.registration_floor_per_residual_px = 0;
+    Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, opt);
+    if (k >= 2) tracker.set_up(high.R().transpose() * Vec3<double>::UnitZ());
+    if (k == 3) tracker.set_height(0);
+    const auto& res = tracker.align(q.ref_grey.view(), q.depth.view(), q.live_grey.view(), q.K, SE3<double>::identity());
+    REQUIRE(res.converged);
+    answer[k] = res.params;
+    if (k == 3) cov = res.covariance;
+  }
+  MESSAGE("8 m high (truth " << want << " m): the answer moved " << height(high, answer[0]) << " m without the prior, "
+                             << height(high, answer[3]) << " m with a 0.001 m prior");
+  CHECK(height(high, answer[0]) == doctest::Approx(want).epsilon(0.01));
+  CHECK(epe_px(q, answer[0]) < 0.1);
+  for (int k = 1; k < 3; ++k) {
+    CHECK(answer[k].R == answer[0].R);
+    CHECK(answer[k].t == answer[0].t);
+  }
+  CHECK(std::abs(height(high, answer[3])) < 0.05);
+  // 3. Held to the truth's height (an altimeter that reads it, the start 8 m away): the answer
+  //    goes there, within 0.05 m, as in 2.
+  {
+    opt.altitude_prior_m = 0.001;
+    Tracker<double, SE3DepthWarp<double>, 1> tracker(cam.width, cam.height, opt);
+    tracker.set_up(high.R().transpose() * Vec3<double>::UnitZ());
+    tracker.set_height(want);
+    const auto& res = tracker.align(q.ref_grey.view(), q.depth.view(), q.live_grey.view(), q.K, SE3<double>::identity());
+    REQUIRE(res.converged);
+    MESSAGE("held to the truth's height: " << height(high, res.params) - want << " m from it, EPE " << epe_px(q, res.params)
+                                           << " px");
+    CHECK(std::abs(height(high, res.params) - want) < 0.05);
+    CHECK(epe_px(q, res.params) < 0.1);
+  }
+  // The posterior's variance of the height is at most the prior's: J cov J^T for the height's
+  // row J = [(c x u)^T, u^T] at the answer (the live centre c in the reference camera).
+  const Vec3<double> u = high.R().transpose() * Vec3<double>::UnitZ();
+  const Vec3<double> c = answer[3].inverse().t;
+  Eigen::Matrix<double, 1, 6> J;
+  J << c.cross(u).transpose(), u.transpose();
+  const double var = (J * cov * J.transpose())(0, 0);
+  MESSAGE("the height's posterior sigma " << std::sqrt(var) << " m against the prior's 0.001 m");
+  CHECK(var > 0);
+  CHECK(var <= 1e-6 * (1 + 1e-6));
+}
+
 TEST_CASE("the registration floor's keystones: a tilt traded for a shift, which a tilt prior narrows") {
   // A same-year pair, 800 m above flat ground, the floor made to dominate the covariance (1e4
   // px per unit of the final residual, all of it, the fixed floor off): its keystones admit a tilt

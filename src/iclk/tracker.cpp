@@ -922,6 +922,22 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
     const Eigen::Vector3d u = up_.normalized();
     tilt_info = (Eigen::Matrix3d::Identity() - u * u.transpose()) / (opt_.tilt_prior_rad * opt_.tilt_prior_rad);
   }
+  // The altitude prior: 1 / sigma^2 on the height of the live camera's centre along up.
+  const bool altitude = Warp::kNeedsDepth && opt_.altitude_prior_m > 0 && std::isfinite(opt_.altitude_prior_m) &&
+                        up_.allFinite() && up_.norm() > 0 && std::isfinite(altimeter_height_);
+  const double altitude_info = altitude ? 1.0 / (opt_.altitude_prior_m * opt_.altitude_prior_m) : 0.0;
+  // The height's error and its row of the Jacobian at q: the live centre in the reference
+  // camera is c = t of q^-1, and the update q <- q exp(delta)^-1 moves it to exp(delta) c, so
+  // d(u.c)/d[omega; v] = [(c x u)^T, u^T].
+  auto height_row = [&](const Params& q, Eigen::Matrix<double, 1, DoF>& J) {
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    if constexpr (Warp::kNeedsDepth) c = q.inverse().t.template cast<double>();
+    const Eigen::Vector3d u = up_.normalized();
+    J.setZero();
+    J.template head<3>() = c.cross(u).transpose();
+    J.template tail<3>() = u.transpose();
+    return u.dot(c) - altimeter_height_;
+  };
   auto image_noise = [&](int n) {  // sigma^2 f of the last evaluate()
     return inflation_of(residual_correlation(n)) * channel_factor(n) * cost / std::max(wsum - DoF, 1.0);
   };
@@ -1010,6 +1026,16 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
         const Eigen::Vector3d e = SE3Log<Params>::of(init, q).template head<3>() - tilt_;
         A.template topLeftCorner<3, 3>() += P;
         rhs.template head<3>() += P * e;
+      }
+      if (altitude) {
+        // Prior 1/2 w e'^2 on the height, e' = e + J delta after the step: w J^T J joins H and
+        // -w J^T e joins g.
+        if (level_start && !tilt) noise = image_noise(n);
+        Eigen::Matrix<double, 1, DoF> J;
+        const double e = height_row(q, J);
+        const double w = noise * altitude_info;
+        A += w * J.transpose() * J;
+        rhs -= w * e * J.transpose();
       }
       delta = A.ldlt().solve(rhs);
       if (!delta.allFinite()) {
@@ -1118,9 +1144,14 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       }
       // With the tilt prior's information: the image term's covariance (the floor included)
       // narrowed where an attitude reference knows the tilt better.
-      if (tilt) {
+      if (tilt || altitude) {
         Eigen::Matrix<double, DoF, DoF> info = P.inverse();
-        info.template topLeftCorner<3, 3>() += tilt_info;
+        if (tilt) info.template topLeftCorner<3, 3>() += tilt_info;
+        if (altitude) {
+          Eigen::Matrix<double, 1, DoF> J;
+          height_row(p, J);
+          info += altitude_info * J.transpose() * J;
+        }
         P = info.inverse();
       }
       R.covariance = P;

@@ -138,6 +138,10 @@ class DeepAligner : public iclk::LevelWeights {
   void set_up(const Eigen::Vector3d& up_in_reference, const Eigen::Vector3d& tilt = Eigen::Vector3d::Zero()) {
     std::visit([&](auto& t) { t->set_up(up_in_reference, tilt); }, tracker_);
   }
+  // The altimeter's height above the reference camera (iclk::Tracker::set_height).
+  void set_height(double height) {
+    std::visit([&](auto& t) { t->set_height(height); }, tracker_);
+  }
   int level_count() const { return levels_; }
   int channels() const { return channels_; }  // feature channels a level
   // The weights of each level from the last align() (level 0 finest), for figures and tests.

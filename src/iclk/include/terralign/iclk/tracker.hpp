@@ -27,6 +27,7 @@
 #pragma once
 
 #include <array>
+#include <limits>
 #include <memory>
 #include <type_traits>
 #include <vector>
@@ -160,6 +161,13 @@ struct TrackerOptions {
   // distant years agree on where things are better than on the perspective: without it the
   // learned tracker trades a tilt error for a shift (README).
   double tilt_prior_rad = 0;
+  // An altitude prior (6-DoF warp), from an altimeter, as an aircraft's barometer still gives
+  // while GPS fails: the answer's camera centre, its height along the world's up above the
+  // reference camera's, is held to Tracker::set_height()'s with a Gaussian of this standard
+  // deviation, in metres (0: none). Weighed against the image term as the tilt prior is, and
+  // part of the covariance. Across many years the learned tracker's misses are mostly a
+  // height off by 10-30 m, which the coarse levels' features place wrong (README).
+  double altitude_prior_m = 0;
   int threads = 1;                   // residuals in fixed chunks: same result on any count
   // The vector (AVX2) residual kernel where the CPU has it; false: its scalar twin. Both give
   // the same bits (evaluate_kernels.hpp); tests compare them.
@@ -308,6 +316,10 @@ class Tracker {
     up_ = up_in_reference;
     tilt_ = tilt;
   }
+  // For the altitude prior (TrackerOptions::altitude_prior_m): the altimeter's height of the
+  // live camera above the reference camera, along set_up()'s up, in metres; kept for the next
+  // align() calls. Not finite: no prior.
+  void set_height(double height) { altimeter_height_ = height; }
 
  private:
   struct Level {
@@ -403,6 +415,7 @@ class Tracker {
   Moments moments0_{};
   const Level* cur_level_ = nullptr;
   Eigen::Vector3d up_ = Eigen::Vector3d::Zero(), tilt_ = Eigen::Vector3d::Zero();
+  double altimeter_height_ = std::numeric_limits<double>::quiet_NaN();
   // Per chunk of kChunk pixels: partial sums, combined in chunk order.
   static constexpr int kChunk = 2048;
   struct alignas(kUnsharedAlign) Partial {
