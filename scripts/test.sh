@@ -32,7 +32,7 @@ if [ "${TERRALIGN_SKIP_SANITIZE:-0}" != "1" ]; then
   CC=clang CXX=clang++ cmake -S . -B build/sanitize -DCMAKE_BUILD_TYPE=RelWithDebInfo \
         -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1 -DNDEBUG" -DTERRALIGN_SANITIZE=ON -DTERRALIGN_WERROR=ON
   cmake --build build/sanitize -j "$jobs"
-  # The three longest cases (scripts/end-to-end-cases.sh) are over half of this suite's time
+  # The four longest cases (scripts/end-to-end-cases.sh) are over half of this suite's time
   # under the sanitizers; they run in the release suite above, and the same command-line
   # paths stay under the sanitizers through the shorter track, eval and align cases.
   source scripts/end-to-end-cases.sh

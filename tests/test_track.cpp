@@ -569,6 +569,73 @@ TEST_CASE("track holds each answer's tilt to an attitude reference's, frame by f
   refused("--attitude " + dir + "/norm.txt", "norm.txt:1: quaternion norm 2.000000");
 }
 
+TEST_CASE("track holds each answer's altitude to an altimeter's, frame by frame, and refuses a bad altimeter file") {
+  const Flight flight = fly("baroflight", "--duration 6 --noise 2 --altimeter 2");
+  const std::string &tl = flight.tl, &map = flight.map, &cam = flight.cam, &dir = flight.dir;
+  // flight wrote one reading per frame, at the frames' times: the true z plus N(0, 2 m).
+  std::vector<std::pair<std::string, double>> truth;
+  {
+    std::ifstream in(dir + "/truth.txt");
+    std::string t;
+    double x, y, z, w, qx, qy, qz;
+    while (in >> t >> x >> y >> z >> w >> qx >> qy >> qz) truth.push_back({t, z});
+  }
+  REQUIRE(truth.size() == 6);
+  {
+    std::ifstream in(dir + "/altimeter.txt");
+    std::string t;
+    double z;
+    std::size_t k = 0;
+    for (; in >> t >> z; ++k) {
+      REQUIRE(k < truth.size());
+      CHECK(t == truth[k].first);
+      CHECK(std::abs(z - truth[k].second) < 8.0);  // 4 sigma
+    }
+    CHECK(k == truth.size());
+  }
+  // An altimeter file of the truth 5 m high, and one of the truth itself. With a 0.01 m prior
+  // the answers keep each file's altitude. The biased one leaves most of the 5 m on every
+  // frame: the answer is the weighted mean of the reading and the image's height (MAP), and
+  // the classical tracker's sparse pixels place the height to about 0.1 m here, so the
+  // reading weighs about 100 times more (measured 4.978-4.981 m left). Asked: more than 3.5 m
+  // and never more than the bias. The true file leaves under 0.1 m (measured at most 0.013).
+  auto write_altimeter = [&](const std::string& path, double bias_m) {
+    std::ofstream out(path);
+    for (const auto& [t, z] : truth) out << t << " " << std::setprecision(12) << z + bias_m << "\n";
+  };
+  const std::string track = tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
+                            "/list.txt --init \"" + first_truth_pose(dir) + "\" --truth " + dir + "/truth.txt";
+  for (double bias : {0.0, 5.0}) {
+    write_altimeter(dir + "/baro.txt", bias);
+    REQUIRE(run(track + " --altimeter " + dir + "/baro.txt --altitude-prior 0.01 --out " + dir + "/baro.csv") == 0);
+    const auto rows = csv_rows(dir + "/baro.csv");
+    REQUIRE(rows.size() == truth.size());
+    CAPTURE(bias);
+    for (std::size_t k = 1; k < rows.size(); ++k) {  // frame 0 starts at the truth
+      CAPTURE(k);
+      CHECK(rows[k][8] == "1");
+      const double off = std::stod(rows[k][3]) - truth[k].second;
+      if (bias == 0) CHECK(std::abs(off) < 0.1);
+      else {
+        CHECK(off > 3.5);
+        CHECK(off <= 5.0);
+      }
+    }
+  }
+  // Bad files and options are refused by name, before any frame is tracked.
+  auto refused = [&](const std::string& opts, const std::string& want) {
+    check_refused(track + " " + opts, dir + "/err.txt", want);
+  };
+  refused("--altimeter " + dir + "/baro.txt", "--altimeter needs --altitude-prior M");
+  refused("--altitude-prior -1", "--altitude-prior '-1' must be in [0, 1000] m");
+  refused("--altimeter " + dir + "/nope.txt --altitude-prior 2", "nope.txt: cannot open the altimeter readings");
+  std::ofstream(dir + "/short.txt") << truth[0].first << " 1000\n";
+  refused("--altimeter " + dir + "/short.txt --altitude-prior 2", "short.txt: 1 altimeter readings for 6 frames");
+  std::ofstream(dir + "/nan.txt") << truth[0].first << " nan\n";
+  refused("--altimeter " + dir + "/nan.txt --altitude-prior 2", "nan.txt:1: expected 'timestamp z'");
+  refused("--altimeter " + dir + "/baro.txt --altitude-prior x", "--altitude-prior 'x' must be in [0, 1000] m");
+}
+
 #endif  // TERRALIGN_CLI
 
 #if defined(TERRALIGN_CLI)
@@ -741,6 +808,51 @@ TEST_CASE("eval's default tilt prior: across 11 years the learned answers keep t
   CHECK(sum / right > 0.5);
   CHECK(sum / right < 12);
   CHECK(runs[0]["nees"]["median"].get<double>() > 0);
+}
+
+TEST_CASE("eval --altimeter: the priors' altitude is an altimeter's, and across 11 years the learned answers keep it instead of a wrong height") {
+  // 2009 -> 2020, 10 poses of seed 3, every answer counted. Without the altimeter 2 of the 10
+  // answers place the camera 34 and 44 m off in height (22-23 px off), the rest within 3.3 m;
+  // with --altimeter 1 (the prior's z the truth's plus N(0, 1 m), held with that sigma) every
+  // answer is within 1.7 m in height and those two end 5.0-5.2 px off (measured). Asked: the
+  // same true poses and the priors' same horizontal positions (the altimeter's own stream),
+  // every prior and answer within 4 m (4 sigma) in height with it, the mean height error down
+  // to a quarter at most and the mean 2-D EPE down.
+  const std::string tl = TERRALIGN_CLI;
+  const std::string map = test::source_path("data/naip_west/map.json");
+  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
+  std::vector<nlohmann::json> runs;
+  for (const char* altimeter : {"", " --altimeter 1"}) {
+    const std::string out = test::temp_dir() + "/eval_alt" + (*altimeter ? "1" : "0") + ".json";
+    REQUIRE(run(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2009 --query-layer 2020 --count 10 --seed 3 " +
+                "--altitude 700:900 --tilt 10 --methods init,nn:20 --max-disagreement -1 --threads 2 --json " + out + altimeter) == 0);
+    runs.push_back(nlohmann::json::parse(test::read_text(out))["methods"]);
+  }
+  double height_error[2] = {0, 0};
+  for (int r = 0; r < 2; ++r) {
+    REQUIRE(runs[r]["nn:20"]["samples"].size() == 10);
+    for (std::size_t k = 0; k < 10; ++k) {
+      CAPTURE(k);
+      const auto& prior = runs[r]["init"]["samples"][k];
+      const auto& answer = runs[r]["nn:20"]["samples"][k];
+      CHECK(prior["truth_position_m"] == runs[0]["init"]["samples"][k]["truth_position_m"]);
+      CHECK(prior["position_error_m"][0] == runs[0]["init"]["samples"][k]["position_error_m"][0]);
+      CHECK(prior["position_error_m"][1] == runs[0]["init"]["samples"][k]["position_error_m"][1]);
+      const double dz = std::abs(answer["position_error_m"][2].get<double>());
+      height_error[r] += dz / 10;
+      if (r == 1) {
+        CHECK(std::abs(prior["position_error_m"][2].get<double>()) < 4.0);
+        CHECK(dz < 4.0);
+      }
+    }
+  }
+  CAPTURE(height_error[0]);
+  CAPTURE(height_error[1]);
+  CHECK(height_error[1] < 0.25 * height_error[0]);
+  CHECK(runs[1]["nn:20"]["epe_px"]["mean"].get<double>() < runs[0]["nn:20"]["epe_px"]["mean"].get<double>());
+  check_refused(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2009 --query-layer 2020 --count 1 --seed 3 " +
+                    "--altitude 700:900 --altimeter -2",
+                test::temp_dir() + "/eval_alt_err.txt", "--altimeter must be in [0, 1000] m");
 }
 
 TEST_CASE("eval on Christchurch: the manifest's registration sigma makes the converged answers' NEES honest, and the JSON's covariance gives that NEES") {

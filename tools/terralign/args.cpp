@@ -96,6 +96,10 @@ Result<iclk::TrackerOptions> parse_tracker_options(const Args& args) {
   if (!tilt.ok() || !(tilt.value() >= 0 && tilt.value() <= 10))
     return Error{"--tilt-prior '" + args.get("tilt-prior") + "' must be in [0, 10] degrees (0: no tilt prior)"};
   opt.tilt_prior_rad = tilt.value() * 3.14159265358979323846 / 180;
+  auto altitude = args.get_double("altitude-prior", 0.0);
+  if (!altitude.ok() || !(altitude.value() >= 0 && altitude.value() <= 1000))
+    return Error{"--altitude-prior '" + args.get("altitude-prior") + "' must be in [0, 1000] m (0: no altitude prior)"};
+  opt.altitude_prior_m = altitude.value();
   auto floor_px = args.get_double("registration-floor", opt.registration_floor_px);
   if (!floor_px.ok() || !(floor_px.value() >= 0 && floor_px.value() <= 100))
     return Error{"--registration-floor '" + args.get("registration-floor") + "' must be in [0, 100] camera pixels"};

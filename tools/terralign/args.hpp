@@ -48,6 +48,9 @@ Result<nn::WeightFile> learned_weights(const Args& args);
 // --tilt-prior DEG: the standard deviation of the prior's tilt (roll and pitch: an attitude
 //   reference's where there is one, else the prior pose's own), in [0, 10] degrees
 //   (tilt_prior_rad, radians); default kDefaultTiltPriorDeg; 0: none.
+// --altitude-prior M: the standard deviation of the prior's altitude (the camera centre's
+//   map z: an altimeter's where there is one, else the prior pose's own), in [0, 1000] m
+//   (altitude_prior_m); default 0: none.
 // --registration-floor PX: the smallest registration error the covariance admits, in camera
 //   pixels, [0, 100] (registration_floor_px). The default suits a map of the image's own
 //   year; across years of change the error is larger (README, tracking a flight).

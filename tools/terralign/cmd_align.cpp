@@ -43,7 +43,7 @@ nlohmann::json pose_json(const geo::Pose& p) {
 
 int run_align(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "image", "prior", "layer", "method", "iterations", "robust", "threads", "weights",
-                                 "tilt-prior", "registration-floor", "registration-floor-per-residual", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "second-look-max-disagreement", "min-sharpness",
+                                 "tilt-prior", "altitude-prior", "registration-floor", "registration-floor-per-residual", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "second-look-max-disagreement", "min-sharpness",
                                  "max-disagreement", "agree-px", "coarse-search", "min-step"}, {});
   if (!args.ok()) return usage_error("align", args.error());
   for (const char* k : {"map", "camera", "image", "prior", "layer"})

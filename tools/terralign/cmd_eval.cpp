@@ -133,7 +133,7 @@ ImageU8 overlay(const ImageF& ref_grey, const ImageF& depth, const ImageF& query
 int run_eval(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude", "tilt", "methods",
                                  "json", "overlays", "threads", "robust", "levels", "weights", "area",
-                                 "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "input-scale", "nn-levels", "imu-tilt", "tilt-prior",
+                                 "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "input-scale", "nn-levels", "imu-tilt", "altimeter", "tilt-prior", "altitude-prior",
                                  "prior-scale", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "second-look-max-disagreement", "blur", "noise", "exposure"}, {});
   if (!args.ok()) return usage_error("eval", args.error());
   for (const char* k : {"map", "camera", "ref-layer", "query-layer", "count", "seed", "altitude"})
@@ -160,6 +160,9 @@ int run_eval(const std::vector<std::string>& argv) {
   auto imu_tilt = args->get_double("imu-tilt", 0.0);
   if (!imu_tilt.ok() || !(imu_tilt.value() >= 0 && imu_tilt.value() <= 10))
     return usage_error("eval", Error{"--imu-tilt must be in [0, 10] degrees (0: the protocol's prior rotation)"});
+  auto altimeter = args->get_double("altimeter", 0.0);
+  if (!altimeter.ok() || !(altimeter.value() >= 0 && altimeter.value() <= 1000))
+    return usage_error("eval", Error{"--altimeter must be in [0, 1000] m (0: the protocol's prior position)"});
   auto prior_scale = args->get_double("prior-scale", 1.0);
   if (!prior_scale.ok() || !(prior_scale.value() > 0 && prior_scale.value() <= 4))
     return usage_error("eval", Error{"--prior-scale must be in (0, 4] (1: the protocol's priors)"});
@@ -241,10 +244,13 @@ int run_eval(const std::vector<std::string>& argv) {
     if (area.empty()) return fail(Error{"--area '" + args->get("area") + "' does not overlap the map"});
   }
   auto samples =
-      sample_poses(map.value(), cam, area, count.value(), seed, lo, hi, tilt.value(), imu_tilt.value(), prior_scale.value());
+      sample_poses(map.value(), cam, area, count.value(), seed, lo, hi, tilt.value(), imu_tilt.value(), prior_scale.value(),
+                   altimeter.value());
   if (!samples.ok()) return fail(samples.error());
 
   iclk::TrackerOptions opt = topt.value();
+  // The altimeter's sigma holds the answers' altitude unless --altitude-prior says otherwise.
+  if (altimeter.value() > 0 && !args->has("altitude-prior")) opt.altitude_prior_m = altimeter.value();
   opt.robust = robust.value();
   opt.levels = levels.value();
   auto loc = Localizer::create(map.value(), cam, ref_layers, opt, threads.value());

@@ -64,7 +64,7 @@ Result<std::vector<Waypoint>> path_points(const std::string& path, const geo::Ex
 
 int run_flight(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "path", "speed", "rate", "out", "altitude", "duration", "noise",
-                                 "blur", "exposure", "seed", "tilt", "imu-tilt"}, {});
+                                 "blur", "exposure", "seed", "tilt", "imu-tilt", "altimeter"}, {});
   if (!args.ok()) return usage_error("flight", args.error());
   for (const char* k : {"map", "camera", "layer", "path", "speed", "rate", "out"})
     if (!args->has(k)) return usage_error("flight", Error{std::string("missing required option --") + k});
@@ -74,17 +74,18 @@ int run_flight(const std::vector<std::string>& argv) {
   auto duration = args->get_double("duration", 60);
   auto tilt = args->get_double("tilt", 0);
   auto imu_tilt = args->get_double("imu-tilt", 0);
+  auto altimeter = args->get_double("altimeter", 0);
   auto degradation = parse_degradation(args.value());
   auto seed = args->get_int("seed", 1, 0, 1 << 30);
-  for (auto* r : {&speed, &rate, &altitude, &duration, &tilt, &imu_tilt})
+  for (auto* r : {&speed, &rate, &altitude, &duration, &tilt, &imu_tilt, &altimeter})
     if (!r->ok()) return usage_error("flight", r->error());
   if (!degradation.ok()) return usage_error("flight", degradation.error());
   if (!seed.ok()) return usage_error("flight", seed.error());
   if (!(speed.value() > 0) || !(rate.value() > 0) || !(altitude.value() > 0) || !(duration.value() > 0) ||
       tilt.value() < 0 || tilt.value() > 60 ||
-      !(imu_tilt.value() >= 0 && imu_tilt.value() <= 10))
+      !(imu_tilt.value() >= 0 && imu_tilt.value() <= 10) || !(altimeter.value() >= 0 && altimeter.value() <= 1000))
     return usage_error("flight", Error{"--speed, --rate, --altitude, --duration must be > 0; "
-                                       "--tilt in [0, 60]; --imu-tilt in [0, 10]"});
+                                       "--tilt in [0, 60]; --imu-tilt in [0, 10]; --altimeter in [0, 1000]"});
   auto map = geo::load_map(args->get("map"));
   if (!map.ok()) return fail(map.error());
   auto cam_in = geo::load_camera(args->get("camera"));
@@ -106,7 +107,9 @@ int run_flight(const std::vector<std::string>& argv) {
   Rng rng{static_cast<std::uint64_t>(seed.value())};
   // The attitude reference's errors: a second stream, so the frames do not depend on it.
   Rng imu{static_cast<std::uint64_t>(seed.value()) ^ 0x1e5a7c3b9d2f4601ULL};
-  std::string list, truth, attitude;
+  // The altimeter's: a third.
+  Rng baro{static_cast<std::uint64_t>(seed.value()) ^ 0x7b3d9e1f05a2c468ULL};
+  std::string list, truth, attitude, altimeter_lines;
   const int frames = static_cast<int>(duration.value() * rate.value());
   std::size_t leg = 0;
   double along = 0;  // metres along the current leg
@@ -146,6 +149,10 @@ int run_flight(const std::vector<std::string>& argv) {
       std::snprintf(line, sizeof line, "%.6f %.9f %.9f %.9f %.9f\n", t, q.w(), q.x(), q.y(), q.z());
       attitude += line;
     }
+    if (altimeter.value() > 0) {
+      std::snprintf(line, sizeof line, "%.6f %.4f\n", t, T.t_W_C.z() + baro.normal() * altimeter.value());
+      altimeter_lines += line;
+    }
     std::fprintf(stderr, "\rframe %d/%d", i + 1, frames);
   }
   std::fprintf(stderr, "\n");
@@ -153,7 +160,11 @@ int run_flight(const std::vector<std::string>& argv) {
   if (auto s = geo::write_file_atomic(out + "/truth.txt", truth.data(), truth.size()); !s.ok()) return fail(s.error());
   if (imu_tilt.value() > 0)
     if (auto s = geo::write_file_atomic(out + "/attitude.txt", attitude.data(), attitude.size()); !s.ok()) return fail(s.error());
-  std::printf("%s/list.txt, %s/truth.txt%s\n", out.c_str(), out.c_str(), imu_tilt.value() > 0 ? ", attitude.txt" : "");
+  if (altimeter.value() > 0)
+    if (auto s = geo::write_file_atomic(out + "/altimeter.txt", altimeter_lines.data(), altimeter_lines.size()); !s.ok())
+      return fail(s.error());
+  std::printf("%s/list.txt, %s/truth.txt%s%s\n", out.c_str(), out.c_str(), imu_tilt.value() > 0 ? ", attitude.txt" : "",
+              altimeter.value() > 0 ? ", altimeter.txt" : "");
   return 0;
 }
 

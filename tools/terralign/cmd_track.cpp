@@ -1,5 +1,6 @@
 // terralign track: localise every frame of a flight, each from the previous result.
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <numeric>
 #include <cmath>
@@ -54,36 +55,69 @@ Result<std::vector<Frame>> read_list(const std::string& list) {
   return frames;
 }
 
-// An attitude reference's rotations, one `timestamp qw qx qy qz` a line, one for each frame
-// at the frame's time (within 1 microsecond).
-Result<std::vector<Eigen::Quaterniond>> read_attitude(const std::string& path, const std::vector<Frame>& frames) {
+// A sensor's reading: up to four values, and "path:line: " for errors about them.
+struct Reading {
+  std::array<double, 4> v{};
+  std::string where;
+};
+
+// A sensor's readings, one `timestamp v1 .. vn` a line (n values, finite), one for each frame
+// at the frame's time (within 1 microsecond), each passing `check` (a Status) as it is read;
+// `what` names them in errors, `fields` is the line's form.
+template <class Check>
+Result<std::vector<Reading>> read_readings(const std::string& path, const std::vector<Frame>& frames, const std::string& what,
+                                           const std::string& fields, int n, Check check) {
   std::ifstream in(path);
-  if (!in) return Error{path + ": cannot open the attitude readings"};
-  std::vector<Eigen::Quaterniond> out;
+  if (!in) return Error{path + ": cannot open the " + what};
+  std::vector<Reading> out;
   std::string line;
-  int n = 0;
+  int number = 0;
   while (std::getline(in, line)) {
-    ++n;
+    ++number;
     if (line.find_first_not_of(" \t\r") == std::string::npos || line[0] == '#') continue;
-    const std::string where = path + ":" + std::to_string(n) + ": ";
+    const std::string where = path + ":" + std::to_string(number) + ": ";
     std::istringstream s(line);
-    double t, w, x, y, z;
-    if (!(s >> t >> w >> x >> y >> z) || !std::isfinite(t) || !std::isfinite(w) || !std::isfinite(x) || !std::isfinite(y) ||
-        !std::isfinite(z))
-      return Error{where + "expected 'timestamp qw qx qy qz' (finite numbers), got '" + line + "'"};
-    const Eigen::Quaterniond q(w, x, y, z);
-    if (std::abs(q.norm() - 1.0) > 1e-3)
-      return Error{where + "quaternion norm " + std::to_string(q.norm()) + ", must be 1 (within 1e-3)"};
+    double t = 0;
+    Reading r{{}, where};
+    bool ok = static_cast<bool>(s >> t) && std::isfinite(t);
+    for (auto k = 0u; k < static_cast<unsigned>(n) && ok; ++k) ok = static_cast<bool>(s >> r.v[k]) && std::isfinite(r.v[k]);
+    if (!ok) return Error{where + "expected '" + fields + "' (finite numbers), got '" + line + "'"};
+    if (auto st = check(r); !st.ok()) return st.error();
     if (out.size() >= frames.size())
-      return Error{where + "more attitude readings than the " + std::to_string(frames.size()) + " frames"};
+      return Error{where + "more " + what + " than the " + std::to_string(frames.size()) + " frames"};
     const Frame& f = frames[out.size()];
     if (!(std::abs(t - f.t) <= 1e-6 * std::max(1.0, std::abs(f.t))))
       return Error{where + "timestamp " + std::to_string(t) + " is not frame " + std::to_string(out.size()) + "'s (" +
                    std::to_string(f.t) + ")"};
-    out.push_back(q.normalized());
+    out.push_back(r);
   }
   if (out.size() != frames.size())
-    return Error{path + ": " + std::to_string(out.size()) + " attitude readings for " + std::to_string(frames.size()) + " frames"};
+    return Error{path + ": " + std::to_string(out.size()) + " " + what + " for " + std::to_string(frames.size()) + " frames"};
+  return out;
+}
+
+// An attitude reference's rotations, one `timestamp qw qx qy qz` a line, one for each frame.
+Result<std::vector<Eigen::Quaterniond>> read_attitude(const std::string& path, const std::vector<Frame>& frames) {
+  auto quaternion = [](const Reading& r) { return Eigen::Quaterniond(r.v[0], r.v[1], r.v[2], r.v[3]); };
+  TERRALIGN_TRY_ASSIGN(auto readings, read_readings(path, frames, "attitude readings", "timestamp qw qx qy qz", 4,
+                                                    [&](const Reading& r) -> Status {
+                                                      const double norm = quaternion(r).norm();
+                                                      if (std::abs(norm - 1.0) <= 1e-3) return Ok{};
+                                                      return Error{r.where + "quaternion norm " + std::to_string(norm) +
+                                                                   ", must be 1 (within 1e-3)"};
+                                                    }));
+  std::vector<Eigen::Quaterniond> out;
+  for (const Reading& r : readings) out.push_back(quaternion(r).normalized());
+  return out;
+}
+
+// An altimeter's readings, one `timestamp z` a line (the camera centre's map z, metres), one
+// for each frame.
+Result<std::vector<double>> read_altimeter(const std::string& path, const std::vector<Frame>& frames) {
+  TERRALIGN_TRY_ASSIGN(auto readings, read_readings(path, frames, "altimeter readings", "timestamp z", 1,
+                                                    [](const Reading&) -> Status { return Ok{}; }));
+  std::vector<double> out;
+  for (const Reading& r : readings) out.push_back(r.v[0]);
   return out;
 }
 
@@ -119,7 +153,7 @@ void append_pose_cells(std::string& csv, const geo::Pose& T) {
 
 int run_track(const std::vector<std::string>& argv) {
   auto args = Args::parse(argv, {"map", "camera", "layer", "images", "init", "method", "out", "truth", "json", "iterations",
-                                 "threads", "weights", "attitude", "tilt-prior", "init-velocity", "registration-floor",
+                                 "threads", "weights", "attitude", "altimeter", "tilt-prior", "altitude-prior", "init-velocity", "registration-floor",
                                  "registration-floor-per-residual",
                                  "filter", "accel-sigma", "gate", "init-sigma", "min-sharpness", "max-disagreement", "agree-px", "coarse-search", "min-step", "nn-levels", "refine", "refine-levels", "refine-max-residual", "refine-uniform", "second-look", "second-look-max-disagreement", "acquire", "restart-after", "restart-max-ratio"}, {});
   if (!args.ok()) return usage_error("track", args.error());
@@ -205,6 +239,14 @@ int run_track(const std::vector<std::string>& argv) {
     auto a = read_attitude(args->get("attitude"), frames.value());
     if (!a.ok()) return fail(a.error());
     attitude = std::move(a.value());
+  }
+  std::vector<double> altimeter;
+  if (args->has("altimeter")) {
+    if (!args->has("altitude-prior"))
+      return usage_error("track", Error{"--altimeter needs --altitude-prior M (the altimeter's sigma, metres)"});
+    auto a = read_altimeter(args->get("altimeter"), frames.value());
+    if (!a.ok()) return fail(a.error());
+    altimeter = std::move(a.value());
   }
   iclk::TrackerOptions opt = topt.value();
   opt.iterations = iters.value();
@@ -301,7 +343,8 @@ int run_track(const std::vector<std::string>& argv) {
       } else {
         ImageU8 live = cam_in->model == geo::DistortionModel::None ? std::move(img.value()) : undistort(img->view(), cam_in.value());
         if (refine->second_look_at_start) loc.value()->set_second_look(start.starting(), refine->second_look_max_disagreement);
-        auto out = loc.value()->localize(live.view(), prior, attitude.empty() ? nullptr : &attitude[i]);
+        auto out = loc.value()->localize(live.view(), prior, attitude.empty() ? nullptr : &attitude[i],
+                                         altimeter.empty() ? NAN : altimeter[i]);
         if (!out.ok()) {
           reason = out.error().message;
         } else {

@@ -158,8 +158,11 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
   const Eigen::AngleAxisd a((attitude ? *attitude : prior.q_W_C).conjugate() * ref_pose.q_W_C);
   const Eigen::Vector3d up = ref_pose.R().transpose() * Eigen::Vector3d::UnitZ();
   const Eigen::Vector3d tilt = a.angle() * a.axis();
+  // The altimeter's height above the camera the reference is rendered from.
+  const double height = altitude_ - ref_pose.t_W_C.z();
   if (!deep_) {
     tracker_->set_up(up, tilt);
+    tracker_->set_height(height);
     // The live image's pyramid is built once a frame, by the first layer's alignment; a later
     // layer and a refinement pass align their reference to it.
     if (first && !live_kept_) {
@@ -175,6 +178,7 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
     return r;
   }
   deep_->set_up(up, tilt);
+  deep_->set_height(height);
   if (!first) return deep_->refine(ref_rgb_.view(), depth_.view(), K, refine_levels_, learned_weights, agreement);
   // A later layer: the live image's features are those the first layer's alignment encoded.
   if (live_kept_) return deep_->align_to(ref_rgb_.view(), depth_.view(), K, iclk::SE3<float>::identity());
@@ -197,7 +201,7 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
 }
 
 Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, const geo::Pose& prior,
-                                           const Eigen::Quaterniond* attitude) {
+                                           const Eigen::Quaterniond* attitude, double altitude) {
   if (live.width != camera_.width || live.height != camera_.height || live.channels != 3)
     return Error{"live image is " + std::to_string(live.width) + " x " + std::to_string(live.height) + " x " +
                  std::to_string(live.channels) + ", the camera is " + std::to_string(camera_.width) + " x " +
@@ -206,6 +210,7 @@ Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, c
   // none converges, the last layer's failure is reported (its measures and reason).
   LocalizeOutput out;
   live_kept_ = false;
+  altitude_ = std::isfinite(altitude) ? altitude : prior.t_W_C.z();
   for (std::size_t i = 0; i < refs_.size(); ++i) {
     use_layer(i);
     out.T_live_ref = iclk::SE3<double>::identity();

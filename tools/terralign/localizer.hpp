@@ -191,9 +191,12 @@ class Localizer {
                                                    const LocalizerSizes& sizes = {});
   // live: the camera image, 3-channel RGB of the camera's size. attitude: an attitude
   // reference's R_W_C for this image (an IMU's); with TrackerOptions::tilt_prior_rad the
-  // answer's tilt is held to its roll and pitch (none: to the prior's).
+  // answer's tilt is held to its roll and pitch (none: to the prior's). altitude: an
+  // altimeter's reading of the camera centre's map z for this image (a barometer's, in the
+  // map's vertical datum); with TrackerOptions::altitude_prior_m the answer's is held to it
+  // (not finite: no altitude prior).
   Result<LocalizeOutput> localize(ImageView<const std::uint8_t> live, const geo::Pose& prior,
-                                  const Eigen::Quaterniond* attitude = nullptr);
+                                  const Eigen::Quaterniond* attitude = nullptr, double altitude = NAN);
   void set_iterations(int n);
   // Re-rendered refinement: after a converged alignment, up to `passes` times, render the
   // reference again at the answer and align again from it on its finest levels (the learned
@@ -260,6 +263,7 @@ class Localizer {
                                                                  const Eigen::Quaterniond* attitude, bool first,
                                                                  bool learned_weights, bool agreement);
   double dem_variance_ = 0;  // the DEM's vertical_sigma_m squared (m^2)
+  double altitude_ = NAN;    // the frame's altimeter reading (localize()), map z in metres
   int refine_passes_ = 0, refine_levels_ = kRefineLevels;
   double refine_max_residual_ = kRefineMaxResidual;
   double refine_uniform_max_residual_ = kRefineUniformOff;

@@ -49,9 +49,10 @@ Eigen::Quaterniond exp_so3(const Eigen::Vector3d& phi) {
 
 Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, const geo::Extent& e, int count,
                                          std::uint64_t seed, double lo, double hi, double tilt_deg,
-                                         double imu_tilt_deg, double prior_scale) {
+                                         double imu_tilt_deg, double prior_scale, double altimeter_m) {
   Rng rng{seed};
   Rng imu{seed ^ 0x1e5a7c3b9d2f4601ULL};
+  Rng baro{seed ^ 0x7b3d9e1f05a2c468ULL};
   std::vector<Sample> out;
   for (int i = 0; i < count; ++i) {
     bool placed = false;
@@ -95,6 +96,7 @@ Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraM
         phi.y() = imu.normal() * imu_tilt_deg * kPi / 180;
         s.prior.q_W_C = (exp_so3(phi) * T.q_W_C).normalized();
       }
+      if (altimeter_m > 0) s.prior.t_W_C.z() = T.t_W_C.z() + baro.normal() * altimeter_m;
       out.push_back(s);
       placed = true;
     }

@@ -41,9 +41,12 @@ struct Sample {
 // same draws otherwise: the same true poses, priors on the same axes and directions (a
 // tracking loop's prediction is far nearer than a failing GPS's); with imu_tilt_deg the tilt
 // error stays the attitude reference's.
+// altimeter_m > 0 models an altimeter (a barometer) that survives it too: the prior's map z is
+// the truth's plus N(0, altimeter_m^2), from a third stream (its horizontal position and its
+// rotation stay as above).
 Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, const geo::Extent& area, int count,
                                          std::uint64_t seed, double lo, double hi, double tilt_deg,
-                                         double imu_tilt_deg = 0, double prior_scale = 1);
+                                         double imu_tilt_deg = 0, double prior_scale = 1, double altimeter_m = 0);
 
 // An attitude reference's reading of the camera's rotation q_W_C: rotated about the world's
 // two horizontal axes by N(0, sigma_deg^2) each (its roll and pitch error), heading exact.
