@@ -423,3 +423,51 @@ TEST_CASE("learned tracker: with an attitude reference the agreement test takes 
   REQUIRE_FALSE(refused.ok());
   CHECK(refused.error().message.find(bad) != std::string::npos);
 }
+
+TEST_CASE("learned tracker: with an attitude reference and an altimeter the agreement test takes the file's threshold for both") {
+  constexpr double kDeg = 3.14159265358979323846 / 180;
+  // The shipped file's third threshold (training/calibrate_sharpness.py --test
+  // agreement-attitude-altimeter) takes over where the tilt prior is an attitude reference's
+  // and the altitude prior at most kAltimeterPriorM; an altimeter without an attitude
+  // reference, or a looser one, leaves the threshold the tilt prior alone gives.
+  const nn::WeightFile shipped = shipped_weights();
+  auto threshold = [](const nn::WeightFile& w, double tilt_prior_deg, double altitude_prior_m) {
+    auto t = iclk::DeepAligner::max_disagreement(w, tilt_prior_deg * kDeg, altitude_prior_m);
+    REQUIRE(t.ok());
+    return t.value();
+  };
+  const double bound = iclk::DeepAligner::kAltimeterPriorM;
+  CHECK(threshold(shipped, 0.5, 2) == doctest::Approx(1.60));
+  CHECK(threshold(shipped, 1, bound) == doctest::Approx(1.60));
+  CHECK(threshold(shipped, 0.5, bound * 1.01) == doctest::Approx(1.35));
+  CHECK(threshold(shipped, 0.5, 0) == doctest::Approx(1.35));
+  CHECK(threshold(shipped, 3, 2) == doctest::Approx(1.25));
+  CHECK(threshold(shipped, 0, 2) == doctest::Approx(1.25));
+  // A file without the line keeps the attitude's (or its plain) threshold.
+  const nn::WeightFile s16 = load("weights/deep_iclk_s16.tlw");
+  CHECK(threshold(s16, 0.5, 2) == threshold(s16, 0.5, 0));
+  // The tracker tests with it: a threshold the answer does not meet fails the right answer
+  // only with both priors (no up vector or height is set, so neither prior acts and the
+  // answer is the same).
+  const nn::WeightFile strict = with_line(s16, "# max-disagreement-px-attitude-altimeter 1e-9");
+  const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
+  const Pair p = pair_of(vectors, 0);
+  auto run = [&](double altitude_prior_m) {
+    iclk::TrackerOptions o = parity_options();
+    o.tilt_prior_rad = 0.5 * kDeg;
+    o.altitude_prior_m = altitude_prior_m;
+    auto D = iclk::DeepAligner::create(strict, p.ref.width(), p.ref.height(), o, 1);
+    REQUIRE(D.ok());
+    return D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
+  };
+  const auto imu = run(0), both = run(2);
+  REQUIRE(imu.disagreement_px > 1e-9);
+  CHECK(imu.converged);
+  CHECK_FALSE(both.converged);
+  CHECK(std::string(both.reason).rfind("ambiguous", 0) == 0);
+  CHECK(both.disagreement_px == imu.disagreement_px);
+  const std::string bad = "# max-disagreement-px-attitude-altimeter nan";
+  auto refused = iclk::DeepAligner::create(with_line(s16, bad), p.ref.width(), p.ref.height(), options(), 1);
+  REQUIRE_FALSE(refused.ok());
+  CHECK(refused.error().message.find(bad) != std::string::npos);
+}

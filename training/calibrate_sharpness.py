@@ -18,6 +18,10 @@ its threshold into it (read by src/iclk/deep_aligner.cpp):
   `# max-disagreement-px` passes without the IMU is the trust to keep; from that threshold,
   in steps of 0.05 px, the widest whose passed answers with the IMU are right at least as
   often (session 59: 2009 -> 2020, 1000 poses, 98.9 % -> 1.35 px).
+- `--test agreement-attitude-altimeter`: `# max-disagreement-px-attitude-altimeter X`, the
+  same with an altimeter too, where the altitude prior is at most
+  iclk::DeepAligner::kAltimeterPriorM: the second run adds `--altimeter 2` (session 76:
+  1.60 px).
 
 The first two keep `--keep` (97 %) of the right converged answers (2-D EPE < 5 px) of an
 adjacent-year pair on calibration poses (seed 11; the README's tables use seed 7). Runs
@@ -32,6 +36,7 @@ trained on the rest of the tile in the map's own years (session 53).
   training/calibrate_sharpness.py --test agreement --count 200 --only weights/deep_iclk_s16w64.tlw
   training/calibrate_sharpness.py --test agreement --agree-px 1 --count 200 --only other.tlw
   training/calibrate_sharpness.py --test agreement-attitude --pair 2009,2020 --count 1000 weights/deep_iclk_s16w64.tlw
+  training/calibrate_sharpness.py --test agreement-attitude-altimeter --pair 2009,2020 --count 1000 weights/deep_iclk_s16w64.tlw
 """
 import argparse
 import json
@@ -76,20 +81,31 @@ def passed(samples, threshold):
     return right, len(kept) - right
 
 
-def attitude(a, ref, query):
+# The sensors of each threshold that keeps the plain one's trust: the weight file's line, what
+# the second run adds to the eval, and what the messages call them.
+SENSORS = {
+    "agreement-attitude": ("max-disagreement-px-attitude", ["--imu-tilt", "0.5", "--tilt-prior", "0.5"], "the IMU"),
+    "agreement-attitude-altimeter": ("max-disagreement-px-attitude-altimeter",
+                                     ["--imu-tilt", "0.5", "--tilt-prior", "0.5", "--altimeter", "2"],
+                                     "the IMU and the altimeter"),
+}
+
+
+def with_sensors(a, ref, query):
+    key, extra, sensors = SENSORS[a.test]
     arch, _ = tlw.architecture(a.weights)
     line = next((l for l in arch.split("\n") if l.startswith("# max-disagreement-px ")), None)
     if line is None:
         sys.exit(f"{a.weights}: no '# max-disagreement-px' line: calibrate the plain threshold first (--test agreement)")
     plain = float(line.split()[2])
     without = run_eval(a, ref, query, [])
-    with_imu = run_eval(a, ref, query, ["--imu-tilt", "0.5", "--tilt-prior", "0.5"])
+    with_imu = run_eval(a, ref, query, extra)
     right, wrong = passed(without, plain)
     if right + wrong < 20:
         sys.exit(f"{a.weights}: the plain threshold passes only {right + wrong} answers of {ref} -> {query}: too few")
     trust = right / (right + wrong)
 
-    def share(t):  # of the answers t passes with the IMU, the right ones
+    def share(t):  # of the answers t passes with the sensors, the right ones
         r, w = passed(with_imu, t)
         return r / (r + w) if r + w else 1.0
 
@@ -103,10 +119,10 @@ def attitude(a, ref, query):
     threshold = steps * 0.05
     r, w = passed(with_imu, threshold)
     r0, w0 = passed(with_imu, plain)
-    set_line(a.weights, "max-disagreement-px-attitude", f"{threshold:.2f}")
-    print(f"{a.weights}: max-disagreement-px-attitude {threshold:.2f} ({ref} -> {query}, {a.count} poses, seed "
-          f"{a.seed}): without the IMU {plain:.2f} px passes {right} right and {wrong} wrong answers "
-          f"({100 * trust:.1f} % right); with it {threshold:.2f} px passes {r} right and {w} wrong "
+    set_line(a.weights, key, f"{threshold:.2f}")
+    print(f"{a.weights}: {key} {threshold:.2f} ({ref} -> {query}, {a.count} poses, seed "
+          f"{a.seed}): without {sensors} {plain:.2f} px passes {right} right and {wrong} wrong answers "
+          f"({100 * trust:.1f} % right); with them {threshold:.2f} px passes {r} right and {w} wrong "
           f"({plain:.2f} px: {r0} and {w0})")
 
 
@@ -121,17 +137,17 @@ def main():
     p.add_argument("--seed", type=int, default=11)
     p.add_argument("--keep", type=float, default=0.97, help="share of right converged answers to keep")
     p.add_argument("--area", help="MINX,MINY,MAXX,MAXY: the calibration poses from this part of the map (eval --area)")
-    p.add_argument("--test", choices=("sharpness", "agreement", "agreement-attitude"), default="sharpness")
+    p.add_argument("--test", choices=("sharpness", "agreement") + tuple(SENSORS), default="sharpness")
     p.add_argument("--only", action="store_true",
                    help="remove the other test's threshold from the weights (its test then off by default)")
     p.add_argument("--agree-px", type=float,
                    help="the agreement test's start (working px in u and v): calibrated with, written as '# agree-px'")
     a = p.parse_args()
     ref, query = a.pair.split(",")
-    if a.test == "agreement-attitude":
+    if a.test in SENSORS:
         if a.agree_px is not None or a.only:
-            sys.exit("--agree-px and --only: not with --test agreement-attitude (it calibrates the file's own start)")
-        return attitude(a, ref, query)
+            sys.exit(f"--agree-px and --only: not with --test {a.test} (it calibrates the file's own start)")
+        return with_sensors(a, ref, query)
     if a.agree_px is not None:
         if a.test != "agreement" or not 0 < a.agree_px <= 10:
             sys.exit(f"--agree-px {a.agree_px}: only with --test agreement, and in (0, 10] pixels")

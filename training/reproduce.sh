@@ -261,6 +261,13 @@ ship() {
           { echo "reproduce.sh: the calibration failed, see $out.attitude.log" >&2; exit 1; }
         tail -n 1 "$out.attitude.log"
       fi
+      # With an altimeter too, where COMMITTED carries that line (session 76).
+      if grep -a -q '^# max-disagreement-px-attitude-altimeter ' "$ref"; then
+        python3 training/calibrate_sharpness.py --test agreement-attitude-altimeter --pair 2009,2020 --count 1000 \
+          "$out.part" > "$out.altimeter.log" 2>&1 ||
+          { echo "reproduce.sh: the calibration failed, see $out.altimeter.log" >&2; exit 1; }
+        tail -n 1 "$out.altimeter.log"
+      fi
     fi
     mv "$out.part" "$out"
   fi

@@ -83,14 +83,18 @@ Result<double> DeepAligner::min_sharpness(const nn::WeightFile& weights) {
   return v;
 }
 
-Result<double> DeepAligner::max_disagreement(const nn::WeightFile& weights, double tilt_prior_rad) {
+Result<double> DeepAligner::max_disagreement(const nn::WeightFile& weights, double tilt_prior_rad,
+                                             double altitude_prior_m) {
   std::string line;
-  double plain = 0, attitude = 0;
-  for (auto [key, v] : {std::pair{"max-disagreement-px", &plain}, std::pair{"max-disagreement-px-attitude", &attitude}})
+  double plain = 0, attitude = 0, altimeter = 0;
+  for (auto [key, v] : {std::pair{"max-disagreement-px", &plain}, std::pair{"max-disagreement-px-attitude", &attitude},
+                        std::pair{"max-disagreement-px-attitude-altimeter", &altimeter}})
     if (comment_value(weights, key, line, *v) && !(*v > 0 && *v <= 100))
       return Error{weights.name + ": '" + line + "': the agreement threshold must be in (0, 100] pixels"};
   const bool attitude_reference =
       tilt_prior_rad > 0 && tilt_prior_rad <= kAttitudeTiltPriorDeg * (3.14159265358979323846 / 180);
+  const bool altimeter_reference = altitude_prior_m > 0 && altitude_prior_m <= kAltimeterPriorM;
+  if (attitude_reference && altimeter_reference && altimeter > 0) return altimeter;
   return attitude_reference && attitude > 0 ? attitude : plain;
 }
 
@@ -192,7 +196,7 @@ Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& w
     TERRALIGN_TRY_ASSIGN(o.min_sharpness, DeepAligner::min_sharpness(weights));
   }
   if (o.max_disagreement_px == 0) {
-    TERRALIGN_TRY_ASSIGN(o.max_disagreement_px, DeepAligner::max_disagreement(weights, o.tilt_prior_rad));
+    TERRALIGN_TRY_ASSIGN(o.max_disagreement_px, DeepAligner::max_disagreement(weights, o.tilt_prior_rad, o.altitude_prior_m));
   }
   // The sharpness probe (four finest-level residuals, about 2 % of a pair) runs where its test
   // is on, or where the caller asks for the measure (probe_px > 0: eval); negative: never.

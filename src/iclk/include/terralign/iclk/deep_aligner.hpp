@@ -64,6 +64,15 @@ class DeepAligner : public iclk::LevelWeights {
   // IMU, 99.6 % with it; 1.35 px passes 99.3 % with it (README, "The agreement test with an
   // attitude reference", session 59). A rough pose's tilt (the default 3 degrees) is not one.
   static constexpr double kAttitudeTiltPriorDeg = 1.0;
+  // With an altimeter too, an altitude prior (iclk::TrackerOptions::altitude_prior_m) of at
+  // most kAltimeterPriorM, the file's `# max-disagreement-px-attitude-altimeter X` where it has
+  // one (calibrate_sharpness.py --test agreement-attitude-altimeter, the same rule with
+  // `--altimeter 2` added), else the attitude's. Held to the height as well, the right answers
+  // settle tighter still: on the calibration poses (1000) 1.60 px passes 879 right and 9 wrong
+  // answers with both, the attitude's 1.35 px 797 and 4 (README, "With an altimeter", session
+  // 76). An altimeter alone keeps the plain threshold (its own would be 1.30 px: 706 right and 7
+  // wrong against 1.25 px's 681 and 6).
+  static constexpr double kAltimeterPriorM = 5.0;
   // The coarse search before the first step (TrackerOptions::coarse_search_px and _yaw_deg),
   // unless the options set it (coarse_search_px negative: none): shifts of up to 2
   // coarsest-level pixels, turns of up to 4 degrees. On the calibration seed (11) the shifts
@@ -97,9 +106,10 @@ class DeepAligner : public iclk::LevelWeights {
   static Result<double> input_scale(const nn::WeightFile& weights);
   static Result<int> levels(const nn::WeightFile& weights);
   static Result<double> min_sharpness(const nn::WeightFile& weights);  // 0: none
-  // The agreement threshold for a tilt prior of `tilt_prior_rad` (0: none; see
-  // kAttitudeTiltPriorDeg); 0: none.
-  static Result<double> max_disagreement(const nn::WeightFile& weights, double tilt_prior_rad = 0);
+  // The agreement threshold for a tilt prior of `tilt_prior_rad` and an altitude prior of
+  // `altitude_prior_m` (0: none; see kAttitudeTiltPriorDeg and kAltimeterPriorM); 0: none.
+  static Result<double> max_disagreement(const nn::WeightFile& weights, double tilt_prior_rad = 0,
+                                         double altitude_prior_m = 0);
   static Result<double> agree_px(const nn::WeightFile& weights);  // kAgreePx where none
 
   // ref_rgb, live_rgb: 3-channel, 0..255; ref_depth: metres, NaN where none; K: pinhole of
