@@ -8,7 +8,9 @@ Flights (README "Tracking a flight"): the 40-frame lawnmower at 800 m with --noi
 --exposure 0.1 --imu-tilt 0.5, rendered from 2016, 2017 and 2020, and the circle at 750 m from
 2017. Rows: the same year (2016 on the 2016 map), a year (2017 on 2016), the circle (2017 on
 2016), 4 years (2020 on 2016) and 11 years (2020 on 2009), each without and with the IMU's
-tilt (--attitude, --tilt-prior 0.5). Python's standard library and the built terralign only.
+tilt (--attitude, --tilt-prior 0.5). --altimeter: every track also holds its answers' altitude
+to the flight's altimeter (rendered with --altimeter 2: the true z plus N(0, 2 m); --altimeter
+DIR/altimeter.txt --altitude-prior 2). Python's standard library and the built terralign only.
 """
 import argparse
 import json
@@ -87,6 +89,7 @@ def main():
     ap.add_argument("--random", type=int, default=0, metavar="N",
                     help="N random straight 1000 m flights instead (heading, place, altitude 700-900 m, tilt 0-10 deg)")
     ap.add_argument("--seed", type=int, default=1, help="the random flights' seed")
+    ap.add_argument("--altimeter", action="store_true", help="every track with the flight's altimeter (2 m)")
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
     flights = FLIGHTS
@@ -104,10 +107,12 @@ def main():
     needed = {flight for label, flight, _ in rows if runs(label)}  # render only what the rows track
     for name, (layer, extra) in flights.items():
         d = os.path.join(a.out, name)
-        if name not in needed or os.path.exists(os.path.join(d, "truth.txt")):
+        if name not in needed or os.path.exists(os.path.join(d, "altimeter.txt")):
             continue
+        # The altimeter's readings come from a stream of their own: the frames and the attitude
+        # readings are those of a flight rendered without them.
         opts = {"--path": "lawnmower", "--speed": "25", "--rate": "1", "--duration": "40", "--noise": "2", "--blur": "1",
-                "--exposure": "0.1", "--imu-tilt": "0.5"}
+                "--exposure": "0.1", "--imu-tilt": "0.5", "--altimeter": "2"}
         opts.update(dict(zip(extra[::2], extra[1::2])))
         run([a.tl, "flight", "--map", MAP, "--camera", CAM, "--layer", layer, "--out", d] +
             [x for kv in opts.items() for x in kv])
@@ -127,6 +132,8 @@ def main():
                    "--method", a.method, "--out", stem + ".csv", "--json", stem + ".json"]
             if imu:
                 cmd += ["--attitude", os.path.join(d, "attitude.txt"), "--tilt-prior", "0.5"]
+            if a.altimeter:
+                cmd += ["--altimeter", os.path.join(d, "altimeter.txt"), "--altitude-prior", "2"]
             run(cmd + a.extra)
             with open(stem + ".json") as f:
                 j = json.load(f)

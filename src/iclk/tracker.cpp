@@ -1142,8 +1142,9 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
         B.template leftCols<4>() *= floor_px;
         P += Mi * B * B.transpose() * Mi;
       }
-      // With the tilt prior's information: the image term's covariance (the floor included)
-      // narrowed where an attitude reference knows the tilt better.
+      // With the tilt and altitude priors' information: the image term's covariance (the floor
+      // included) narrowed where an attitude reference knows the tilt, or an altimeter the
+      // height, better.
       if (tilt || altitude) {
         Eigen::Matrix<double, DoF, DoF> info = P.inverse();
         if (tilt) info.template topLeftCorner<3, 3>() += tilt_info;
