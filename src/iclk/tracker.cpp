@@ -1009,7 +1009,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
     // One LM step from q, with the residuals the last evaluate() left (g, Hout): q moves and
     // the step's size is returned (rad, and m per metre of median depth), or -1 with `why`
     // set when the step is not finite or exceeds the bound. `level_start`: the first step of
-    // the level, which measures the image noise that weighs the tilt prior.
+    // the level, which measures the image noise that weighs the tilt and altitude priors.
     // The last step, for its image motion (TrackerOptions::min_step_px).
     Eigen::Matrix<double, DoF, 1> delta;
     auto lm_step = [&](Params& q, bool level_start, const char*& why) -> double {
@@ -1017,11 +1017,11 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       Eigen::Matrix<double, DoF, DoF> A = Hv;
       A.diagonal() *= 1.0 + opt_.lambda;
       Eigen::Matrix<double, DoF, 1> rhs = g;
+      if (level_start && (tilt || altitude)) noise = image_noise(n);
       if (tilt) {
         // Prior 1/2 e'^T P e' on the rotation e' = log(R_init^T R') - tilt_ after the step:
         // the update R' = R exp(-delta) gives e' = e - delta (first order), so P joins H and
         // P e joins g.
-        if (level_start) noise = image_noise(n);
         const Eigen::Matrix3d P = noise * tilt_info;
         const Eigen::Vector3d e = SE3Log<Params>::of(init, q).template head<3>() - tilt_;
         A.template topLeftCorner<3, 3>() += P;
@@ -1030,7 +1030,6 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       if (altitude) {
         // Prior 1/2 w e'^2 on the height, e' = e + J delta after the step: w J^T J joins H and
         // -w J^T e joins g.
-        if (level_start && !tilt) noise = image_noise(n);
         Eigen::Matrix<double, 1, DoF> J;
         const double e = height_row(q, J);
         const double w = noise * altitude_info;
