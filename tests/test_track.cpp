@@ -622,6 +622,41 @@ TEST_CASE("track holds each answer's altitude to an altimeter's, frame by frame,
       }
     }
   }
+  // A frame without an answer reports the filter's prediction, which has taken that frame's
+  // reading. The start 20 m above the truth, with the first image missing: without the
+  // altimeter the first frame reports the start, 20 m high; with it (true readings, 0.1 m) the
+  // reading's height: the start's 50 m sigma weighs 250000 times less, so 0.08 mm of the 20 m
+  // stay (asked: under 1 cm), and the variance is at most the reading's 0.01 m^2. The next
+  // frames start from that height and converge (as in the runs above, to within 0.1 m).
+  {
+    std::ifstream in(dir + "/list.txt");
+    std::ofstream list(dir + "/gap.txt");
+    std::string t, path;
+    for (int k = 0; in >> t >> path; ++k) list << t << " " << (k == 0 ? dir + "/frames/missing.png" : dir + "/" + path) << "\n";
+  }
+  write_altimeter(dir + "/baro.txt", 0.0);
+  std::istringstream first(first_truth_pose(dir));
+  double x, y, z, qw, qx, qy, qz;
+  REQUIRE(static_cast<bool>(first >> x >> y >> z >> qw >> qx >> qy >> qz));
+  char high[256];
+  std::snprintf(high, sizeof high, "%.6f %.6f %.6f %.9f %.9f %.9f %.9f", x, y, z + 20, qw, qx, qy, qz);
+  const std::string gap_track = tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
+                                "/gap.txt --init \"" + high + "\" --truth " + dir + "/truth.txt";
+  REQUIRE(run(gap_track + " --altimeter " + dir + "/baro.txt --altitude-prior 0.1 --out " + dir + "/gap.csv") == 0);
+  REQUIRE(run(gap_track + " --out " + dir + "/gap_none.csv") == 0);
+  const auto gap = csv_rows(dir + "/gap.csv"), gap_none = csv_rows(dir + "/gap_none.csv");
+  REQUIRE(gap.size() == truth.size());
+  REQUIRE(gap_none.size() == truth.size());
+  CHECK(gap[0][8] == "0");
+  CHECK(std::stod(gap_none[0][3]) - truth[0].second == doctest::Approx(20.0).epsilon(1e-6));
+  CHECK(std::abs(std::stod(gap[0][3]) - truth[0].second) < 0.01);
+  // cov55, the z variance, counted from the row's end (the reason before it may hold commas).
+  CHECK(std::stod(gap[0][gap[0].size() - 10]) <= 0.1 * 0.1);
+  for (std::size_t k = 1; k < gap.size(); ++k) {
+    CAPTURE(k);
+    CHECK(gap[k][8] == "1");
+    CHECK(std::abs(std::stod(gap[k][3]) - truth[k].second) < 0.1);
+  }
   // Bad files and options are refused by name, before any frame is tracked.
   auto refused = [&](const std::string& opts, const std::string& want) {
     check_refused(track + " " + opts, dir + "/err.txt", want);

@@ -311,12 +311,16 @@ int run_track(const std::vector<std::string>& argv) {
     const Frame& f = frames.value()[i];
     const bool in_order = f.t > last_t;
     if (filter && in_order) filter->predict(f.t);
-    geo::Pose prior = filter ? filter->pose() : known == 2 ? predict(prev, t_prev, last, t_last, f.t) : last;
     // With an attitude reference the start keeps the prediction's tilt when two converged
     // frames made it (starting from the IMU's instead: same-year RMSE 0.16 -> 0.31 m, across
     // a year 7.5 -> 8.1 m, docs/history.md, session 29), else takes the IMU's; the tilt prior holds the answer to
     // the IMU's either way.
-    if (!attitude.empty() && (filter ? filter->updates() : known) < 2) prior.q_W_C = with_tilt_of(prior.q_W_C, attitude[i]);
+    const auto predicted = [&] {
+      geo::Pose p = filter ? filter->pose() : known == 2 ? predict(prev, t_prev, last, t_last, f.t) : last;
+      if (!attitude.empty() && (filter ? filter->updates() : known) < 2) p.q_W_C = with_tilt_of(p.q_W_C, attitude[i]);
+      return p;
+    };
+    const geo::Pose prior = predicted();
     // A frame whose answer is not taken reports the prediction, with the filter's covariance
     // (without the filter, none).
     geo::Pose estimate = prior;
@@ -403,6 +407,13 @@ int run_track(const std::vector<std::string>& argv) {
             reason += "; its answer taken unconfirmed to start the track" + after + d;
           }
         }
+      }
+      // The filter takes the altimeter's reading on a frame whose answer it did not take (a
+      // taken answer already holds it), so the track's height and climb do not drift while it
+      // coasts; the frame reports that prediction.
+      if (filter && !taken && !altimeter.empty() && filter->update_height(altimeter[i], opt.altitude_prior_m)) {
+        estimate = predicted();
+        cov = filter->pose_covariance();
       }
       last_t = f.t;
     }

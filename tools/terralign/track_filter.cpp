@@ -126,6 +126,25 @@ TrackFilter::Update TrackFilter::update(const geo::Pose& measured, const Mat6& c
   return u;
 }
 
+bool TrackFilter::update_height(double z, double sigma) {
+  if (!std::isfinite(z) || !std::isfinite(sigma) || !(sigma > 0)) return false;
+  // H = e_5 (the error state's dp_z); K = P H^T / (H P H^T + sigma^2); Joseph's form.
+  const double r = sigma * sigma;
+  const double s = P_(5, 5) + r;
+  if (!(s > 0) || !std::isfinite(s)) return false;
+  const Eigen::Matrix<double, 12, 1> K = P_.col(5) / s;
+  const Eigen::Matrix<double, 12, 1> dx = K * (z - p_.z());
+  q_ = (exp_so3(dx.head<3>()) * q_).normalized();
+  p_ += dx.segment<3>(3);
+  v_ += dx.segment<3>(6);
+  w_ += dx.segment<3>(9);
+  Mat12 IKH = Mat12::Identity();
+  IKH.col(5) -= K;
+  P_ = IKH * P_ * IKH.transpose() + r * K * K.transpose();
+  P_ = 0.5 * (P_ + P_.transpose()).eval();
+  return true;
+}
+
 void TrackFilter::reset(const geo::Pose& measured, const Mat6& covariance) {
   q_ = measured.q_W_C.normalized();
   p_ = measured.t_W_C;

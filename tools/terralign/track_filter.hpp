@@ -6,7 +6,9 @@
 // prediction and gates it: an answer farther from the prediction than both their covariances
 // allow (a chi-square test on the innovation) is refused and the track coasts on the motion
 // model, as it does through a frame that did not converge. The estimate is then the fused
-// pose and its covariance the filter's, which also covers the frames in between.
+// pose and its covariance the filter's, which also covers the frames in between. An
+// altimeter's reading (track --altimeter) updates its height on the frames whose answer it
+// does not take (update_height).
 //
 // State: R_W_C, p (camera centre, map frame), v (m/s) and w (rad/s about the map's axes),
 // constant velocity and constant turn rate between frames, white acceleration and angular
@@ -75,6 +77,15 @@ class TrackFilter {
   // time, unless its covariance is not positive definite or the gate refuses it (or, the
   // N-th refused in a row, starts again at it).
   Update update(const geo::Pose& measured, const Mat6& covariance);
+
+  // Fuses an altimeter's reading of the camera centre's map z with its sigma (m): a scalar
+  // update, ungated (an altimeter does not fail with the GPS, and a track whose height has
+  // drifted is what it corrects). Through the state's correlations it also corrects the climb
+  // rate. `track` gives it the frames whose answer it does not take: a taken answer was
+  // already held to the reading (the altitude prior), and fused twice it would claim twice the
+  // precision. False, the state as it was, for a reading or sigma that is not finite or a
+  // sigma not above 0.
+  bool update_height(double z, double sigma);
 
   // Starts again at a measured pose with its covariance, the velocity and turn rate kept
   // with the start's uncertainty: where the prediction, not the answers, went wrong.
