@@ -87,6 +87,19 @@ iclk::TrackerOptions parity_options() {
   return o;
 }
 
+// Aligns p with `weights` from the identity under parity_options() with a tilt prior (radians)
+// and an altitude prior (metres): neither acts, no up vector or height being set, so the
+// answer is the same and only the agreement threshold they select differs.
+iclk::TrackResult<iclk::DeepAligner::Warp> align_with_priors(const nn::WeightFile& weights, const Pair& p,
+                                                             double tilt_prior_rad, double altitude_prior_m) {
+  iclk::TrackerOptions o = parity_options();
+  o.tilt_prior_rad = tilt_prior_rad;
+  o.altitude_prior_m = altitude_prior_m;
+  auto D = iclk::DeepAligner::create(weights, p.ref.width(), p.ref.height(), o, 1);
+  REQUIRE(D.ok());
+  return D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
+}
+
 // Aligns p with `weights` from the identity, as PyTorch's model starts, and checks the answer
 // against PyTorch's pose in p: converged, within the issue's bound of 1e-4 rad and 1e-3 of the
 // altitude. Both sides are float32 with double 6x6 solves; they differ in summation order
@@ -404,14 +417,7 @@ TEST_CASE("learned tracker: with an attitude reference the agreement test takes 
   const nn::WeightFile strict = with_line(s16, "# max-disagreement-px-attitude 1e-9");
   const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
   const Pair p = pair_of(vectors, 0);
-  auto run = [&](double tilt_prior_deg) {
-    iclk::TrackerOptions o = parity_options();
-    o.tilt_prior_rad = tilt_prior_deg * kDeg;
-    auto D = iclk::DeepAligner::create(strict, p.ref.width(), p.ref.height(), o, 1);
-    REQUIRE(D.ok());
-    return D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
-  };
-  const auto rough = run(3), imu = run(0.5);
+  const auto rough = align_with_priors(strict, p, 3 * kDeg, 0), imu = align_with_priors(strict, p, 0.5 * kDeg, 0);
   REQUIRE(rough.disagreement_px > 1e-9);  // this synthetic pair's second start settles 2e-6 px away
   CHECK(rough.converged);
   CHECK_FALSE(imu.converged);
@@ -452,15 +458,7 @@ TEST_CASE("learned tracker: with an attitude reference and an altimeter the agre
   const nn::WeightFile strict = with_line(s16, "# max-disagreement-px-attitude-altimeter 1e-9");
   const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
   const Pair p = pair_of(vectors, 0);
-  auto run = [&](double altitude_prior_m) {
-    iclk::TrackerOptions o = parity_options();
-    o.tilt_prior_rad = 0.5 * kDeg;
-    o.altitude_prior_m = altitude_prior_m;
-    auto D = iclk::DeepAligner::create(strict, p.ref.width(), p.ref.height(), o, 1);
-    REQUIRE(D.ok());
-    return D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
-  };
-  const auto imu = run(0), both = run(2);
+  const auto imu = align_with_priors(strict, p, 0.5 * kDeg, 0), both = align_with_priors(strict, p, 0.5 * kDeg, 2);
   REQUIRE(imu.disagreement_px > 1e-9);
   CHECK(imu.converged);
   CHECK_FALSE(both.converged);
