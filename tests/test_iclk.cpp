@@ -703,6 +703,16 @@ VectorKernels vector_kernels() {
   return {detail::evaluate_se3_neon, detail::outer_sums_neon, detail::outer_sums_at_neon, detail::se3_jacobians_neon};
 #endif
 }
+// Every vector build of the residual kernel this machine runs: AVX2's and, where the CPU has
+// AVX-512, its sixteen-pixel one; NEON's on aarch64.
+std::vector<detail::Se3EvalFn> se3_vector_kernels() {
+  std::vector<detail::Se3EvalFn> fns;
+  if (vector_kernels().se3) fns.push_back(vector_kernels().se3);
+#if defined(TERRALIGN_ICLK_AVX2)
+  if (cpu_features().avx512f) fns.push_back(detail::evaluate_se3_avx512);
+#endif
+  return fns;
+}
 
 // The residual kernel's inputs: a W x H live image and n reference points, values, weights
 // and Jacobians (the caller places the points and sets the weights), seen through K =
@@ -711,15 +721,20 @@ struct KernelCase {
   int W, H, n;
   std::vector<float> px, py, pz, val, w, live, jac[6];
   detail::Se3EvalInput in{};
-  KernelCase(int width, int height, int count, std::mt19937& rng, float jac_scale)
-      : W(width), H(height), n(count), px(n), py(n), pz(n), val(n), w(n), live(static_cast<std::size_t>(W) * H) {
+  // C channels: the values, Jacobians and live level hold one plane per channel.
+  KernelCase(int width, int height, int count, std::mt19937& rng, float jac_scale, int C = 1)
+      : W(width), H(height), n(count), px(n), py(n), pz(n), val(static_cast<std::size_t>(n) * C), w(n),
+        live(static_cast<std::size_t>(W) * H * C) {
     std::uniform_real_distribution<float> U(-1, 1);
     for (auto& v : live) v = U(rng);
     for (auto& v : val) v = U(rng);
     for (auto& j : jac) {
-      j.resize(static_cast<std::size_t>(n));
+      j.resize(static_cast<std::size_t>(n) * C);
       for (auto& v : j) v = jac_scale * U(rng);
     }
+    in.channels = C;
+    in.plane = in.jac_plane = n;
+    in.live_plane = static_cast<std::ptrdiff_t>(W) * H;
     in.px = px.data();
     in.py = py.data();
     in.pz = pz.data();
@@ -749,29 +764,37 @@ struct KernelCase {
     detail::Se3EvalSums s{};
   };
   Run both(int i0, int i1) {
-    Run a{std::vector<float>(n, 7.0f), std::vector<unsigned char>(n, 9), std::vector<int>(n, -1)}, b = a;
+    const std::size_t values = static_cast<std::size_t>(n) * static_cast<std::size_t>(in.channels);
+    Run a{std::vector<float>(values, 7.0f), std::vector<unsigned char>(n, 9), std::vector<int>(n, -1)};
     in.out = a.out.data();
     detail::evaluate_se3_scalar(in, i0, i1, a.r.data(), a.ok.data(), a.s);
-    in.out = b.out.data();
-    vector_kernels().se3(in, i0, i1, b.r.data(), b.ok.data(), b.s);
-    CHECK(std::memcmp(a.r.data(), b.r.data(), static_cast<std::size_t>(n) * sizeof(float)) == 0);
-    CHECK(a.ok == b.ok);
-    CHECK(a.out == b.out);
-    CHECK(std::memcmp(&a.s, &b.s, sizeof a.s) == 0);
+    for (const detail::Se3EvalFn fn : se3_vector_kernels()) {
+      Run b{std::vector<float>(values, 7.0f), std::vector<unsigned char>(n, 9), std::vector<int>(n, -1)};
+      in.out = b.out.data();
+      fn(in, i0, i1, b.r.data(), b.ok.data(), b.s);
+      CHECK(std::memcmp(a.r.data(), b.r.data(), values * sizeof(float)) == 0);
+      CHECK(a.ok == b.ok);
+      CHECK(a.out == b.out);
+      CHECK(std::memcmp(&a.s, &b.s, sizeof a.s) == 0);
+    }
     return a;
   }
 };
 #endif
 
-TEST_CASE("the residual kernel: its vector build (AVX2, NEON) and the scalar one agree bit for bit, at the edges, behind the camera and on NaN") {
+TEST_CASE("the residual kernel: its vector builds (AVX2, AVX-512, NEON) and the scalar one agree bit for bit, at the edges, behind the camera and on NaN, in 1, 2 and 5 channels") {
 #if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
   if (!vector_kernels().se3) {
     MESSAGE("this CPU has no AVX2: only the scalar kernel runs here");
     return;
   }
+  // 2 channels: the learned tracker's levels; 5: more than the AVX-512 build keeps apart,
+  // which hands them to the AVX2 one.
+  for (const int C : {1, 2, 5}) {
+  CAPTURE(C);
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> U(-1, 1);
-  KernelCase k(61, 37, 1000, rng, 10.0f);
+  KernelCase k(61, 37, 1000, rng, 10.0f, C);
   const int n = k.n;
   for (int i = 0; i < n; ++i) {
     // Depth 100; points spread over 1.4x the image so that some land outside; some behind the
@@ -784,8 +807,9 @@ TEST_CASE("the residual kernel: its vector build (AVX2, NEON) and the scalar one
     k.w[j] = i % 7 == 0 ? 0.0f : 0.5f + 0.5f * U(rng);
   }
   k.pose(SE3<float>::exp((Vec6<float>() << 0.01f, -0.02f, 0.03f, 1.5f, -0.7f, 2.0f).finished()));
-  // Ranges with a partial last group of eight, and one shorter than a group.
-  for (const auto& [i0, i1] : std::vector<std::pair<int, int>>{{0, n}, {3, 998}, {500, 505}}) {
+  // Ranges with a partial last group of eight or sixteen (more or fewer than eight left), and
+  // ones shorter than a group.
+  for (const auto& [i0, i1] : std::vector<std::pair<int, int>>{{0, n}, {3, 998}, {1, 990}, {500, 505}, {10, 23}}) {
     const KernelCase::Run run = k.both(i0, i1);
     int landed = 0;
     std::vector<int> left;
@@ -807,12 +831,13 @@ TEST_CASE("the residual kernel: its vector build (AVX2, NEON) and the scalar one
     if (i0 > 0) CHECK((run.r[static_cast<std::size_t>(i0 - 1)] == 7.0f && run.ok[static_cast<std::size_t>(i0 - 1)] == 9));
     if (i1 < n) CHECK((run.r[static_cast<std::size_t>(i1)] == 7.0f && run.ok[static_cast<std::size_t>(i1)] == 9));
   }
+  }
 #else
   MESSAGE("built without a vector kernel");
 #endif
 }
 
-TEST_CASE("the residual kernel: its vector build (AVX2, NEON) and the scalar one agree bit for bit where neighbouring pixels land side by side") {
+TEST_CASE("the residual kernel: its vector builds (AVX2, AVX-512, NEON) and the scalar one agree bit for bit where neighbouring pixels land side by side, in 1 and 2 channels") {
 #if defined(TERRALIGN_ICLK_AVX2) || defined(TERRALIGN_ICLK_NEON)
   if (!vector_kernels().se3) {
     MESSAGE("this CPU has no AVX2: only the scalar kernel runs here");
@@ -821,10 +846,12 @@ TEST_CASE("the residual kernel: its vector build (AVX2, NEON) and the scalar one
   // Every pixel of a 61 x 37 reference at depth 100, in row order (as the tracker lists
   // them): warped by the identity and by small motions, runs of eight land in one live row
   // within eight columns (the AVX2 kernel's row-window loads), others straddle two rows or
-  // the image's edge (its gathers).
+  // the image's edge (its gathers); so do runs of sixteen (the AVX-512 kernel's).
+  for (const int C : {1, 2}) {
+  CAPTURE(C);
   std::mt19937 rng(6);
   std::uniform_real_distribution<float> U(-1, 1);
-  KernelCase k(61, 37, 61 * 37, rng, 1.0f);
+  KernelCase k(61, 37, 61 * 37, rng, 1.0f, C);
   for (int i = 0; i < k.n; ++i) {
     const auto j = static_cast<std::size_t>(i);
     k.pz[j] = 100.0f;
@@ -836,6 +863,7 @@ TEST_CASE("the residual kernel: its vector build (AVX2, NEON) and the scalar one
                                 (Vec6<float>() << 0.002f, -0.003f, 0.02f, 1.1f, -0.4f, 0.5f).finished()}) {
     k.pose(SE3<float>::exp(xi));
     CHECK(k.both(0, k.n).s.valid > k.n / 2);  // most land: the case is not degenerate
+  }
   }
 #else
   MESSAGE("built without a vector kernel");

@@ -5,7 +5,6 @@
 #include <immintrin.h>
 
 #include <algorithm>
-#include <cstring>
 
 namespace terralign::iclk::detail {
 namespace {
@@ -107,10 +106,7 @@ void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigne
     for (unsigned left = ~static_cast<unsigned>(bits) & ((1u << n) - 1u); left != 0; left &= left - 1u)
       in.out[n_out++] = i + __builtin_ctz(left);
     if (n == kLanes) {
-      // The eight mask bits spread to eight bytes of 0 or 1.
-      const unsigned long long one_bit = (static_cast<unsigned long long>(bits) * 0x0101010101010101ULL) & 0x8040201008040201ULL;
-      const unsigned long long spread = ((one_bit + 0x7F7F7F7F7F7F7F7FULL) & 0x8080808080808080ULL) >> 7;
-      std::memcpy(ok + i, &spread, 8);
+      spread_mask8(static_cast<unsigned>(bits), ok + i);
     } else {
       for (int k = 0; k < n; ++k) ok[i + k] = static_cast<unsigned char>((bits >> k) & 1);
     }

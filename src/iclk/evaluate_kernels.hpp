@@ -5,11 +5,12 @@
 //
 // Sums run in eight float lanes, pixel i of [i0, i1) in lane (i - i0) mod 8, and every
 // operation is a separate IEEE operation (no FMA contraction, correctly rounded division):
-// the scalar twin and the AVX2 (x86-64) and NEON (aarch64) builds give the same bits, so a
-// result does not depend on the CPU's ISA. A pixel that leaves the image (or lies behind the camera) adds +0 to its lane.
+// the scalar twin, the AVX2 and AVX-512 (x86-64) and the NEON (aarch64) builds give the same
+// bits, so a result does not depend on the CPU's ISA. A pixel that leaves the image (or lies behind the camera) adds +0 to its lane.
 #pragma once
 
 #include <cstddef>
+#include <cstring>
 
 #include <terralign/iclk/tracker.hpp>
 
@@ -42,6 +43,14 @@ struct Se3EvalSums {
   int n_out;  // entries written to out: i1 - i0 - valid
 };
 
+// The vector builds' `ok` bytes: eight lanes' mask bits (lane k's in bit k) as eight bytes of
+// 0 or 1 at ok.
+inline void spread_mask8(unsigned bits, unsigned char* ok) {
+  const unsigned long long one_bit = (static_cast<unsigned long long>(bits & 0xFFu) * 0x0101010101010101ULL) & 0x8040201008040201ULL;
+  const unsigned long long spread = ((one_bit + 0x7F7F7F7F7F7F7F7FULL) & 0x8080808080808080ULL) >> 7;
+  std::memcpy(ok, &spread, 8);
+}
+
 // Pixels [i0, i1): writes r[i + c plane] (0 where the pixel did not land), ok[i] and the list
 // of those that did not, fills `sums` (wsum counts a pixel's weight once per channel)
 // (the signature is detail::Se3EvalFn, declared with the tracker).
@@ -49,6 +58,8 @@ struct Se3EvalSums {
 void evaluate_se3_scalar(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
 #if defined(TERRALIGN_ICLK_AVX2)
 void evaluate_se3_avx2(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
+// Sixteen pixels at once, the same bits (CPUs with AVX-512 F).
+void evaluate_se3_avx512(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);
 #endif
 #if defined(TERRALIGN_ICLK_NEON)
 void evaluate_se3_neon(const Se3EvalInput& in, int i0, int i1, float* r, unsigned char* ok, Se3EvalSums& sums);

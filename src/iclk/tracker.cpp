@@ -132,7 +132,7 @@ void Tracker<S, Warp, C>::pick_kernel() {
     jacobian_kernel_ = detail::se3_jacobians_scalar;
 #if defined(TERRALIGN_ICLK_AVX2)
     if (opt_.simd && cpu_features().avx2_fma) {
-      se3_kernel_ = detail::evaluate_se3_avx2;
+      se3_kernel_ = cpu_features().avx512f ? detail::evaluate_se3_avx512 : detail::evaluate_se3_avx2;
       jacobian_kernel_ = detail::se3_jacobians_avx2;
     }
 #elif defined(TERRALIGN_ICLK_NEON)
