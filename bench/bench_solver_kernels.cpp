@@ -1,12 +1,14 @@
 // The solver's three kernels alone (src/iclk/evaluate_kernels.hpp) on one pyramid level,
 // against their scalar twins in the same run: the Jacobian set-up (a level's start, with the
 // finest level's sums), the residual with its J^T w r sums (each iteration), and J^T W J (each
-// iteration). This machine's vector build (AVX2 on x86-64, NEON on aarch64) is checked to give
-// the scalar twin's bits before it is timed. Levels: the learned tracker's finest (376 x 240,
+// iteration). This machine's vector builds (AVX2 on x86-64, and where the CPU has AVX-512 the
+// residual's sixteen-pixel build beside AVX2's other two; NEON on aarch64) are checked to give
+// the scalar twin's bits before they are timed. Levels: the learned tracker's finest (376 x 240,
 // two feature channels, every pixel: its runs of eight on a row) and the classical tracker's
 // (752 x 480, grey, every second pixel of every second row: groups gathered).
 //   build/release/bench/bench_solver_kernels
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -154,6 +156,7 @@ int main() {
   std::vector<Kernels> kernels{{"scalar", se3_jacobians_scalar, evaluate_se3_scalar, outer_sums_scalar}};
 #if defined(TERRALIGN_ICLK_AVX2)
   if (cpu_features().avx2_fma) kernels.push_back({"avx2", se3_jacobians_avx2, evaluate_se3_avx2, outer_sums_avx2});
+  if (cpu_features().avx512f) kernels.push_back({"avx512", se3_jacobians_avx2, evaluate_se3_avx512, outer_sums_avx2});
 #elif defined(TERRALIGN_ICLK_NEON)
   kernels.push_back({"neon", se3_jacobians_neon, evaluate_se3_neon, outer_sums_neon});
 #endif
@@ -163,50 +166,61 @@ int main() {
   }
   const LevelCase cases[] = {{"learned finest level, 376 x 240, 2 channels, every pixel", 376, 240, 2, 1},
                              {"classical finest level, 752 x 480, grey, every 2nd pixel and row", 752, 480, 1, 2}};
-  std::printf("| level | kernel | %s ms | %s ms | %s / %s |\n|---|---|---|---|---|\n", kernels[0].name, kernels[1].name,
-              kernels[0].name, kernels[1].name);
+  const std::size_t K = kernels.size();
+  std::printf("| level | kernel |");
+  for (const Kernels& k : kernels) std::printf(" %s ms |", k.name);
+  for (std::size_t k = 1; k < K; ++k) std::printf(" %s / %s |", kernels[k - 1].name, kernels[k].name);
+  std::printf("\n|---|---|");
+  for (std::size_t k = 1; k < 2 * K; ++k) std::printf("---|");
+  std::printf("\n");
   std::mt19937 rng(4);
   for (const LevelCase& c : cases) {
-    // Two copies of one level, one a kernel build, so the outputs can be compared.
+    // Copies of one level, one a kernel build, so the outputs can be compared.
     const Level level(c, rng);
-    Level L[2] = {level, level};
+    std::vector<Level> L(K, level);
     const float fx = 0.9f * static_cast<float>(c.W), fy = fx, cx = 0.5f * static_cast<float>(c.W - 1),
                 cy = 0.5f * static_cast<float>(c.H - 1);
     // The same bits first.
-    float cost[2];
-    OuterSums h[2];
-    for (int k = 0; k < 2; ++k) {
-      L[k].jacobians(kernels[static_cast<std::size_t>(k)].jacobians, fx, fy, cx, cy);
-      cost[k] = L[k].residuals(kernels[static_cast<std::size_t>(k)].residual, fx, fy, cx, cy);
-      h[k] = L[k].outer(kernels[static_cast<std::size_t>(k)].outer);
+    std::vector<float> cost(K);
+    std::vector<OuterSums> h(K);
+    for (std::size_t k = 0; k < K; ++k) {
+      L[k].jacobians(kernels[k].jacobians, fx, fy, cx, cy);
+      cost[k] = L[k].residuals(kernels[k].residual, fx, fy, cx, cy);
+      h[k] = L[k].outer(kernels[k].outer);
     }
-    if (L[0].jac != L[1].jac || L[0].val != L[1].val || std::memcmp(&L[0].sums, &L[1].sums, sizeof L[0].sums) != 0 ||
-        L[0].r != L[1].r || L[0].ok != L[1].ok || std::memcmp(&cost[0], &cost[1], sizeof cost[0]) != 0 ||
-        std::memcmp(&h[0], &h[1], sizeof h[0]) != 0) {
-      std::fprintf(stderr, "bench_solver_kernels: the %s kernels differ from the scalar ones (%s)\n", kernels[1].name, c.name);
-      return 1;
-    }
+    for (std::size_t k = 1; k < K; ++k)
+      if (L[0].jac != L[k].jac || L[0].val != L[k].val || std::memcmp(&L[0].sums, &L[k].sums, sizeof L[0].sums) != 0 ||
+          L[0].r != L[k].r || L[0].ok != L[k].ok || std::memcmp(&cost[0], &cost[k], sizeof cost[0]) != 0 ||
+          std::memcmp(&h[0], &h[k], sizeof h[0]) != 0) {
+        std::fprintf(stderr, "bench_solver_kernels: the %s kernels differ from the scalar ones (%s)\n", kernels[k].name, c.name);
+        return 1;
+      }
     // Best of 15 batches of 5 calls per kernel, the builds in turn within each batch so that a
-    // change in the machine's speed falls on both alike.
+    // change in the machine's speed falls on all alike, each on the first copy (the same bits
+    // as every other's, above): copies at other addresses timed one kernel 1.3x apart.
     const char* names[3] = {"Jacobians (set-up)", "residuals (an iteration)", "J^T W J (an iteration)"};
-    double best[3][2] = {{1e30, 1e30}, {1e30, 1e30}, {1e30, 1e30}};
+    std::vector<std::array<double, 3>> best(K, {1e30, 1e30, 1e30});
     volatile float sink = 0;
     for (int batch = 0; batch < 15; ++batch)
-      for (int k = 0; k < 2; ++k) {
-        const Kernels& K = kernels[static_cast<std::size_t>(k)];
+      for (std::size_t k = 0; k < K; ++k) {
+        const Kernels& B = kernels[k];
         auto t0 = Clock::now();
-        for (int rep = 0; rep < 5; ++rep) L[k].jacobians(K.jacobians, fx, fy, cx, cy);
-        best[0][k] = std::min(best[0][k], seconds_since(t0) / 5);
+        for (int rep = 0; rep < 5; ++rep) L[0].jacobians(B.jacobians, fx, fy, cx, cy);
+        best[k][0] = std::min(best[k][0], seconds_since(t0) / 5);
         t0 = Clock::now();
-        for (int rep = 0; rep < 5; ++rep) sink = sink + L[k].residuals(K.residual, fx, fy, cx, cy);
-        best[1][k] = std::min(best[1][k], seconds_since(t0) / 5);
+        for (int rep = 0; rep < 5; ++rep) sink = sink + L[0].residuals(B.residual, fx, fy, cx, cy);
+        best[k][1] = std::min(best[k][1], seconds_since(t0) / 5);
         t0 = Clock::now();
-        for (int rep = 0; rep < 5; ++rep) sink = sink + static_cast<float>(L[k].outer(K.outer).h[0][0]);
-        best[2][k] = std::min(best[2][k], seconds_since(t0) / 5);
+        for (int rep = 0; rep < 5; ++rep) sink = sink + static_cast<float>(L[0].outer(B.outer).h[0][0]);
+        best[k][2] = std::min(best[k][2], seconds_since(t0) / 5);
       }
-    for (int q = 0; q < 3; ++q)
-      std::printf("| %s (%d pixels) | %s | %.3f | %.3f | %.2f |\n", c.name, L[0].n, names[q], 1e3 * best[q][0], 1e3 * best[q][1],
-                  best[q][0] / best[q][1]);
+    for (int q = 0; q < 3; ++q) {
+      std::printf("| %s (%d pixels) | %s |", c.name, L[0].n, names[q]);
+      for (std::size_t k = 0; k < K; ++k) std::printf(" %.3f |", 1e3 * best[k][static_cast<std::size_t>(q)]);
+      for (std::size_t k = 1; k < K; ++k)
+        std::printf(" %.2f |", best[k - 1][static_cast<std::size_t>(q)] / best[k][static_cast<std::size_t>(q)]);
+      std::printf("\n");
+    }
     std::fflush(stdout);
   }
   return 0;
