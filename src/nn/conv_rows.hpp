@@ -11,12 +11,13 @@
 #pragma once
 
 #include <algorithm>
+#include <cmath>
 #include <type_traits>
 
 #include <terralign/geo/assert.hpp>
 #include <terralign/nn/kernels.hpp>
 
-#include "simd_scalar.hpp"  // Winograd's transform of the channels a vector leaves over
+#include "simd_scalar.hpp"  // Winograd's transform of the channels a vector leaves over; conv1_tile's sum
 
 namespace terralign::nn {
 
@@ -77,36 +78,45 @@ inline void conv_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int y
 
 // One output channel (the M-estimator's last layer): the vectors run along the input
 // channels, so no lane computes a padded output channel (a block of 8 or 16 would be 1/8 or
-// 1/16 useful). Reads only the input's `cin` channels: groups of V::kWidth, then the rest
-// one by one; NP pixels at a time for independent chains. The lanes are summed in a fixed
-// order (each wrapper's hsum), so the result depends on the kernel, not on the row split.
+// 1/16 useful). Every build sums in the same eight lanes, V::Lanes8 (AVX-512's are AVX2's,
+// NEON's two vectors, the scalar build's eight floats): lane l takes the channels l, l + 8, ..
+// of every tap in turn, the channels past the last group of eight are one chain beside them,
+// and the lanes are added in one order, ((0 + 4) + (2 + 6)) + ((1 + 5) + (3 + 7)). So the
+// bits depend neither on the ISA nor on the row split. NP pixels at a time for independent
+// chains.
 template <class V, int NP>
 inline void conv1_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int y, int x) {
-  constexpr int W = V::kWidth;
-  const int d = w.dilation, cin = w.cin, cp = in.cp, groups = cin / W;
-  V acc[NP];
+  using L = typename V::Lanes8;
+  constexpr int W = L::kWidth, NV = 8 / W;
+  static_assert(NV * W == 8, "the one-channel kernel's lanes are eight floats");
+  const int d = w.dilation, cin = w.cin, cp = in.cp, groups = cin / 8;
+  L acc[NP][NV];
   float rest[NP];
   for (int p = 0; p < NP; ++p) {
-    acc[p] = V::set1(0.0f);
+    for (int j = 0; j < NV; ++j) acc[p][j] = L::set1(0.0f);
     rest[p] = 0.0f;
   }
   for (int ky = 0; ky < 3; ++ky)
     for (int kx = 0; kx < 3; ++kx) {
       const float* ip = in.at(y + (ky - 1) * d, x + (kx - 1) * d);
       const float* wp = w.taps.data() + static_cast<std::size_t>(ky * 3 + kx) * static_cast<std::size_t>(cin);
-      for (int g = 0; g < groups; ++g) {
-        const V wv = V::load(wp + g * W);
-        for (int p = 0; p < NP; ++p) acc[p] = fmadd(V::load(ip + p * cp + g * W), wv, acc[p]);
-      }
-      for (int ci = groups * W; ci < cin; ++ci)
-        for (int p = 0; p < NP; ++p) rest[p] += ip[p * cp + ci] * wp[ci];
+      for (int g = 0; g < groups; ++g)
+        for (int j = 0; j < NV; ++j) {
+          const int c = g * 8 + j * W;
+          const L wv = L::load(wp + c);
+          for (int p = 0; p < NP; ++p) acc[p][j] = fmadd(L::load(ip + p * cp + c), wv, acc[p][j]);
+        }
+      for (int ci = groups * 8; ci < cin; ++ci)
+        for (int p = 0; p < NP; ++p) rest[p] = std::fma(ip[p * cp + ci], wp[ci], rest[p]);
     }
   for (int p = 0; p < NP; ++p) {
-    const V v = activate(V::set1(w.bias[0] + (hsum(acc[p]) + rest[p])), w.act);
+    float l[8];
+    for (int j = 0; j < NV; ++j) acc[p][j].store(l + j * W);
+    const float sum = ((l[0] + l[4]) + (l[2] + l[6])) + ((l[1] + l[5]) + (l[3] + l[7]));
     float* op = out.at(y, x + p);
     // The padded channels the block kernel would have written: zeros (see below).
-    for (int k = 0; k < V::kBlock; k += W) V::set1(0.0f).store(op + k);
-    op[0] = lane0(v);
+    for (int k = 0; k < V::kBlock; k += V::kWidth) V::set1(0.0f).store(op + k);
+    op[0] = activate(VecScalar::set1(w.bias[0] + (sum + rest[p])), w.act).v;
   }
 }
 

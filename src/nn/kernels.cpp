@@ -6,6 +6,8 @@
 #include <terralign/geo/assert.hpp>
 #include <terralign/geo/cpu.hpp>
 
+#include "simd_scalar.hpp"  // exp_neg_scalar
+
 namespace terralign::nn {
 
 bool nn_cpu_has_avx2() {
@@ -141,12 +143,24 @@ void mean_channels_rows(const Tensor& in, Tensor& out, int y0, int y1) {
   }
 }
 
+namespace {
+
+// 1 / (1 + exp(-x)) from exp(-|x|) <= 1 (exp_neg_scalar: the ELU's polynomial, 3.5e-7 of
+// itself, rather than libm's expf, whose last bit is the C library's and may differ between
+// machines): 1 / (1 + e) for x >= 0, e / (1 + e) below, where e carries all the precision.
+float sigmoid(float x) {
+  const float e = exp_neg_scalar(-std::abs(x));
+  return x >= 0.0f ? 1.0f / (1.0f + e) : e / (1.0f + e);
+}
+
+}  // namespace
+
 void sigmoid_rows(const Tensor& in, Tensor& out, int y0, int y1) {
   for (int y = y0; y < y1; ++y)
     for (int x = 0; x < out.w; ++x) {
       const float* p = in.at(y, x);
       float* o = out.at(y, x);
-      for (int k = 0; k < in.c; ++k) o[k] = 1.0f / (1.0f + std::exp(-p[k]));
+      for (int k = 0; k < in.c; ++k) o[k] = sigmoid(p[k]);
     }
 }
 

@@ -43,6 +43,7 @@ struct VecAvx2 {
   static constexpr int kBlock = 8;       // output channels a weight block holds
   static constexpr int kTilePixels = 6;  // output pixels a register tile holds
   static constexpr int kTileBlocks = 2;  // weight blocks a register tile holds
+  using Lanes8 = VecAvx2;                // the one-output-channel kernel's eight lanes (conv_rows.hpp)
   __m256 v;
   static VecAvx2 load(const float* p) { return {_mm256_loadu_ps(p)}; }
   static VecAvx2 set1(float x) { return {_mm256_set1_ps(x)}; }
@@ -54,12 +55,6 @@ struct VecAvx2 {
   // drops it: -0 takes expm1(-0) = 0.
   friend VecAvx2 elu(VecAvx2 a) { return {_mm256_blendv_ps(a.v, expm1_neg_avx2(a.v), a.v)}; }
   friend VecAvx2 relu(VecAvx2 a) { return {_mm256_max_ps(a.v, _mm256_setzero_ps())}; }
-  friend float lane0(VecAvx2 a) { return _mm256_cvtss_f32(a.v); }
-  friend float hsum(VecAvx2 a) {  // ((0+4)+(2+6)) + ((1+5)+(3+7))
-    __m128 s = _mm_add_ps(_mm256_castps256_ps128(a.v), _mm256_extractf128_ps(a.v, 1));
-    s = _mm_add_ps(s, _mm_movehl_ps(s, s));
-    return _mm_cvtss_f32(_mm_add_ss(s, _mm_movehdup_ps(s)));
-  }
 };
 
 }  // namespace terralign::nn

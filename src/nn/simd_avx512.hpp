@@ -3,6 +3,8 @@
 
 #include <immintrin.h>
 
+#include "simd_avx2.hpp"  // the one-output-channel kernel's eight lanes (-mavx512f implies AVX2)
+
 namespace terralign::nn {
 
 // 1 + t + t^2/2 + ... + t^6/720 - 1 = t (1 + t/2 + ... + t^5/720), by Horner.
@@ -31,6 +33,8 @@ struct VecAvx512 {
   static constexpr int kBlock = 16;       // output channels a weight block holds
   static constexpr int kTilePixels = 6;   // 6 pixels x 4 blocks (64 channels) = 24 of the 32 registers
   static constexpr int kTileBlocks = 4;
+  // The one-output-channel kernel sums eight lanes in every build (conv_rows.hpp): AVX2's.
+  using Lanes8 = VecAvx2;
   __m512 v;
   static VecAvx512 load(const float* p) { return {_mm512_loadu_ps(p)}; }
   static VecAvx512 set1(float x) { return {_mm512_set1_ps(x)}; }
@@ -43,13 +47,6 @@ struct VecAvx512 {
     return {_mm512_mask_blend_ps(_mm512_cmp_ps_mask(a.v, _mm512_setzero_ps(), _CMP_GT_OQ), expm1_neg_avx512(a.v), a.v)};
   }
   friend VecAvx512 relu(VecAvx512 a) { return {_mm512_max_ps(a.v, _mm512_setzero_ps())}; }
-  friend float lane0(VecAvx512 a) { return _mm512_cvtss_f32(a.v); }
-  friend float hsum(VecAvx512 a) {  // halves added down to one lane, in a fixed order
-    __m256 h = _mm256_add_ps(_mm512_castps512_ps256(a.v), _mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(a.v), 1)));
-    __m128 s = _mm_add_ps(_mm256_castps256_ps128(h), _mm256_extractf128_ps(h, 1));
-    s = _mm_add_ps(s, _mm_movehl_ps(s, s));
-    return _mm_cvtss_f32(_mm_add_ss(s, _mm_movehdup_ps(s)));
-  }
 };
 
 }  // namespace terralign::nn

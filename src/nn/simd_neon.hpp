@@ -31,6 +31,7 @@ struct VecNeon {
   static constexpr int kBlock = 8;       // output channels a weight block holds (two vectors)
   static constexpr int kTilePixels = 6;  // output pixels a register tile holds
   static constexpr int kTileBlocks = 2;  // 6 x 2 x 2 = 24 accumulators of 32 registers
+  using Lanes8 = VecNeon;                // the one-output-channel kernel's eight lanes: two vectors
   float32x4_t v;
   static VecNeon load(const float* p) { return {vld1q_f32(p)}; }
   static VecNeon set1(float x) { return {vdupq_n_f32(x)}; }
@@ -44,11 +45,6 @@ struct VecNeon {
     return {vbslq_f32(vcgtq_f32(a.v, zero), a.v, expm1_neg_neon(a.v))};
   }
   friend VecNeon relu(VecNeon a) { return {vmaxq_f32(a.v, vdupq_n_f32(0.0f))}; }
-  friend float lane0(VecNeon a) { return vgetq_lane_f32(a.v, 0); }
-  friend float hsum(VecNeon a) {  // (0+2) + (1+3)
-    const float32x2_t s = vadd_f32(vget_low_f32(a.v), vget_high_f32(a.v));
-    return vget_lane_f32(vpadd_f32(s, s), 0);
-  }
 };
 
 }  // namespace terralign::nn

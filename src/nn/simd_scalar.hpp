@@ -1,26 +1,75 @@
-// The one-lane scalar vector wrapper: the scalar build of every kernel.
+// The one-lane scalar vector wrapper: the scalar build of every kernel. Every operation is the
+// vector builds' one lane at a time, multiply-adds rounded once (std::fma) and ELU's exp the
+// same polynomial, so this build gives their bits on any CPU (the tests compare them).
 #pragma once
 
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 
 namespace terralign::nn {
+
+// taylor6_avx2 and expm1_neg_avx2 (simd_avx2.hpp, where the reduction is explained), one lane.
+inline float taylor6_scalar(float t) {
+  float q = 1.0f / 720.0f;
+  q = std::fma(q, t, 1.0f / 120.0f);
+  q = std::fma(q, t, 1.0f / 24.0f);
+  q = std::fma(q, t, 1.0f / 6.0f);
+  q = std::fma(q, t, 0.5f);
+  q = std::fma(q, t, 1.0f);
+  return q * t;
+}
+
+// 2^n from the word x log2(e) + (1.5 2^23 + 127) (expm1_neg_avx2).
+inline float pow2_of_shifted(float nb) {
+  std::uint32_t bits;
+  std::memcpy(&bits, &nb, sizeof bits);
+  bits <<= 23;
+  float s;
+  std::memcpy(&s, &bits, sizeof s);
+  return s;
+}
+
+// exp(x) - 1 for x <= 0, split as 2^n and exp(r) - 1; returns 2^n and sets e = exp(r) - 1.
+// The clamp is max_ps's: a NaN x stays NaN.
+inline float exp_split_neg(float x, float& e) {
+  constexpr float shifter = 12583039.0f;  // 1.5 2^23 + 127
+  x = -87.0f > x ? -87.0f : x;
+  const float nb = std::fma(x, 1.44269504088896341f, shifter);
+  const float r = std::fma(-(nb - shifter), 0.693147180559945309f, x);
+  e = taylor6_scalar(r);
+  return pow2_of_shifted(nb);
+}
+
+inline float expm1_neg_scalar(float x) {
+  float e;
+  const float s = exp_split_neg(x, e);
+  return std::fma(s, e, s - 1.0f);
+}
+
+// exp(x) for x <= 0 from the same split: 2^n exp(r) = 2^n (exp(r) - 1) + 2^n, with no
+// cancellation where exp(x) is small (below exp(-87), 1.6e-38, it stays there).
+inline float exp_neg_scalar(float x) {
+  float e;
+  const float s = exp_split_neg(x, e);
+  return std::fma(s, e, s);
+}
 
 struct VecScalar {
   static constexpr int kWidth = 1;
   static constexpr int kBlock = 8;       // output channels a weight block holds
   static constexpr int kTilePixels = 6;  // output pixels a register tile holds
   static constexpr int kTileBlocks = 2;  // weight blocks a register tile holds
+  using Lanes8 = VecScalar;              // the one-output-channel kernel's eight lanes (conv_rows.hpp)
   float v;
   static VecScalar load(const float* p) { return {*p}; }
   static VecScalar set1(float x) { return {x}; }
   void store(float* p) const { *p = v; }
   friend VecScalar operator+(VecScalar a, VecScalar b) { return {a.v + b.v}; }
   friend VecScalar operator-(VecScalar a, VecScalar b) { return {a.v - b.v}; }
-  friend VecScalar fmadd(VecScalar a, VecScalar b, VecScalar c) { return {a.v * b.v + c.v}; }
-  friend VecScalar elu(VecScalar a) { return {a.v > 0.0f ? a.v : std::expm1(a.v)}; }
+  friend VecScalar fmadd(VecScalar a, VecScalar b, VecScalar c) { return {std::fma(a.v, b.v, c.v)}; }
+  friend VecScalar elu(VecScalar a) { return {a.v > 0.0f ? a.v : expm1_neg_scalar(a.v)}; }
   friend VecScalar relu(VecScalar a) { return {a.v > 0.0f ? a.v : 0.0f}; }
-  friend float lane0(VecScalar a) { return a.v; }
-  friend float hsum(VecScalar a) { return a.v; }
 };
 
 }  // namespace terralign::nn
