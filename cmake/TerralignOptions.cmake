@@ -5,6 +5,12 @@ add_compile_definitions(EIGEN_DONT_PARALLELIZE)
 # An uninitialised Eigen matrix shows up as NaN in debug builds.
 add_compile_definitions($<$<CONFIG:Debug>:EIGEN_INITIALIZE_MATRICES_BY_NAN>)
 
+# One floating-point policy on every machine: nothing fuses a * b + c into one rounding but
+# what the code says (the kernels' multiply-add intrinsics, std::fma). GCC contracts by default
+# where the target has FMA (aarch64 always, x86-64 in the files built with -mfma), which gave
+# aarch64 other bits than x86-64 in every module; the SIMD kernels' scalar twins need it too.
+add_compile_options(-ffp-contract=off)
+
 if(TERRALIGN_SANITIZE)
   add_compile_options(-fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all)
   add_link_options(-fsanitize=address,undefined)

@@ -563,6 +563,33 @@ TEST_CASE("mean over channels: in equal groups of consecutive channels, and refu
   CHECK(refused.error().message.find("5 groups do not divide 12 channels") != std::string::npos);
 }
 
+TEST_CASE("sigmoid matches 1 / (1 + exp(-x)) to 5e-7 of itself from -87 to 87, and stays in [0, 1] beyond") {
+  // The M-estimator's last step. Its exp is ELU's polynomial (3.5e-7), not libm's expf, whose
+  // last bit may differ between machines: e / (1 + e) below 0 keeps the relative precision
+  // where the sigmoid is tiny (1 / (1 + 1/e) would round 1/e's error into it).
+  const int n = 4001;
+  Tensor in, out;
+  in.allocate(1, n + 3, 1);
+  out.allocate(1, n + 3, 1);
+  for (int i = 0; i < n; ++i) in.at(0, i)[0] = -87.0f + 174.0f * static_cast<float>(i) / (n - 1);
+  in.at(0, n)[0] = -200.0f;
+  in.at(0, n + 1)[0] = 200.0f;
+  in.at(0, n + 2)[0] = std::numeric_limits<float>::quiet_NaN();
+  sigmoid_rows(in, out, 0, 1);
+  double worst = 0;
+  for (int i = 0; i < n; ++i) {
+    const double x = in.at(0, i)[0];
+    const double want = 1.0 / (1.0 + std::exp(-x));
+    worst = std::max(worst, std::abs(out.at(0, i)[0] - want) / want);
+  }
+  MESSAGE("worst relative error of sigmoid on [-87, 87]: " << worst);
+  CHECK(worst < 5e-7);
+  CHECK(out.at(0, n)[0] >= 0.0f);
+  CHECK(out.at(0, n)[0] < 2e-38f);  // exp(-87)'s 1.6e-38: the clamp
+  CHECK(out.at(0, n + 1)[0] == 1.0f);
+  CHECK(std::isnan(out.at(0, n + 2)[0]));
+}
+
 TEST_CASE("every conv kernel's ELU matches expm1 to 5e-7 (one polynomial in every build)") {
   // A 1 -> 1 channel conv whose only non-zero weight is the centre tap: out = ELU(in). The
   // inputs run from -100 (past the clamp at -87, where 2^n would leave the normal range) to 100
