@@ -1,4 +1,5 @@
 #include <terralign/geo/geotransform.hpp>
+#include <terralign/geo/numeric.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -57,8 +58,8 @@ void GeoTransform::world_to_pixel(double x, double y, double& u, double& v) cons
   v = inv_[4] * dx + inv_[5] * dy - 0.5;
 }
 
-double GeoTransform::pixel_size_x() const { return std::hypot(c_[1], c_[4]); }
-double GeoTransform::pixel_size_y() const { return std::hypot(c_[2], c_[5]); }
+double GeoTransform::pixel_size_x() const { return hypot_exact(c_[1], c_[4]); }
+double GeoTransform::pixel_size_y() const { return hypot_exact(c_[2], c_[5]); }
 
 Extent GeoTransform::extent(int width, int height) const {
   Extent e{INFINITY, INFINITY, -INFINITY, -INFINITY};

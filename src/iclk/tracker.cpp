@@ -10,6 +10,7 @@
 #include <Eigen/Eigenvalues>
 
 #include <terralign/geo/cpu.hpp>
+#include <terralign/geo/numeric.hpp>
 
 #include "evaluate_kernels.hpp"
 
@@ -1117,7 +1118,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::solve(const Pinhole<S>& K0, const 
       // the median depth, the keystones at the share of the residual past what a camera's
       // noise leaves (TrackerOptions::keystone_free_residual).
       const double ground_px = Warp::kNeedsDepth ? opt_.ground_floor_m * static_cast<double>(K[0].fx) / depth_scale : 0.0;
-      const double floor_px = std::hypot(
+      const double floor_px = hypot_exact(
           std::max(opt_.registration_floor_px, opt_.registration_floor_per_residual_px * R.residual_final), ground_px);
       const double keystone_px =
           opt_.registration_floor_per_residual_px * std::max(R.residual_final - opt_.keystone_free_residual, 0.0);

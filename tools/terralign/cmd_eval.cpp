@@ -8,6 +8,7 @@
 
 #include <terralign/geo/file.hpp>
 #include <terralign/geo/image_io.hpp>
+#include <terralign/geo/numeric.hpp>
 
 #include "args.hpp"
 #include "commands.hpp"
@@ -47,7 +48,7 @@ Errors errors(const iclk::SE3<double>& est, const iclk::SE3<double>& gt, const i
       ++n3;
       double u1, v1, u2, v2;
       if (iclk::SE3DepthWarp<double>::apply(est, X, x, y, K, u1, v1) && iclk::SE3DepthWarp<double>::apply(gt, X, x, y, K, u2, v2)) {
-        s2 += std::hypot(u1 - u2, v1 - v2);
+        s2 += hypot_exact(u1 - u2, v1 - v2);
         ++n2;
       }
     }
@@ -228,7 +229,7 @@ int run_eval(const std::vector<std::string>& argv) {
     const double query_sigma = map->find_layer(query)->registration_sigma_m;
     for (const std::string& name : ref_layers) {
       geo::Layer& ref = *map->find_layer(name);
-      ref.registration_sigma_m = name == query ? 0.0 : std::hypot(ref.registration_sigma_m, query_sigma);
+      ref.registration_sigma_m = name == query ? 0.0 : hypot_exact(ref.registration_sigma_m, query_sigma);
     }
     map->dem.vertical_sigma_m = 0;
   }

@@ -6,6 +6,7 @@
 
 #include <terralign/geo/file.hpp>
 #include <terralign/geo/image_io.hpp>
+#include <terralign/geo/numeric.hpp>
 
 #include "args.hpp"
 #include "commands.hpp"
@@ -96,7 +97,7 @@ int run_flight(const std::vector<std::string>& argv) {
   if (!renderer.ok()) return fail(renderer.error());
   auto frame = renderer.value()->make_output({args->get("layer")});
   if (!frame.ok()) return fail(frame.error());
-  const double half_footprint = altitude.value() * std::hypot(cam.width / cam.fx, cam.height / cam.fy) / 2 * 1.2 +
+  const double half_footprint = altitude.value() * hypot_exact(cam.width / cam.fx, cam.height / cam.fy) / 2 * 1.2 +
                                 altitude.value() * std::tan(tilt.value() * kPi / 180);
   auto pts = path_points(args->get("path"), map->common_extent(), half_footprint);
   if (!pts.ok()) return fail(pts.error());
@@ -119,7 +120,7 @@ int run_flight(const std::vector<std::string>& argv) {
     while (leg + 1 < pts->size()) {
       const Waypoint& a = (*pts)[leg];
       const Waypoint& b = (*pts)[leg + 1];
-      const double len = std::hypot(b.x - a.x, b.y - a.y);
+      const double len = hypot_exact(b.x - a.x, b.y - a.y);
       if (along <= len) break;
       along -= len;
       ++leg;
@@ -127,7 +128,7 @@ int run_flight(const std::vector<std::string>& argv) {
     if (leg + 1 >= pts->size()) break;  // the path ended before the duration
     const Waypoint& a = (*pts)[leg];
     const Waypoint& b = (*pts)[leg + 1];
-    const double len = std::max(std::hypot(b.x - a.x, b.y - a.y), 1e-9);
+    const double len = std::max(hypot_exact(b.x - a.x, b.y - a.y), 1e-9);
     const double x = a.x + (b.x - a.x) * along / len, y = a.y + (b.y - a.y) * along / len;
     const double heading = std::atan2(b.x - a.x, b.y - a.y) * 180 / kPi;  // clockwise from north
     const double ground = map->dem.height_at(x, y);

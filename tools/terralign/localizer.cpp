@@ -4,6 +4,8 @@
 #include <chrono>
 #include <cmath>
 
+#include <terralign/geo/numeric.hpp>
+
 namespace terralign::cli {
 
 Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const geo::CameraModel& camera,
@@ -28,7 +30,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
         layers.begin() + static_cast<std::ptrdiff_t>(i))
       return Error{"Localizer: layer '" + layers[i] + "' is given twice"};
     // The reference layer's own error on the ground joins any the caller's options count.
-    L->ground_floor_m_.push_back(std::hypot(options.ground_floor_m, ref_layer->registration_sigma_m));
+    L->ground_floor_m_.push_back(hypot_exact(options.ground_floor_m, ref_layer->registration_sigma_m));
   }
   L->attempts_.resize(layers.size());
   L->camera_ = camera;
