@@ -2,6 +2,8 @@
 // trained its weights (training/deep_iclk.py), on committed validation pairs.
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstdio>
 #include <cstring>
 #include <utility>
 
@@ -124,7 +126,54 @@ iclk::SE3<double> check_parity(const nn::WeightFile& weights, const Pair& p, int
   return T;
 }
 
+// The answer of one learned alignment, as one number: FNV-1a over the bytes of the pose, the
+// covariance, the final residual, the agreement test's disagreement, the iterations and the
+// flag.
+std::uint64_t answer_hash(const iclk::TrackResult<iclk::DeepAligner::Warp>& r) {
+  std::uint64_t h = 0xcbf29ce484222325ull;
+  auto add = [&h](const void* p, std::size_t n) {
+    for (std::size_t i = 0; i < n; ++i) {
+      h ^= static_cast<const unsigned char*>(p)[i];
+      h *= 0x100000001b3ull;
+    }
+  };
+  add(r.params.R.data(), sizeof(float) * 9);
+  add(r.params.t.data(), sizeof(float) * 3);
+  add(r.covariance.data(), sizeof(double) * 36);
+  add(&r.residual_final, sizeof r.residual_final);
+  add(&r.disagreement_px, sizeof r.disagreement_px);
+  add(&r.iterations, sizeof r.iterations);
+  const unsigned char converged = r.converged ? 1 : 0;
+  add(&converged, 1);
+  return h;
+}
+
 }  // namespace
+
+TEST_CASE("learned tracker: one answer, to the bit, on every machine (x86-64 and aarch64, every SIMD build, GCC and clang)") {
+  // Every kernel gives its scalar twin's bits (the encoder's and M-estimator's convolutions,
+  // the solver's), nothing fuses a multiply and an add but what the code says, Eigen's own
+  // vector code is off, and nothing on the path calls a libm function whose last bit is the C
+  // library's (std::hypot: hypot_exact; sigmoid: ELU's polynomial): so the x86-64 suites (GCC
+  // release, clang under ASan + UBSan, on AVX2 or AVX-512 hosts) and the aarch64 one (NEON,
+  // under qemu) must all give this alignment's answer to the bit. The pair: the first committed
+  // parity pair, the shipped s16w64, the product's settings. A change that moves this number
+  // moves every machine's answers alike (other weights, a sum in another order): say so in its
+  // commit and put the new number here (the failure prints it). A machine on which it fails
+  // alone gives answers of its own: that is the bug.
+  const nn::WeightFile vectors = load("tests/data/nn/deep_parity.tlw");
+  const Pair p = pair_of(vectors, 0);
+  auto D = iclk::DeepAligner::create(load("weights/deep_iclk_s16w64.tlw"), p.ref.width(), p.ref.height(), options(), 1);
+  REQUIRE(D.ok());
+  const auto& r = D.value()->align(p.ref.view(), p.depth.view(), p.live.view(), p.K, iclk::SE3<float>::identity());
+  CHECK(r.converged);
+  const std::uint64_t h = answer_hash(r);
+  constexpr std::uint64_t kAnswer = 0x3d093fbf553c5315ull;
+  char hex[32];
+  std::snprintf(hex, sizeof hex, "0x%016llxull", static_cast<unsigned long long>(h));
+  CHECK_MESSAGE(h == kAnswer, "this machine's answer hashes to " << std::string(hex) << ", t = " << r.params.t.transpose()
+                                << ", " << r.iterations << " iterations");
+}
 
 TEST_CASE("learned tracker: the C++ pipeline ends where PyTorch ends on the committed validation pairs") {
   // The shipped files: the default (s16w64 since session 38; its poses from make_deep_parity.py
