@@ -30,29 +30,14 @@ inline float pow2_of_shifted(float nb) {
   return s;
 }
 
-// exp(x) - 1 for x <= 0, split as 2^n and exp(r) - 1; returns 2^n and sets e = exp(r) - 1.
-// The clamp is max_ps's: a NaN x stays NaN.
-inline float exp_split_neg(float x, float& e) {
+// exp(x) - 1 for x <= 0 (expm1_neg_avx2). The clamp is max_ps's: a NaN x stays NaN.
+inline float expm1_neg_scalar(float x) {
   constexpr float shifter = 12583039.0f;  // 1.5 2^23 + 127
   x = -87.0f > x ? -87.0f : x;
   const float nb = std::fma(x, 1.44269504088896341f, shifter);
   const float r = std::fma(-(nb - shifter), 0.693147180559945309f, x);
-  e = taylor6_scalar(r);
-  return pow2_of_shifted(nb);
-}
-
-inline float expm1_neg_scalar(float x) {
-  float e;
-  const float s = exp_split_neg(x, e);
-  return std::fma(s, e, s - 1.0f);
-}
-
-// exp(x) for x <= 0 from the same split: 2^n exp(r) = 2^n (exp(r) - 1) + 2^n, with no
-// cancellation where exp(x) is small (below exp(-87), 1.6e-38, it stays there).
-inline float exp_neg_scalar(float x) {
-  float e;
-  const float s = exp_split_neg(x, e);
-  return std::fma(s, e, s);
+  const float s = pow2_of_shifted(nb);
+  return std::fma(s, taylor6_scalar(r), s - 1.0f);
 }
 
 struct VecScalar {
