@@ -6,7 +6,7 @@
 #include <terralign/geo/assert.hpp>
 #include <terralign/geo/cpu.hpp>
 
-#include "simd_scalar.hpp"  // pow2_of_shifted
+#include "simd_scalar.hpp"  // kExpShifter, pow2_of_shifted
 
 namespace terralign::nn {
 
@@ -152,10 +152,9 @@ namespace {
 // r with ln2 in two parts (Cody and Waite: n ln2_hi is exact for |n| < 512), exp(r) to degree
 // 7 by Horner (truncation 5e-9). Below -87 it stays exp(-87) (1.6e-38); a NaN stays NaN.
 float exp_neg(float x) {
-  constexpr float shifter = 12583039.0f;  // 1.5 2^23 + 127
   x = -87.0f > x ? -87.0f : x;
-  const float nb = x * 1.44269504088896341f + shifter;
-  const float n = nb - shifter;
+  const float nb = x * 1.44269504088896341f + kExpShifter;
+  const float n = nb - kExpShifter;
   const float r = (x - n * 0.693145751953125f) - n * 1.42860682030941723212e-6f;
   float p = 1.0f / 5040.0f;
   p = p * r + 1.0f / 720.0f;

@@ -3,6 +3,8 @@
 
 #include <immintrin.h>
 
+#include "simd_scalar.hpp"  // kExpShifter
+
 namespace terralign::nn {
 
 // 1 + t + t^2/2 + ... + t^6/720 - 1 = t (1 + t/2 + ... + t^5/720), by Horner.
@@ -30,7 +32,7 @@ inline __m256 taylor6_avx2(__m256 t) {
 // operations, where the clamp to x <= 0, the round, the conversion, the two-step reduction and
 // the compare made 19 (1.4x on its own).
 inline __m256 expm1_neg_avx2(__m256 x) {
-  const __m256 shifter = _mm256_set1_ps(12583039.0f);  // 1.5 2^23 + 127
+  const __m256 shifter = _mm256_set1_ps(kExpShifter);
   x = _mm256_max_ps(_mm256_set1_ps(-87.0f), x);
   const __m256 nb = _mm256_fmadd_ps(x, _mm256_set1_ps(1.44269504088896341f), shifter);
   const __m256 r = _mm256_fnmadd_ps(_mm256_sub_ps(nb, shifter), _mm256_set1_ps(0.693147180559945309f), x);

@@ -20,7 +20,7 @@ inline __m512 taylor6_avx512(__m512 t) {
 
 // exp(x) - 1 for x <= 0, as expm1_neg_avx2 (the same reduction and polynomial).
 inline __m512 expm1_neg_avx512(__m512 x) {
-  const __m512 shifter = _mm512_set1_ps(12583039.0f);  // 1.5 2^23 + 127
+  const __m512 shifter = _mm512_set1_ps(kExpShifter);
   x = _mm512_max_ps(_mm512_set1_ps(-87.0f), x);
   const __m512 nb = _mm512_fmadd_ps(x, _mm512_set1_ps(1.44269504088896341f), shifter);
   const __m512 r = _mm512_fnmadd_ps(_mm512_sub_ps(nb, shifter), _mm512_set1_ps(0.693147180559945309f), x);

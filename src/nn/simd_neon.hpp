@@ -3,6 +3,8 @@
 
 #include <arm_neon.h>
 
+#include "simd_scalar.hpp"  // kExpShifter
+
 namespace terralign::nn {
 
 // t (1 + t/2 + ... + t^5/720) by Horner: exp(t) - 1 to degree 6, as the AVX2 build.
@@ -18,7 +20,7 @@ inline float32x4_t taylor6_neon(float32x4_t t) {
 
 // exp(x) - 1 for x <= 0, the same range reduction and polynomial as expm1_neg_avx2.
 inline float32x4_t expm1_neg_neon(float32x4_t x) {
-  const float32x4_t shifter = vdupq_n_f32(12583039.0f);  // 1.5 2^23 + 127
+  const float32x4_t shifter = vdupq_n_f32(kExpShifter);
   x = vmaxq_f32(vdupq_n_f32(-87.0f), x);
   const float32x4_t nb = vfmaq_f32(shifter, x, vdupq_n_f32(1.44269504088896341f));
   const float32x4_t r = vfmsq_f32(x, vsubq_f32(nb, shifter), vdupq_n_f32(0.693147180559945309f));

@@ -20,7 +20,11 @@ inline float taylor6_scalar(float t) {
   return q * t;
 }
 
-// 2^n from the word x log2(e) + (1.5 2^23 + 127) (expm1_neg_avx2).
+// x log2(e) + kExpShifter rounds x log2(e) to an integer n held in the word's low bits with
+// the exponent's bias added (expm1_neg_avx2), and pow2_of_shifted() makes 2^n of that word.
+inline constexpr float kExpShifter = 12583039.0f;  // 1.5 2^23 + 127
+
+// 2^n from the word x log2(e) + kExpShifter.
 inline float pow2_of_shifted(float nb) {
   std::uint32_t bits;
   std::memcpy(&bits, &nb, sizeof bits);
@@ -32,10 +36,9 @@ inline float pow2_of_shifted(float nb) {
 
 // exp(x) - 1 for x <= 0 (expm1_neg_avx2). The clamp is max_ps's: a NaN x stays NaN.
 inline float expm1_neg_scalar(float x) {
-  constexpr float shifter = 12583039.0f;  // 1.5 2^23 + 127
   x = -87.0f > x ? -87.0f : x;
-  const float nb = std::fma(x, 1.44269504088896341f, shifter);
-  const float r = std::fma(-(nb - shifter), 0.693147180559945309f, x);
+  const float nb = std::fma(x, 1.44269504088896341f, kExpShifter);
+  const float r = std::fma(-(nb - kExpShifter), 0.693147180559945309f, x);
   const float s = pow2_of_shifted(nb);
   return std::fma(s, taylor6_scalar(r), s - 1.0f);
 }
