@@ -126,26 +126,18 @@ iclk::SE3<double> check_parity(const nn::WeightFile& weights, const Pair& p, int
   return T;
 }
 
-// The answer of one learned alignment, as one number: FNV-1a over the bytes of the pose, the
-// covariance, the final residual, the agreement test's disagreement, the iterations and the
-// flag.
+// The answer of one learned alignment, as one number: FNV-1a (the weight files' checksum) over
+// the bytes of the pose, the covariance, the final residual, the agreement test's
+// disagreement, the iterations and the flag.
 std::uint64_t answer_hash(const iclk::TrackResult<iclk::DeepAligner::Warp>& r) {
-  std::uint64_t h = 0xcbf29ce484222325ull;
-  auto add = [&h](const void* p, std::size_t n) {
-    for (std::size_t i = 0; i < n; ++i) {
-      h ^= static_cast<const unsigned char*>(p)[i];
-      h *= 0x100000001b3ull;
-    }
-  };
-  add(r.params.R.data(), sizeof(float) * 9);
-  add(r.params.t.data(), sizeof(float) * 3);
-  add(r.covariance.data(), sizeof(double) * 36);
-  add(&r.residual_final, sizeof r.residual_final);
-  add(&r.disagreement_px, sizeof r.disagreement_px);
-  add(&r.iterations, sizeof r.iterations);
+  std::uint64_t h = nn::fnv1a64(r.params.R.data(), sizeof(float) * 9);
+  h = nn::fnv1a64(r.params.t.data(), sizeof(float) * 3, h);
+  h = nn::fnv1a64(r.covariance.data(), sizeof(double) * 36, h);
+  h = nn::fnv1a64(&r.residual_final, sizeof r.residual_final, h);
+  h = nn::fnv1a64(&r.disagreement_px, sizeof r.disagreement_px, h);
+  h = nn::fnv1a64(&r.iterations, sizeof r.iterations, h);
   const unsigned char converged = r.converged ? 1 : 0;
-  add(&converged, 1);
-  return h;
+  return nn::fnv1a64(&converged, 1, h);
 }
 
 }  // namespace
@@ -154,7 +146,7 @@ TEST_CASE("learned tracker: one answer, to the bit, on every machine (x86-64 and
   // Every kernel gives its scalar twin's bits (the encoder's and M-estimator's convolutions,
   // the solver's), nothing fuses a multiply and an add but what the code says, Eigen's own
   // vector code is off, and nothing on the path calls a libm function whose last bit is the C
-  // library's (std::hypot: hypot_exact; sigmoid: ELU's polynomial): so the x86-64 suites (GCC
+  // library's (std::hypot: hypot_exact; the sigmoid's exp: plain multiplies and adds): so the x86-64 suites (GCC
   // release, clang under ASan + UBSan, on AVX2 or AVX-512 hosts) and the aarch64 one (NEON,
   // under qemu) must all give this alignment's answer to the bit. The pair: the first committed
   // parity pair, the shipped s16w64, the product's settings. A change that moves this number

@@ -113,9 +113,7 @@ std::vector<std::uint8_t> serialise(const WeightFile& wf, std::uint32_t version 
   }
   u(blob.size(), 8);
   out.insert(out.end(), blob.begin(), blob.end());
-  std::uint64_t h = 0xcbf29ce484222325ull;
-  for (auto b : out) { h ^= b; h *= 0x100000001b3ull; }
-  u(h, 8);
+  u(fnv1a64(out.data(), out.size()), 8);
   return out;
 }
 

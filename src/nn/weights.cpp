@@ -10,15 +10,6 @@ namespace {
 
 constexpr char kMagic[8] = {'T', 'L', 'N', 'N', 'W', 'G', 'T', '\0'};
 
-std::uint64_t fnv1a64(const std::uint8_t* p, std::size_t n) {
-  std::uint64_t h = 0xcbf29ce484222325ull;
-  for (std::size_t i = 0; i < n; ++i) {
-    h ^= p[i];
-    h *= 0x100000001b3ull;
-  }
-  return h;
-}
-
 // Little-endian reads with bounds checks.
 struct Reader {
   const std::uint8_t* p;
@@ -41,6 +32,15 @@ struct Reader {
 };
 
 }  // namespace
+
+std::uint64_t fnv1a64(const void* p, std::size_t n, std::uint64_t h) {
+  const auto* b = static_cast<const std::uint8_t*>(p);
+  for (std::size_t i = 0; i < n; ++i) {
+    h ^= b[i];
+    h *= 0x100000001b3ull;
+  }
+  return h;
+}
 
 std::string TensorData::shape_text() const {
   std::string s = "[";

@@ -34,4 +34,7 @@ struct WeightFile {
 Result<WeightFile> read_weights(const std::string& path, std::size_t max_bytes = std::size_t{1} << 30);
 Result<WeightFile> parse_weights(const std::uint8_t* data, std::size_t size, const std::string& name);
 
+// The weight file's checksum, 64-bit FNV-1a over n bytes; h continues a hash over earlier bytes.
+std::uint64_t fnv1a64(const void* p, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ull);
+
 }  // namespace terralign::nn
