@@ -4,8 +4,9 @@
 # -fno-rtti, no threads, warnings as errors; then the code size of each library. For the
 # Cortex-M7 it also links the firmware image (firmware/) and runs it on QEMU's mps2-an500
 # with semihosting: the learned and the classical tracker at 188 x 120 in one caller-provided
-# working-memory buffer, which it must fit, with no allocation per frame. Build folder:
-# build/mcu-<cpu> (or $MCU_BUILD).
+# working-memory buffer, which it must fit, with no allocation per frame, and each frame's
+# answer must be the host twin's to the bit (firmware/host.cpp, built in the host build).
+# Build folder: build/mcu-<cpu> (or $MCU_BUILD).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cpu=${MCU_CPU:-cortex-m7}
@@ -28,6 +29,10 @@ if [ -f "$build/firmware/terralign_firmware.elf" ]; then
   echo
   arm-none-eabi-size "$build/firmware/terralign_firmware.elf"
   echo "running the firmware on qemu-system-arm -M mps2-an500 (Cortex-M7):"
+  status=0
   timeout 1200 qemu-system-arm -M mps2-an500 -nographic -semihosting-config enable=on,target=native \
-    -kernel "$build/firmware/terralign_firmware.elf"
+    -kernel "$build/firmware/terralign_firmware.elf" | tee "$build/firmware.log" || status=$?
+  [ "$status" -eq 0 ] || exit "$status"
+  # Every frame's answer must be the host twin's (firmware/host.cpp) to the bit.
+  bash scripts/same-answers-as-host.sh "the Cortex-M7 firmware" "$build/firmware.log"
 fi

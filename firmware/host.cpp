@@ -1,0 +1,75 @@
+// The firmware's test on the build machine (terralign_firmware_host): scenario.cpp on the
+// same weights and map crops, read from files, with the host's libraries. Its frame lines
+// must be the Cortex-M7's, answer hashes included (scripts/build-mcu.sh compares them).
+//   terralign_firmware_host [WEIGHTS NAIP_2016 NAIP_2017]   (defaults: the firmware's files)
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iterator>
+#include <new>
+#include <string>
+#include <vector>
+
+#include "scenario.hpp"
+
+namespace {
+
+fw::ArenaStats g_counted;  // allocations only: the host has no buffer (capacity 0)
+
+bool read_file(const char* path, std::size_t expect, std::vector<std::uint8_t>& out) {
+  std::ifstream f(path, std::ios::binary);
+  if (!f) {
+    std::fprintf(stderr, "terralign_firmware_host: cannot open %s\n", path);
+    return false;
+  }
+  out.assign(std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>());
+  if (expect && out.size() != expect) {
+    std::fprintf(stderr, "terralign_firmware_host: %s has %zu bytes, a 320 x 320 RGB crop %zu\n", path, out.size(),
+                 expect);
+    return false;
+  }
+  return true;
+}
+
+void write_stdout(const char* text) { std::fputs(text, stdout); }
+const fw::ArenaStats& counted() { return g_counted; }
+
+}  // namespace
+
+// Every operator new counted (the frame loop must not allocate), served by malloc.
+void* operator new(std::size_t n) {
+  ++g_counted.allocations;
+  if (void* p = std::malloc(n ? n : 1)) return p;
+  throw std::bad_alloc();
+}
+void* operator new[](std::size_t n) { return operator new(n); }
+void operator delete(void* p) noexcept { std::free(p); }
+void operator delete[](void* p) noexcept { std::free(p); }
+void operator delete(void* p, std::size_t) noexcept { std::free(p); }
+void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+
+int main(int argc, char** argv) {
+  if (argc != 1 && argc != 4) {
+    std::fprintf(stderr, "usage: %s [WEIGHTS NAIP_2016_RGB NAIP_2017_RGB]\n", argv[0]);
+    return 2;
+  }
+  const char* weights_path = argc == 4 ? argv[1] : TERRALIGN_FW_WEIGHTS_PATH;
+  const char* naip_2016_path = argc == 4 ? argv[2] : TERRALIGN_FW_NAIP_2016;
+  const char* naip_2017_path = argc == 4 ? argv[3] : TERRALIGN_FW_NAIP_2017;
+  constexpr std::size_t kCropBytes = 320 * 320 * 3;
+  std::vector<std::uint8_t> weights, naip_2016, naip_2017;
+  if (!read_file(weights_path, 0, weights) || !read_file(naip_2016_path, kCropBytes, naip_2016) ||
+      !read_file(naip_2017_path, kCropBytes, naip_2017))
+    return 2;
+  const std::string name = std::string(weights_path).substr(std::string(weights_path).find_last_of('/') + 1);
+  fw::Blobs blobs;
+  blobs.weights = weights.data();
+  blobs.weights_bytes = weights.size();
+  blobs.weights_name = name.c_str();
+  blobs.naip_2016 = naip_2016.data();
+  blobs.naip_2017 = naip_2017.data();
+  fw::Platform platform;
+  platform.write = write_stdout;
+  platform.memory = counted;
+  return fw::run_scenario(blobs, platform);
+}
