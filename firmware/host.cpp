@@ -6,15 +6,18 @@
 #include <cstdlib>
 #include <fstream>
 #include <iterator>
-#include <new>
 #include <string>
 #include <vector>
 
+#include "alloc_counter.hpp"  // the suite's: operator new replaced, counting
 #include "scenario.hpp"
 
 namespace {
 
-fw::ArenaStats g_counted;  // allocations only: the host has no buffer (capacity 0)
+// Allocations only (the suite's counter, alive through the run): the host has no buffer
+// (capacity 0).
+const terralign::test::AllocationCounter* g_counter = nullptr;
+fw::ArenaStats g_counted;
 
 bool read_file(const char* path, std::size_t expect, std::vector<std::uint8_t>& out) {
   std::ifstream f(path, std::ios::binary);
@@ -32,21 +35,12 @@ bool read_file(const char* path, std::size_t expect, std::vector<std::uint8_t>& 
 }
 
 void write_stdout(const char* text) { std::fputs(text, stdout); }
-const fw::ArenaStats& counted() { return g_counted; }
+const fw::ArenaStats& counted() {
+  g_counted.allocations = g_counter->allocations();
+  return g_counted;
+}
 
 }  // namespace
-
-// Every operator new counted (the frame loop must not allocate), served by malloc.
-void* operator new(std::size_t n) {
-  ++g_counted.allocations;
-  if (void* p = std::malloc(n ? n : 1)) return p;
-  throw std::bad_alloc();
-}
-void* operator new[](std::size_t n) { return operator new(n); }
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete[](void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
 
 int main(int argc, char** argv) {
   if (argc != 1 && argc != 4) {
@@ -68,6 +62,8 @@ int main(int argc, char** argv) {
   blobs.weights_name = name.c_str();
   blobs.naip_2016 = naip_2016.data();
   blobs.naip_2017 = naip_2017.data();
+  const terralign::test::AllocationCounter counter;
+  g_counter = &counter;
   fw::Platform platform;
   platform.write = write_stdout;
   platform.memory = counted;
