@@ -1,6 +1,7 @@
 // The firmware's test on the build machine (terralign_firmware_host): scenario.cpp on the
 // same weights and map crops, read from files, with the host's libraries. Its frame lines
-// must be the Cortex-M7's, answer hashes included (scripts/build-mcu.sh compares them).
+// must be the Cortex-M7's and every other build's, answer hashes included
+// (scripts/same-answers-as-host.sh compares them).
 //   terralign_firmware_host [WEIGHTS NAIP_2016 NAIP_2017]   (defaults: the firmware's files)
 #include <cstdio>
 #include <cstdlib>

@@ -70,14 +70,15 @@ NATIVE_ONLY+="|layers: the next layer is tried only where the one before did not
 NATIVE_ONLY+="|refinement: asked to, the learned tracker weighs every pixel alike|refinement: a reference rendered at the answer"
 NATIVE_ONLY+="|refinement: the learned tracker refines on three levels|the registration floor grows with the final residual"
 # The firmware's test runs below instead, compared with the host's answers.
-NATIVE_ONLY+="|firmware's test on the host"
+FIRMWARE_TEST="firmware's test on the host"
+NATIVE_ONLY+="|$FIRMWARE_TEST"
 if [ ${#static[@]} -gt 0 ]; then
   ctest --test-dir "$build" --output-on-failure -j "$jobs" --timeout 1800 -E "$NATIVE_ONLY"
 else
-  ctest --test-dir "$build" --output-on-failure -j "$jobs" --timeout 120 -E "$THREADED_TESTS"
+  ctest --test-dir "$build" --output-on-failure -j "$jobs" --timeout 120 -E "$THREADED_TESTS|$FIRMWARE_TEST"
 fi
 # The firmware's test (firmware/scenario.cpp: 16 frames of both trackers through the
 # localiser, about 80 s under qemu): every frame's answer must be this host's x86-64 build's
 # to the bit (scripts/same-answers-as-host.sh).
-qemu-aarch64 -L /usr/aarch64-linux-gnu "$build/firmware/terralign_firmware_host" >"$build/firmware-host.log"
+timeout 1200 qemu-aarch64 -L /usr/aarch64-linux-gnu "$build/firmware/terralign_firmware_host" >"$build/firmware-host.log"
 bash scripts/same-answers-as-host.sh "the aarch64 build under qemu" "$build/firmware-host.log"
