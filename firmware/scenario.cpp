@@ -51,7 +51,7 @@ geo::Layer make_layer(const char* name, const std::uint8_t* rgb, double x0, doub
 }
 
 double angle_deg(const geo::Pose& a, const geo::Pose& b) {
-  return a.q_W_C.angularDistance(b.q_W_C) * 180.0 / 3.14159265358979323846;
+  return geo::rotation_angle(a.q_W_C * b.q_W_C.conjugate()) * 180.0 / 3.14159265358979323846;
 }
 
 // Everything of an answer a caller reads (pose, covariance, flag, iterations, reason), as

@@ -7,16 +7,69 @@
 #include <vector>
 
 
+#include <terralign/geo/numeric.hpp>
+
 #include "text_util.hpp"
 
 namespace terralign::geo {
 namespace {
 constexpr double kDeg = 3.14159265358979323846 / 180.0;
 
-Eigen::Matrix3d rot_x(double a) { return Eigen::AngleAxisd(a, Eigen::Vector3d::UnitX()).toRotationMatrix(); }
-Eigen::Matrix3d rot_y(double a) { return Eigen::AngleAxisd(a, Eigen::Vector3d::UnitY()).toRotationMatrix(); }
-Eigen::Matrix3d rot_z(double a) { return Eigen::AngleAxisd(a, Eigen::Vector3d::UnitZ()).toRotationMatrix(); }
+Eigen::Matrix3d rot_x(double a) { return rotation_matrix(Eigen::Vector3d::UnitX(), a); }
+Eigen::Matrix3d rot_y(double a) { return rotation_matrix(Eigen::Vector3d::UnitY(), a); }
+Eigen::Matrix3d rot_z(double a) { return rotation_matrix(Eigen::Vector3d::UnitZ(), a); }
 }  // namespace
+
+Eigen::Matrix3d rotation_matrix(const Eigen::Vector3d& axis, double angle) {
+  double s, c;
+  sin_cos(angle, s, c);
+  const Eigen::Vector3d sin_axis = s * axis, cos1_axis = (1.0 - c) * axis;
+  Eigen::Matrix3d R;
+  double t = cos1_axis.x() * axis.y();
+  R(0, 1) = t - sin_axis.z();
+  R(1, 0) = t + sin_axis.z();
+  t = cos1_axis.x() * axis.z();
+  R(0, 2) = t + sin_axis.y();
+  R(2, 0) = t - sin_axis.y();
+  t = cos1_axis.y() * axis.z();
+  R(1, 2) = t - sin_axis.x();
+  R(2, 1) = t + sin_axis.x();
+  for (int k = 0; k < 3; ++k) R(k, k) = cos1_axis[k] * axis[k] + c;
+  return R;
+}
+
+Eigen::Quaterniond rotation_quaternion(const Eigen::Vector3d& axis, double angle) {
+  double s, c;
+  sin_cos(0.5 * angle, s, c);
+  const Eigen::Vector3d v = s * axis;
+  return Eigen::Quaterniond(c, v.x(), v.y(), v.z());
+}
+
+void angle_axis(const Eigen::Quaterniond& q, double& angle, Eigen::Vector3d& axis) {
+  double n = q.vec().norm();
+  if (n == 0) {
+    angle = 0;
+    axis = Eigen::Vector3d::UnitX();
+    return;
+  }
+  angle = 2.0 * atan2_portable(n, std::abs(q.w()));
+  if (q.w() < 0) n = -n;
+  axis = q.vec() / n;
+}
+
+double rotation_angle(const Eigen::Quaterniond& q) {
+  double angle;
+  Eigen::Vector3d axis;
+  angle_axis(q, angle, axis);
+  return angle;
+}
+
+Eigen::Vector3d rotation_vector(const Eigen::Quaterniond& q) {
+  double angle;
+  Eigen::Vector3d axis;
+  angle_axis(q, angle, axis);
+  return angle * axis;
+}
 
 Pose pose_from_rotation(const Eigen::Vector3d& t, const Eigen::Matrix3d& R) {
   Pose p;

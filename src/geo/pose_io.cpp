@@ -42,7 +42,7 @@ Result<Pose> pose_from_opensfm(const Eigen::Vector3d& rotation, const Eigen::Vec
     return Error{"OpenSfM shot has a non-finite rotation or translation"};
   const double angle = rotation.norm();
   const Eigen::Matrix3d R_C_ENU =
-      angle > 0 ? Eigen::AngleAxisd(angle, rotation / angle).toRotationMatrix() : Eigen::Matrix3d::Identity();
+      angle > 0 ? rotation_matrix(rotation / angle, angle) : Eigen::Matrix3d::Identity();
   const Eigen::Vector3d centre_enu = -R_C_ENU.transpose() * translation;
   TERRALIGN_ASSERT(frame != OpenSfmFrame::Auto, "pose_from_opensfm: resolve Auto first");
   if (frame == OpenSfmFrame::ProjectedOffset) {

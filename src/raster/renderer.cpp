@@ -8,6 +8,7 @@
 #include <cstring>
 #include <limits>
 
+#include <terralign/geo/numeric.hpp>
 #include <terralign/raster/geometry_kernels.hpp>
 #include <terralign/raster/shade_kernels.hpp>
 #include <terralign/raster/terrain.hpp>
@@ -314,7 +315,7 @@ Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const ge
     L.transform.world_to_pixel(m.ox, m.oy + 1.0, u2, v2);
     T.coords = level_coords(T.levels, u0, u1 - u0, u2 - u0, v0, v1 - v0, v2 - v0);
     const auto& g = L.transform.gdal();
-    T.lod_bias = static_cast<float>(-0.5 * std::log2(std::abs(g[1] * g[5] - g[2] * g[4])));
+    T.lod_bias = static_cast<float>(-0.5 * log_portable(std::abs(g[1] * g[5] - g[2] * g[4])) / 0.6931471805599453);  // log2
     m.layers.push_back(std::move(T));
   }
 

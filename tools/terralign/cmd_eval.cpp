@@ -57,9 +57,9 @@ Errors errors(const iclk::SE3<double>& est, const iclk::SE3<double>& gt, const i
   e.epe_m = n3 ? s3 / static_cast<double>(n3) : NAN;
   e.epe_px = n2 ? s2 / static_cast<double>(n2) : NAN;
   e.shift_C = n3 ? iclk::Vec3<double>(shift / static_cast<double>(n3)) : iclk::Vec3<double>::Constant(NAN);
-  e.angle_deg = Eigen::AngleAxisd(dR).angle() * 180 / kPi;
+  e.angle_deg = geo::rotation_angle(Eigen::Quaterniond(dR)) * 180 / kPi;
   const iclk::Vec3<double> up_est = est.R * up_ref, up_gt = gt.R * up_ref;
-  e.tilt_deg = std::atan2(up_est.cross(up_gt).norm(), up_est.dot(up_gt)) * 180 / kPi;
+  e.tilt_deg = atan2_portable(up_est.cross(up_gt).norm(), up_est.dot(up_gt)) * 180 / kPi;
   e.trans_m = (gt.t - dR * est.t).norm();
   return e;
 }

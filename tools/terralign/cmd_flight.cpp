@@ -41,7 +41,11 @@ Result<std::vector<Waypoint>> path_points(const std::string& path, const geo::Ex
     }
   } else if (path == "circle") {
     const double cx = 0.5 * (x0 + x1), cy = 0.5 * (y0 + y1), r = 0.5 * std::min(x1 - x0, y1 - y0);
-    for (int k = 0; k <= 72; ++k) pts.push_back({cx + r * std::cos(2 * kPi * k / 72), cy + r * std::sin(2 * kPi * k / 72)});
+    for (int k = 0; k <= 72; ++k) {
+      double s, c;
+      sin_cos(2 * kPi * k / 72, s, c);
+      pts.push_back({cx + r * c, cy + r * s});
+    }
   } else {
     std::ifstream in(path);
     if (!in) return Error{path + ": cannot open the path file (or say lawnmower or circle)"};
@@ -97,8 +101,10 @@ int run_flight(const std::vector<std::string>& argv) {
   if (!renderer.ok()) return fail(renderer.error());
   auto frame = renderer.value()->make_output({args->get("layer")});
   if (!frame.ok()) return fail(frame.error());
+  double tilt_sin, tilt_cos;
+  sin_cos(tilt.value() * kPi / 180, tilt_sin, tilt_cos);
   const double half_footprint = altitude.value() * hypot_exact(cam.width / cam.fx, cam.height / cam.fy) / 2 * 1.2 +
-                                altitude.value() * std::tan(tilt.value() * kPi / 180);
+                                altitude.value() * tilt_sin / tilt_cos;
   auto pts = path_points(args->get("path"), map->common_extent(), half_footprint);
   if (!pts.ok()) return fail(pts.error());
   const std::string out = args->get("out");
@@ -130,7 +136,7 @@ int run_flight(const std::vector<std::string>& argv) {
     const Waypoint& b = (*pts)[leg + 1];
     const double len = std::max(hypot_exact(b.x - a.x, b.y - a.y), 1e-9);
     const double x = a.x + (b.x - a.x) * along / len, y = a.y + (b.y - a.y) * along / len;
-    const double heading = std::atan2(b.x - a.x, b.y - a.y) * 180 / kPi;  // clockwise from north
+    const double heading = atan2_portable(b.x - a.x, b.y - a.y) * 180 / kPi;  // clockwise from north
     const double ground = map->dem.height_at(x, y);
     const geo::Pose T = geo::pose_from_ypr({x, y, (std::isfinite(ground) ? ground : 0.0) + altitude.value()}, heading, 0, 0,
                                            geo::tilted_mount(tilt.value()));

@@ -136,8 +136,10 @@ geo::Pose predict(const geo::Pose& prev, double t_prev, const geo::Pose& last, d
   const double s = (t - t_last) / std::max(t_last - t_prev, 1e-9);
   geo::Pose p;
   p.t_W_C = last.t_W_C + s * (last.t_W_C - prev.t_W_C);
-  const Eigen::AngleAxisd d(prev.q_W_C.conjugate() * last.q_W_C);  // body-frame rotation per step
-  p.q_W_C = (last.q_W_C * Eigen::Quaterniond(Eigen::AngleAxisd(d.angle() * s, d.axis()))).normalized();
+  double angle;  // of the body-frame rotation per step
+  Eigen::Vector3d axis;
+  geo::angle_axis(prev.q_W_C.conjugate() * last.q_W_C, angle, axis);
+  p.q_W_C = (last.q_W_C * geo::rotation_quaternion(axis, angle * s)).normalized();
   return p;
 }
 

@@ -105,9 +105,8 @@ Eigen::Matrix<double, 6, 6> covariance_in_world(const Eigen::Matrix<double, 6, 6
 }
 
 Eigen::Matrix<double, 6, 1> pose_error(const geo::Pose& estimate, const geo::Pose& truth) {
-  const Eigen::AngleAxisd dr(truth.q_W_C * estimate.q_W_C.conjugate());
   Eigen::Matrix<double, 6, 1> e;
-  e << dr.angle() * dr.axis(), truth.t_W_C - estimate.t_W_C;
+  e << geo::rotation_vector(truth.q_W_C * estimate.q_W_C.conjugate()), truth.t_W_C - estimate.t_W_C;
   return e;
 }
 
@@ -157,9 +156,8 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
   // rotation of T_live_ref that the prior holds (the tracker starts from the identity).
   // Without an attitude reference the prior's own tilt is held, also in a refinement pass,
   // whose reference is rendered at the last answer: the prior stays the prior's.
-  const Eigen::AngleAxisd a((attitude ? *attitude : prior.q_W_C).conjugate() * ref_pose.q_W_C);
   const Eigen::Vector3d up = ref_pose.R().transpose() * Eigen::Vector3d::UnitZ();
-  const Eigen::Vector3d tilt = a.angle() * a.axis();
+  const Eigen::Vector3d tilt = geo::rotation_vector((attitude ? *attitude : prior.q_W_C).conjugate() * ref_pose.q_W_C);
   // The altimeter's height above the camera the reference is rendered from.
   const double height = altitude_ - ref_pose.t_W_C.z();
   if (!deep_) {
@@ -318,7 +316,7 @@ Status Localizer::localize_layer(ImageView<const std::uint8_t> live, const geo::
     in_world(r.params, r.covariance, out.T_W_C, out.covariance);
     // Again while the answer turned by more than kRefineMinDeg from where the reference was
     // rendered, and its final residual is within the bound (set_refinement_scope).
-    if (!(Eigen::AngleAxisd(T_live_ref.R).angle() * (180.0 / 3.14159265358979323846) > kRefineMinDeg)) break;
+    if (!(geo::rotation_angle(Eigen::Quaterniond(T_live_ref.R)) * (180.0 / 3.14159265358979323846) > kRefineMinDeg)) break;
     if (!(r.residual_final <= refine_max_residual_)) break;
     ref_pose = out.T_W_C;
     T_ref_prior = out.T_live_ref;

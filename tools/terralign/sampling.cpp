@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <terralign/geo/numeric.hpp>
+
 namespace terralign::cli {
 
 namespace {
@@ -20,12 +22,16 @@ double Rng::uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
 
 double Rng::normal() {
   const double u = std::max(uniform(), 1e-300), v = uniform();
-  return std::sqrt(-2 * std::log(u)) * std::cos(2 * kPi * v);
+  double sin_v, cos_v;
+  sin_cos(2 * kPi * v, sin_v, cos_v);
+  return std::sqrt(-2 * log_portable(u)) * cos_v;
 }
 
 Eigen::Vector3d Rng::unit() {
   const double z = uniform(-1, 1), phi = uniform(0, 2 * kPi), r = std::sqrt(1 - z * z);
-  return {r * std::cos(phi), r * std::sin(phi), z};
+  double sin_phi, cos_phi;
+  sin_cos(phi, sin_phi, cos_phi);
+  return {r * cos_phi, r * sin_phi, z};
 }
 
 namespace {
@@ -42,7 +48,7 @@ bool ground_hit(const geo::Pose& T, const geo::CameraModel& cam, double u, doubl
 // The rotation of rotation vector phi.
 Eigen::Quaterniond exp_so3(const Eigen::Vector3d& phi) {
   const double a = phi.norm();
-  return a > 0 ? Eigen::Quaterniond(Eigen::AngleAxisd(a, phi / a)) : Eigen::Quaterniond::Identity();
+  return a > 0 ? geo::rotation_quaternion(phi / a, a) : Eigen::Quaterniond::Identity();
 }
 
 }  // namespace
@@ -64,8 +70,9 @@ Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraM
       if (!std::isfinite(ground)) continue;
       geo::Pose T = geo::pose_from_ypr({x, y, ground + alt}, heading, 0, 0);
       // Tilt off nadir by `tilt` about a horizontal axis at a random azimuth.
-      const Eigen::Vector3d axis(std::cos(tilt_dir), std::sin(tilt_dir), 0);
-      T.q_W_C = Eigen::Quaterniond(Eigen::AngleAxisd(tilt * kPi / 180, axis)) * T.q_W_C;
+      double dir_sin, dir_cos;
+      sin_cos(tilt_dir, dir_sin, dir_cos);
+      T.q_W_C = geo::rotation_quaternion(Eigen::Vector3d(dir_cos, dir_sin, 0), tilt * kPi / 180) * T.q_W_C;
       bool inside = true;
       for (int k = 0; k < 5 && inside; ++k) {
         const double u = k == 4 ? cam.cx : (k & 1) * (cam.width - 1.0), v = k == 4 ? cam.cy : (k >> 1) * (cam.height - 1.0);
@@ -86,7 +93,7 @@ Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraM
       const Eigen::Vector3d raxis = rng.unit();
       const double len = prior_scale * rng.uniform(0, 0.13 * alt);
       const Eigen::Vector3d dir = rng.unit();
-      s.prior.q_W_C = (T.q_W_C * Eigen::Quaterniond(Eigen::AngleAxisd(angle, raxis))).normalized();
+      s.prior.q_W_C = (T.q_W_C * geo::rotation_quaternion(raxis, angle)).normalized();
       s.prior.t_W_C = T.t_W_C + len * dir;
       if (imu_tilt_deg > 0) {
         // The error as a rotation vector in world axes: keep its vertical part (heading),
@@ -113,8 +120,8 @@ Eigen::Quaterniond attitude_reading(const Eigen::Quaterniond& q_W_C, Rng& rng, d
 }
 
 Eigen::Quaterniond with_tilt_of(const Eigen::Quaterniond& q, const Eigen::Quaterniond& attitude) {
-  const Eigen::AngleAxisd err(q * attitude.conjugate());  // world axes: attitude -> q
-  return (exp_so3({0, 0, err.angle() * err.axis().z()}) * attitude).normalized();
+  const Eigen::Vector3d err = geo::rotation_vector(q * attitude.conjugate());  // world axes: attitude -> q
+  return (exp_so3({0, 0, err.z()}) * attitude).normalized();
 }
 
 void box_blur(ImageU8& img, int r) {

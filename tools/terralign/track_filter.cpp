@@ -12,13 +12,10 @@ constexpr double kDeg = 3.14159265358979323846 / 180.0;
 Eigen::Quaterniond exp_so3(const Eigen::Vector3d& w) {
   const double a = w.norm();
   if (!(a > 0)) return Eigen::Quaterniond::Identity();
-  return Eigen::Quaterniond(Eigen::AngleAxisd(a, w / a));
+  return geo::rotation_quaternion(w / a, a);
 }
 
-Eigen::Vector3d log_so3(const Eigen::Quaterniond& q) {
-  const Eigen::AngleAxisd a(q.normalized());
-  return a.angle() * a.axis();
-}
+Eigen::Vector3d log_so3(const Eigen::Quaterniond& q) { return geo::rotation_vector(q.normalized()); }
 
 }  // namespace
 
@@ -28,8 +25,8 @@ TrackFilter::TrackFilter(const geo::Pose& init, double t0, const Eigen::Vector3d
   v_ = velocity ? *velocity : Eigen::Vector3d::Zero();
   w_.setZero();
   Mat6 pose = Mat6::Zero();
-  pose.diagonal().head<3>().setConstant(std::pow(opt_.init_rotation_sigma_deg * kDeg, 2));
-  pose.diagonal().tail<3>().setConstant(std::pow(opt_.init_position_sigma, 2));
+  pose.diagonal().head<3>().setConstant((opt_.init_rotation_sigma_deg * kDeg) * (opt_.init_rotation_sigma_deg * kDeg));
+  pose.diagonal().tail<3>().setConstant(opt_.init_position_sigma * opt_.init_position_sigma);
   start_at(pose, velocity != nullptr);
 }
 
@@ -39,7 +36,7 @@ void TrackFilter::start_at(const Mat6& pose_covariance, bool velocity_given) {
   const double sv = velocity_given ? opt_.given_velocity_sigma : opt_.init_velocity_sigma;
   P_.block<3, 3>(6, 6) = Eigen::Matrix3d::Identity() * sv * sv;
   if (!velocity_given) P_(8, 8) = opt_.init_climb_sigma * opt_.init_climb_sigma;
-  P_.block<3, 3>(9, 9) = Eigen::Matrix3d::Identity() * std::pow(opt_.init_rate_sigma_deg * kDeg, 2);
+  P_.block<3, 3>(9, 9) = Eigen::Matrix3d::Identity() * (opt_.init_rate_sigma_deg * kDeg) * (opt_.init_rate_sigma_deg * kDeg);
   refused_in_row_ = 0;
 }
 

@@ -13,6 +13,7 @@
 
 #include <Eigen/Core>
 
+#include <terralign/geo/numeric.hpp>
 #include <terralign/geo/result.hpp>
 
 namespace terralign::geo {
@@ -90,7 +91,7 @@ Eigen::Matrix<S, 2, 1> CameraModel::distort(const Eigen::Matrix<S, 2, 1>& xn,
         if (J) J->setIdentity();
         return xn;
       }
-      const S th = std::atan(r), th2 = th * th;
+      const S th = static_cast<S>(atan2_portable(static_cast<double>(r), 1.0)), th2 = th * th;  // atan(r)
       const S poly = S(1) + th2 * (k1 + th2 * (k2 + th2 * (k3 + th2 * k4)));
       const S thd = th * poly;
       const S s = thd / r;

@@ -3,7 +3,9 @@
 // Tangent vectors are xi = [omega; v] (rotation first, as in Lv et al.): exp(xi) is the
 // rigid motion whose rotation is exp([omega]x) and whose translation is V(omega) v.
 // Both maps switch to Taylor series near zero rotation (Lv et al.'s code divides by the
-// angle and returns NaN for a zero rotation) and log handles angles up to pi.
+// angle and returns NaN for a zero rotation) and log handles angles up to pi. Their sines,
+// cosines and atan2 are terralign's (geo/numeric.hpp), in double, so that a pose's bits do
+// not depend on the C library.
 #pragma once
 
 #include <cmath>
@@ -11,7 +13,18 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <terralign/geo/numeric.hpp>
+
 namespace terralign::iclk {
+
+// sin and cos of th in the scalar S (computed in double, rounded once to S).
+template <class S>
+void sin_cos_of(S th, S& s, S& c) {
+  double sd, cd;
+  sin_cos(static_cast<double>(th), sd, cd);
+  s = static_cast<S>(sd);
+  c = static_cast<S>(cd);
+}
 
 template <class S>
 using Vec3 = Eigen::Matrix<S, 3, 1>;
@@ -60,9 +73,11 @@ struct SE3 {
       B = S(0.5) - th2 / S(24) + th4 / S(720);
       C = S(1) / S(6) - th2 / S(120) + th4 / S(5040);
     } else {
-      A = std::sin(th) / th;
-      B = (S(1) - std::cos(th)) / th2;
-      C = (th - std::sin(th)) / (th2 * th);
+      S sn, cs;
+      sin_cos_of(th, sn, cs);
+      A = sn / th;
+      B = (S(1) - cs) / th2;
+      C = (th - sn) / (th2 * th);
     }
     SE3 T;
     T.R = Mat3<S>::Identity() + A * W + B * W2;
@@ -76,7 +91,7 @@ struct SE3 {
     Vec3<S> w;
     const Vec3<S> axis_sin(R(2, 1) - R(1, 2), R(0, 2) - R(2, 0), R(1, 0) - R(0, 1));  // 2 sin(th) u
     // atan2 of sine and cosine is well conditioned at every angle (acos is not near 0 and pi).
-    const S th = std::atan2(axis_sin.norm() / S(2), c);
+    const S th = static_cast<S>(atan2_portable(static_cast<double>(axis_sin.norm() / S(2)), static_cast<double>(c)));
     if (th < S(1e-4)) {
       w = axis_sin / S(2) * (S(1) + th * th / S(6));  // th / sin(th) ~ 1 + th^2 / 6
     } else if (th > S(3.14159265358979323846) - S(1e-3)) {
@@ -89,7 +104,9 @@ struct SE3 {
       if (u.dot(axis_sin) < S(0)) u = -u;  // the sign from the antisymmetric part
       w = th * u;
     } else {
-      w = axis_sin * (th / (S(2) * std::sin(th)));
+      S sn, cs;
+      sin_cos_of(th, sn, cs);
+      w = axis_sin * (th / (S(2) * sn));
     }
     // v = V^-1 t with V^-1 = I - W/2 + D W^2, D = (1 - A / (2 B)) / th^2.
     const Mat3<S> W = hat(w), W2 = W * W;
@@ -98,7 +115,9 @@ struct SE3 {
     if (th < S(1e-2)) {  // series, as in exp: the closed form cancels
       D = S(1) / S(12) + th2 / S(720) + th2 * th2 / S(30240);
     } else {
-      const S A = std::sin(th) / th, B = (S(1) - std::cos(th)) / th2;
+      S sn, cs;
+      sin_cos_of(th, sn, cs);
+      const S A = sn / th, B = (S(1) - cs) / th2;
       D = (S(1) - A / (S(2) * B)) / th2;
     }
     const Vec3<S> v = (Mat3<S>::Identity() - W / S(2) + D * W2) * t;
