@@ -29,9 +29,10 @@ if [ -f "$build/firmware/terralign_firmware.elf" ]; then
   echo
   arm-none-eabi-size "$build/firmware/terralign_firmware.elf"
   echo "running the firmware on qemu-system-arm -M mps2-an500 (Cortex-M7):"
+  # QEMU writes the semihosting console to its stderr.
   status=0
   timeout 1200 qemu-system-arm -M mps2-an500 -nographic -semihosting-config enable=on,target=native \
-    -kernel "$build/firmware/terralign_firmware.elf" | tee "$build/firmware.log" || status=$?
+    -kernel "$build/firmware/terralign_firmware.elf" 2>&1 | tee "$build/firmware.log" || status=$?
   [ "$status" -eq 0 ] || exit "$status"
   # Every frame's answer must be the host twin's (firmware/host.cpp) to the bit.
   bash scripts/same-answers-as-host.sh "the Cortex-M7 firmware" "$build/firmware.log"
