@@ -22,31 +22,28 @@ constexpr double kPio4 = 0.7853981633974483, kPio4Rest = 3.061616997868383e-17;
 constexpr double kLn2Hi = 0x1.62e42fefa38p-1, kLn2Lo = 0x1.ef35793c7673p-45;
 constexpr double kAtanHalf = 0.4636476090008061, kAtanHalfRest = 2.2698777452961687e-17;  // atan(1/2)
 
-// Taylor's series on |r| <= pi / 4 by Horner's rule in z = r^2: the first terms left out,
-// r^19 / 19! and r^18 / 18!, are below 1e-19 and 3e-18 there.
+// sum over j < terms of (-1)^j z^j / (n0 + 2j)!, by Horner's rule; factorials to 18! are
+// exact in double, so each coefficient is 1 / n! rounded once.
+double factorial_series(double z, int n0, int terms) {
+  double p = 0;
+  for (int j = terms - 1; j >= 0; --j) {
+    double f = 1;
+    for (int i = 2; i <= n0 + 2 * j; ++i) f *= i;
+    p = p * z + ((j & 1) ? -1.0 : 1.0) / f;
+  }
+  return p;
+}
+
+// Taylor's series on |r| <= pi / 4 in z = r^2: the first terms left out, r^19 / 19! and
+// r^18 / 18!, are below 1e-19 and 3e-18 there.
 double sin_series(double r) {
   const double z = r * r;
-  double p = 1.0 / 355687428096000.0;  // 1/17!
-  p = p * z - 1.0 / 1307674368000.0;   // 1/15!
-  p = p * z + 1.0 / 6227020800.0;      // 1/13!
-  p = p * z - 1.0 / 39916800.0;        // 1/11!
-  p = p * z + 1.0 / 362880.0;          // 1/9!
-  p = p * z - 1.0 / 5040.0;            // 1/7!
-  p = p * z + 1.0 / 120.0;             // 1/5!
-  p = p * z - 1.0 / 6.0;               // 1/3!
-  return r + r * z * p;
+  return r - r * z * factorial_series(z, 3, 8);  // r - r^3 / 3! + ... + r^17 / 17!
 }
 
 double cos_series(double r) {
   const double z = r * r;
-  double p = -1.0 / 6402373705728000.0;  // 1/18!
-  p = p * z + 1.0 / 20922789888000.0;    // 1/16!
-  p = p * z - 1.0 / 87178291200.0;       // 1/14!
-  p = p * z + 1.0 / 479001600.0;         // 1/12!
-  p = p * z - 1.0 / 3628800.0;           // 1/10!
-  p = p * z + 1.0 / 40320.0;             // 1/8!
-  p = p * z - 1.0 / 720.0;               // 1/6!
-  p = p * z + 1.0 / 24.0;                // 1/4!
+  const double p = factorial_series(z, 4, 8);  // 1/4! - z/6! + ... - z^7/18!
   // 1 - z/2 + z^2 p: z/2 is exact, and 1 - z/2 >= 0.69 rounds once.
   const double h = 0.5 * z;
   const double one_minus_h = 1.0 - h;
