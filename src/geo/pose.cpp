@@ -71,6 +71,11 @@ Eigen::Vector3d rotation_vector(const Eigen::Quaterniond& q) {
   return angle * axis;
 }
 
+Eigen::Quaterniond rotation_from_vector(const Eigen::Vector3d& v) {
+  const double a = v.norm();
+  return a > 0 ? rotation_quaternion(v / a, a) : Eigen::Quaterniond::Identity();
+}
+
 Pose pose_from_rotation(const Eigen::Vector3d& t, const Eigen::Matrix3d& R) {
   Pose p;
   p.q_W_C = Eigen::Quaterniond(R).normalized();

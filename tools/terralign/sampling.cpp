@@ -45,12 +45,6 @@ bool ground_hit(const geo::Pose& T, const geo::CameraModel& cam, double u, doubl
   return true;
 }
 
-// The rotation of rotation vector phi.
-Eigen::Quaterniond exp_so3(const Eigen::Vector3d& phi) {
-  const double a = phi.norm();
-  return a > 0 ? geo::rotation_quaternion(phi / a, a) : Eigen::Quaterniond::Identity();
-}
-
 }  // namespace
 
 Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraModel& cam, const geo::Extent& e, int count,
@@ -101,7 +95,7 @@ Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraM
         Eigen::Vector3d phi = T.R() * (angle * raxis);
         phi.x() = imu.normal() * imu_tilt_deg * kPi / 180;
         phi.y() = imu.normal() * imu_tilt_deg * kPi / 180;
-        s.prior.q_W_C = (exp_so3(phi) * T.q_W_C).normalized();
+        s.prior.q_W_C = (geo::rotation_from_vector(phi) * T.q_W_C).normalized();
       }
       if (altimeter_m > 0) s.prior.t_W_C.z() = T.t_W_C.z() + baro.normal() * altimeter_m;
       out.push_back(s);
@@ -116,12 +110,12 @@ Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraM
 
 Eigen::Quaterniond attitude_reading(const Eigen::Quaterniond& q_W_C, Rng& rng, double sigma_deg) {
   const double sx = rng.normal() * sigma_deg * kPi / 180, sy = rng.normal() * sigma_deg * kPi / 180;
-  return (exp_so3({sx, sy, 0}) * q_W_C).normalized();
+  return (geo::rotation_from_vector({sx, sy, 0}) * q_W_C).normalized();
 }
 
 Eigen::Quaterniond with_tilt_of(const Eigen::Quaterniond& q, const Eigen::Quaterniond& attitude) {
   const Eigen::Vector3d err = geo::rotation_vector(q * attitude.conjugate());  // world axes: attitude -> q
-  return (exp_so3({0, 0, err.z()}) * attitude).normalized();
+  return (geo::rotation_from_vector({0, 0, err.z()}) * attitude).normalized();
 }
 
 void box_blur(ImageU8& img, int r) {

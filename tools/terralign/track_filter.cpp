@@ -9,12 +9,6 @@ namespace {
 
 constexpr double kDeg = 3.14159265358979323846 / 180.0;
 
-Eigen::Quaterniond exp_so3(const Eigen::Vector3d& w) {
-  const double a = w.norm();
-  if (!(a > 0)) return Eigen::Quaterniond::Identity();
-  return geo::rotation_quaternion(w / a, a);
-}
-
 Eigen::Vector3d log_so3(const Eigen::Quaterniond& q) { return geo::rotation_vector(q.normalized()); }
 
 }  // namespace
@@ -46,7 +40,7 @@ void TrackFilter::predict(double t) {
   // The error state moves with the nominal: R = Exp(w dt) R0 turns an error Exp(e) R0 into
   // Exp(Exp(w dt) e) R, and a rate error dw adds dw dt (first order).
   Mat12 F = Mat12::Identity();
-  F.block<3, 3>(0, 0) = exp_so3(w_ * dt).toRotationMatrix();
+  F.block<3, 3>(0, 0) = geo::rotation_from_vector(w_ * dt).toRotationMatrix();
   F.block<3, 3>(0, 9).diagonal().setConstant(dt);  // dtheta += dw dt
   F.block<3, 3>(3, 6).diagonal().setConstant(dt);  // dp += dv dt
   // Continuous white acceleration: the velocity is a random walk (variance sa2 t after t
@@ -66,7 +60,7 @@ void TrackFilter::predict(double t) {
     Q(3 + k, 6 + k) = Q(6 + k, 3 + k) = sa2 * q01;
     Q(6 + k, 6 + k) = sa2 * q11;
   }
-  q_ = (exp_so3(w_ * dt) * q_).normalized();
+  q_ = (geo::rotation_from_vector(w_ * dt) * q_).normalized();
   p_ += v_ * dt;
   P_ = F * P_ * F.transpose() + Q;
   P_ = 0.5 * (P_ + P_.transpose()).eval();
@@ -110,7 +104,7 @@ TrackFilter::Update TrackFilter::update(const geo::Pose& measured, const Mat6& c
   // K = P H^T S^-1 with H = [I6 0]; Joseph's form keeps P symmetric and positive.
   const Eigen::Matrix<double, 12, 6> K = ldlt.solve(P_.leftCols<6>().transpose()).transpose();
   const Eigen::Matrix<double, 12, 1> dx = K * y;
-  q_ = (exp_so3(dx.head<3>()) * q_).normalized();
+  q_ = (geo::rotation_from_vector(dx.head<3>()) * q_).normalized();
   p_ += dx.segment<3>(3);
   v_ += dx.segment<3>(6);
   w_ += dx.segment<3>(9);
@@ -131,7 +125,7 @@ bool TrackFilter::update_height(double z, double sigma) {
   if (!(s > 0) || !std::isfinite(s)) return false;
   const Eigen::Matrix<double, 12, 1> K = P_.col(5) / s;
   const Eigen::Matrix<double, 12, 1> dx = K * (z - p_.z());
-  q_ = (exp_so3(dx.head<3>()) * q_).normalized();
+  q_ = (geo::rotation_from_vector(dx.head<3>()) * q_).normalized();
   p_ += dx.segment<3>(3);
   v_ += dx.segment<3>(6);
   w_ += dx.segment<3>(9);

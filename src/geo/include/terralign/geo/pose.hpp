@@ -37,12 +37,14 @@ struct Pose {
 // rotation_quaternion(axis, angle) = Quaterniond(AngleAxisd(angle, axis)) (axis of unit
 // length); angle_axis(q, angle, axis) = AngleAxisd(q)'s angle (in [0, pi]) and unit axis
 // ((1, 0, 0) for the identity); rotation_angle(q) its angle (angularDistance(a, b) is
-// rotation_angle(a * b.conjugate())), rotation_vector(q) angle times axis.
+// rotation_angle(a * b.conjugate())), rotation_vector(q) angle times axis, and
+// rotation_from_vector(v) its inverse (the identity where |v| is not above 0).
 Eigen::Matrix3d rotation_matrix(const Eigen::Vector3d& axis, double angle);
 Eigen::Quaterniond rotation_quaternion(const Eigen::Vector3d& axis, double angle);
 void angle_axis(const Eigen::Quaterniond& q, double& angle, Eigen::Vector3d& axis);
 double rotation_angle(const Eigen::Quaterniond& q);
 Eigen::Vector3d rotation_vector(const Eigen::Quaterniond& q);
+Eigen::Quaterniond rotation_from_vector(const Eigen::Vector3d& v);
 
 // From a camera-to-world rotation (orthonormalised through the quaternion) and position.
 Pose pose_from_rotation(const Eigen::Vector3d& t_W_C, const Eigen::Matrix3d& R_W_C);
