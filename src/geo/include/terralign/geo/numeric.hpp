@@ -3,6 +3,14 @@
 
 #include <cmath>
 
+// Every promise of the same bits (and every NaN check on bad input) rests on IEEE arithmetic
+// as written. -ffast-math and -Ofast let the compiler reorder sums, drop signed zeros and
+// assume no NaN or infinity exists, so std::isfinite(x) becomes true; the build refuses them
+// (cmake/TerralignOptions.cmake checks the flags; this catches what the flags do not show).
+#if defined(__FAST_MATH__) || (defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__)
+#error "terralign needs IEEE floating point: build without -ffast-math, -Ofast or -ffinite-math-only"
+#endif
+
 namespace terralign {
 
 // sqrt(a^2 + b^2) in IEEE operations that each round once (the build fuses nothing:
