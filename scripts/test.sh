@@ -38,4 +38,9 @@ if [ "${TERRALIGN_SKIP_SANITIZE:-0}" != "1" ]; then
   source scripts/end-to-end-cases.sh
   (cd build/sanitize && ASAN_OPTIONS=detect_leaks=1 UBSAN_OPTIONS=print_stacktrace=1 \
      ctest --output-on-failure -j "$jobs" -E "$END_TO_END_CASES")
+  # The same answers from the other compiler: the firmware's test (its host twin, 16 frames of
+  # both trackers) built by clang at -O1 under the sanitizers against GCC's release build.
+  build/sanitize/firmware/terralign_firmware_host >build/sanitize/firmware-host.log
+  TERRALIGN_HOST_BUILD=build/release bash scripts/same-answers-as-host.sh \
+    "clang -O1 (ASan + UBSan)" build/sanitize/firmware-host.log
 fi
