@@ -150,7 +150,7 @@ int main(int argc, char** argv) {
     std::string name;
     std::unique_ptr<cli::Localizer> loc;
     std::vector<double> render, encoder, mest, setup, iterations, total;
-    std::vector<int> steps;  // the solver's iterations, every pass and layer
+    std::vector<double> steps;  // the solver's iterations, every pass and layer
     std::vector<double> fallback, fallback_encoder, fallback_pyramid;  // ms of the frames aligned to more than one layer
     int converged = 0, refined = 0, tried = 0;
   };
@@ -238,13 +238,12 @@ int main(int argc, char** argv) {
     if (!M.fallback.empty())
       std::snprintf(fallback, sizeof fallback, "%zu: %.1f (%.1f, %.1f)", M.fallback.size(), median(M.fallback),
                     median(M.fallback_encoder), median(M.fallback_pyramid));
-    std::vector<double> steps(M.steps.begin(), M.steps.end());
     const std::size_t slowest =
         static_cast<std::size_t>(std::max_element(M.total.begin(), M.total.end()) - M.total.begin());
-    const double most_steps = steps.empty() ? 0 : *std::max_element(steps.begin(), steps.end());
-    std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f (%d) | %.0f / %.0f | %.0f | %.2f | %d/%d | %d/%d | %.2f | %s |\n", M.name.c_str(),
+    const double most_steps = M.steps.empty() ? 0 : *std::max_element(M.steps.begin(), M.steps.end());
+    std::printf("| %s | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f | %.1f (%.0f) | %.0f / %.0f | %.0f | %.2f | %d/%d | %d/%d | %.2f | %s |\n", M.name.c_str(),
                 median(M.render), median(M.encoder), median(M.mest), median(M.setup), median(M.iterations), total,
-                M.total.empty() ? 0.0 : M.total[slowest], M.total.empty() ? 0 : M.steps[slowest], median(steps), most_steps, 1000.0 / total, total / classic_total, M.converged, n, M.refined, n,
+                M.total.empty() ? 0.0 : M.total[slowest], M.total.empty() ? 0.0 : M.steps[slowest], median(M.steps), most_steps, 1000.0 / total, total / classic_total, M.converged, n, M.refined, n,
                 static_cast<double>(M.tried) / static_cast<double>(std::max<std::size_t>(M.total.size(), 1)), fallback);
   }
 #if defined(TERRALIGN_CLI)
