@@ -2,6 +2,8 @@
 
 #include <algorithm>
 
+#include <terralign/geo/float_environment.hpp>
+
 namespace terralign {
 
 #if defined(TERRALIGN_NO_THREADS)
@@ -71,6 +73,9 @@ void ThreadPool::run(int tasks, Task fn, void* ctx) {
 }
 
 void ThreadPool::worker(int id) {
+  // The caller's thread computes its tasks inside its entry's FloatEnvironmentScope; a worker
+  // does so from its start, whatever the thread that made the pool had set.
+  const FloatEnvironmentScope default_environment;
   long seen = 0;
   for (;;) {
     bool started = false;

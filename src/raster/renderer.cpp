@@ -8,6 +8,7 @@
 #include <cstring>
 #include <limits>
 
+#include <terralign/geo/float_environment.hpp>
 #include <terralign/geo/numeric.hpp>
 #include <terralign/raster/geometry_kernels.hpp>
 #include <terralign/raster/shade_kernels.hpp>
@@ -278,6 +279,7 @@ void build_mips(const geo::Layer& L, LayerTexture& T, ThreadPool& pool) {
 
 Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const geo::CameraModel& camera,
                                                    const RenderOptions& options, ThreadPool* pool) {
+  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
   TERRALIGN_TRY(camera.validate("camera"));
   if (options.threads < 1 || options.threads > 64)
     return Error{"render threads " + std::to_string(options.threads) + " is outside 1..64"};
@@ -1149,6 +1151,7 @@ void Renderer::Impl::resolve_rows(int row0, int row1) {
 
 
 Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* stats) {
+  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
   Impl& m = *impl_;
   const auto t0 = Clock::now();
   auto invalidate = [&] {
