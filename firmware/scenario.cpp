@@ -7,6 +7,7 @@
 #include <cstring>
 #include <vector>
 
+#include <terralign/geo/float_environment.hpp>
 #include <terralign/geo/map.hpp>
 #include <terralign/geo/pose.hpp>
 #include <terralign/nn/weights.hpp>
@@ -140,6 +141,12 @@ int run_scenario(const Blobs& blobs, const Platform& platform) {
     cases.push_back({truth, prior});
   }
 
+  // The localizers are set up and run in a floating-point environment no answer is made in
+  // (terralign/geo/float_environment.hpp): each answer must still be the default
+  // environment's. The host twin's are (the test "float environment: ..." compares the two
+  // there), so a machine whose answers are the host's holds it too.
+  print("set-up and frames in a hostile floating-point environment: %s\n", HostileFloatEnvironment::description());
+
   Run runs[2];
   char learned_name[96];
   std::snprintf(learned_name, sizeof learned_name, "learned (%s, full size, 4 levels)", blobs.weights_name);
@@ -155,7 +162,10 @@ int run_scenario(const Blobs& blobs, const Platform& platform) {
     sizes.input_scale = 1.0;
     sizes.levels = 4;
     sizes.max_triangles = kMaxTriangles;
-    auto loc = cli::Localizer::create(map, cam, "2016", opt, 1, m == 0 ? &weights.value() : nullptr, sizes);
+    auto loc = [&] {
+      const HostileFloatEnvironment hostile;
+      return cli::Localizer::create(map, cam, "2016", opt, 1, m == 0 ? &weights.value() : nullptr, sizes);
+    }();
     if (!loc.ok()) {
       print("firmware: %s: %s\n", run.name, loc.error().message.c_str());
       return 2;
@@ -174,7 +184,10 @@ int run_scenario(const Blobs& blobs, const Platform& platform) {
           continue;
         }
         const long a0 = platform.memory().allocations;
-        auto out = loc.value()->localize(live.value().rgb[static_cast<std::size_t>(year)].view(), c.prior);
+        auto out = [&] {
+          const HostileFloatEnvironment hostile;
+          return loc.value()->localize(live.value().rgb[static_cast<std::size_t>(year)].view(), c.prior);
+        }();
         run.frame_allocations += platform.memory().allocations - a0;
         if (!out.ok()) {
           print("  error: %s\n", out.error().message.c_str());
