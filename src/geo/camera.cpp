@@ -6,7 +6,7 @@
 
 #include <Eigen/LU>
 
-#include "text_util.hpp"
+#include <terralign/geo/number_text.hpp>
 
 namespace terralign::geo {
 

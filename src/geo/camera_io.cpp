@@ -4,9 +4,9 @@
 #include <nlohmann/json.hpp>
 
 #include <terralign/geo/file.hpp>
+#include <terralign/geo/number_text.hpp>
 
 #include "json_util.hpp"
-#include "text_util.hpp"
 
 namespace terralign::geo {
 

@@ -8,7 +8,7 @@
 #include <GeographicLib/PolarStereographic.hpp>
 #include <GeographicLib/TransverseMercator.hpp>
 
-#include "text_util.hpp"
+#include <terralign/geo/number_text.hpp>
 
 namespace terralign::geo {
 namespace {
@@ -209,7 +209,7 @@ std::string Crs::name() const {
     case Kind::PolarStereographic: return ups_north_ ? "EPSG:32661 (UPS north)" : "EPSG:32761 (UPS south)";
     case Kind::TransverseMercator: {
       std::ostringstream s;
-      if (epsg_) s << "EPSG:" << epsg_ << " (";
+      if (epsg_) s << "EPSG:" << std::to_string(epsg_) << " (";  // no locale's digit grouping
       s << "transverse Mercator lat_0=" << format_double(tm_.lat0_deg)
         << " lon_0=" << format_double(tm_.lon0_deg) << " k=" << format_double(tm_.k0)
         << " x_0=" << format_double(tm_.false_easting) << " y_0=" << format_double(tm_.false_northing)

@@ -11,8 +11,7 @@
 #include <tiffio.h>
 
 #include <terralign/geo/file.hpp>
-
-#include "text_util.hpp"
+#include <terralign/geo/number_text.hpp>
 
 namespace terralign::geo {
 namespace {

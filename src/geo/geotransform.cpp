@@ -1,4 +1,5 @@
 #include <terralign/geo/geotransform.hpp>
+#include <terralign/geo/number_text.hpp>
 #include <terralign/geo/numeric.hpp>
 
 #include <algorithm>
@@ -6,8 +7,6 @@
 #include <fstream>
 #include <sstream>
 #include <vector>
-
-#include "text_util.hpp"
 
 namespace terralign::geo {
 

@@ -5,13 +5,13 @@
 #include <cstdlib>
 #include <cstring>
 #include <limits>
-#include <sstream>
 #include <vector>
 
 #include <stb/stb_image.h>
 #include <stb/stb_image_write.h>
 
 #include <terralign/geo/file.hpp>
+#include <terralign/geo/number_text.hpp>
 
 namespace terralign::geo {
 
@@ -78,8 +78,9 @@ Result<ImageF> decode_pfm(const std::uint8_t* data, std::size_t size, const std:
   if (*end) return Error{name + ": PFM width '" + ws + "' is not an integer"};
   const long h = std::strtol(hs.c_str(), &end, 10);
   if (*end) return Error{name + ": PFM height '" + hs + "' is not an integer"};
-  const double scale = std::strtod(scales.c_str(), &end);
-  if (*end || scale == 0 || !std::isfinite(scale)) return Error{name + ": PFM scale '" + scales + "' is not a non-zero number"};
+  const auto parsed = parse_double(scales);
+  const double scale = parsed.ok() ? parsed.value() : 0;
+  if (scale == 0 || !std::isfinite(scale)) return Error{name + ": PFM scale '" + scales + "' is not a non-zero number"};
   if (w <= 0 || h <= 0 || w > 65536 || h > 65536)
     return Error{name + ": PFM size " + ws + " x " + hs + " is outside 1..65536"};
   const int ch = magic == "PF" ? 3 : 1;
@@ -110,9 +111,7 @@ Result<ImageF> read_pfm(const std::string& path) {
 
 Status save_pfm(const std::string& path, ImageView<const float> image) {
   if (image.empty() || image.channels != 1) return Error{path + ": PFM writer takes a non-empty 1-channel image"};
-  std::ostringstream header;
-  header << "Pf\n" << image.width << " " << image.height << "\n-1.0\n";
-  std::string out = header.str();
+  std::string out = "Pf\n" + std::to_string(image.width) + " " + std::to_string(image.height) + "\n-1.0\n";
   const std::size_t at = out.size();
   out.resize(at + static_cast<std::size_t>(image.width) * static_cast<std::size_t>(image.height) * 4);
   for (int y = 0; y < image.height; ++y) {

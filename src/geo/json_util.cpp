@@ -3,8 +3,7 @@
 #include <cmath>
 
 #include <terralign/geo/file.hpp>
-
-#include "text_util.hpp"
+#include <terralign/geo/number_text.hpp>
 
 namespace terralign::geo {
 

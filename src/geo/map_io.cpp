@@ -8,9 +8,9 @@
 
 #include <terralign/geo/file.hpp>
 #include <terralign/geo/image_io.hpp>
+#include <terralign/geo/number_text.hpp>
 
 #include "json_util.hpp"
-#include "text_util.hpp"
 
 namespace terralign::geo {
 namespace {

@@ -6,10 +6,8 @@
 #include <sstream>
 #include <vector>
 
-
+#include <terralign/geo/number_text.hpp>
 #include <terralign/geo/numeric.hpp>
-
-#include "text_util.hpp"
 
 namespace terralign::geo {
 namespace {

@@ -9,6 +9,7 @@
 #include <utility>
 
 #include <terralign/geo/float_environment.hpp>
+#include <terralign/geo/number_text.hpp>
 
 namespace terralign::iclk {
 namespace {
@@ -27,9 +28,10 @@ bool comment_value(const nn::WeightFile& weights, const std::string& key, std::s
   const std::string prefix = "# " + key + " ";
   while (std::getline(in, line)) {
     if (line.compare(0, prefix.size(), prefix) != 0) continue;
-    char* end = nullptr;
-    value = std::strtod(line.c_str() + prefix.size(), &end);
-    if (end == line.c_str() + prefix.size() || (*end && *end != ' ')) value = NAN;
+    // The value is the first word after the key (geo::parse_double: whatever the locale).
+    const std::size_t from = std::min(line.find_first_not_of(' ', prefix.size()), line.size());
+    const auto v = geo::parse_double(line.substr(from, line.find(' ', from) - from));
+    value = v.ok() ? v.value() : NAN;
     return true;
   }
   return false;
