@@ -1,20 +1,35 @@
-// The caller's floating-point environment (terralign/geo/float_environment.hpp): the onboard
-// path computes in the default one whatever its caller set, and gives the caller's back. Before
-// session 82 rounding upward moved every answer of the firmware's test, and a trap on
-// FE_INVALID killed the process in its first render.
+// What a program that embeds terralign may have set for its whole process, and terralign must
+// not depend on (session 82):
+// - the floating-point environment (terralign/geo/float_environment.hpp): the onboard path
+//   computes in the default one whatever its caller set, and gives the caller's back. Before,
+//   rounding upward moved every answer of the firmware's test, and a trap on FE_INVALID killed
+//   the process in its first render;
+// - the locale (terralign/geo/number_text.hpp): numbers are read and written in the "C"
+//   locale's terms. Before, under a locale with a decimal comma the shipped weight file's
+//   agreement threshold read as 1 instead of 1.25 and the learned tracker refused to set up.
+#include <clocale>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
+#include <fstream>
+#include <locale>
 #include <memory>
+#include <sstream>
 #include <string>
 
 #include <doctest/doctest.h>
 
+#include <terralign/geo/crs.hpp>
 #include <terralign/geo/float_environment.hpp>
+#include <terralign/geo/image_io.hpp>
+#include <terralign/geo/number_text.hpp>
+#include <terralign/iclk/deep_aligner.hpp>
 #include <terralign/nn/weights.hpp>
 #include <terralign/raster/renderer.hpp>
 
 #include "localizer.hpp"
 #include "nadir_scene.hpp"
+#include "support.hpp"
 
 using namespace terralign;
 
@@ -42,7 +57,87 @@ void check_same_bits(const cli::LocalizeOutput& a, const cli::LocalizeOutput& b)
   CHECK(std::string(a.reason) == b.reason);
 }
 
+// German numbers: a decimal comma, and a point between groups of three digits.
+struct CommaNumbers : std::numpunct<char> {
+  char do_decimal_point() const override { return ','; }
+  char do_thousands_sep() const override { return '.'; }
+  std::string do_grouping() const override { return "\3"; }
+};
+
+// While it lives, the process's C++ locale writes and reads numbers as CommaNumbers does, and
+// its C locale is de_DE.UTF-8's where this machine has it (scripts/install-deps.sh makes it);
+// the caller's are given back at the end.
+class CommaLocale {
+ public:
+  CommaLocale() : cpp_(std::locale::global(std::locale(std::locale::classic(), new CommaNumbers))) {
+    const char* was = std::setlocale(LC_ALL, nullptr);
+    c_was_ = was ? was : "C";
+    for (const char* name : {"de_DE.UTF-8", "de_DE.utf8"})
+      if (!c_set_) c_set_ = std::setlocale(LC_ALL, name) != nullptr;
+  }
+  ~CommaLocale() {
+    std::setlocale(LC_ALL, c_was_.c_str());
+    std::locale::global(cpp_);
+  }
+  bool c_set() const { return c_set_; }
+
+ private:
+  std::locale cpp_;
+  std::string c_was_;
+  bool c_set_ = false;
+};
+
 }  // namespace
+
+TEST_CASE("locale: a caller's decimal comma changes no number terralign reads or writes") {
+  auto weights = nn::read_weights(TERRALIGN_DEFAULT_WEIGHTS);
+  REQUIRE(weights.ok());
+  const auto threshold = iclk::DeepAligner::max_disagreement(weights.value());
+  REQUIRE(threshold.ok());
+  const std::string pfm = test::temp_dir() + "/locale.pfm";
+  ImageF depth(1024, 2, 1);
+  for (std::size_t i = 0; i < depth.pixels().size(); ++i) depth.pixels()[i] = 0.5f * static_cast<float>(i);
+
+  const CommaLocale comma;
+  std::ostringstream grouped;
+  grouped << 1024 << ' ' << 1.5;
+  REQUIRE(grouped.str() == "1.024 1,5");  // the C++ locale is in effect
+  if (comma.c_set()) {
+    char buf[16];
+    std::snprintf(buf, sizeof buf, "%.2f", 1.25);
+    REQUIRE(std::string(buf) == "1,25");  // and so is the C one
+  } else {
+    MESSAGE("no de_DE.UTF-8 locale here (scripts/install-deps.sh makes one): the C locale is not tried");
+  }
+
+  // The learned tracker's thresholds, read from the weight file's text.
+  const auto under_comma = iclk::DeepAligner::max_disagreement(weights.value());
+  REQUIRE(under_comma.ok());
+  CHECK(under_comma.value() == threshold.value());
+  iclk::TrackerOptions options;
+  const auto aligner = iclk::DeepAligner::create(weights.value(), 376, 240, options, 1);
+  CHECK_MESSAGE(aligner.ok(), (aligner.ok() ? std::string() : aligner.error().message));
+  // geo's numbers in text: poses, manifests, world files, messages.
+  CHECK(geo::parse_double("1.25").value() == 1.25);
+  CHECK(geo::parse_double(" +2.5e3").value() == 2500);
+  CHECK_FALSE(geo::parse_double("1,25").ok());
+  CHECK(geo::format_double(1234.5) == "1234.5");
+  CHECK(geo::format_double(0.1) == "0.1");
+  auto pose = geo::parse_pose("487450.5 5207437.25 1370 0 1 0 0");
+  REQUIRE(pose.ok());
+  CHECK(pose->t_W_C.x() == 487450.5);
+  CHECK(geo::format_pose(pose.value()) == "487450.5 5207437.25 1.37e+03 0 1 0 0");  // %g's shortest, as ever
+  CHECK(geo::Crs::from_epsg(26914).value().name().find("EPSG:26914 (") == 0);
+  // A PFM depth image: its header's numbers, written and read back.
+  REQUIRE(geo::save_pfm(pfm, depth.view()).ok());
+  std::ifstream f(pfm, std::ios::binary);
+  std::string head(15, '\0');
+  f.read(head.data(), 15);
+  CHECK(head == "Pf\n1024 2\n-1.0\n");
+  auto back = geo::read_pfm(pfm);
+  REQUIRE(back.ok());
+  CHECK(back->pixels() == depth.pixels());
+}
 
 TEST_CASE("float environment: a scope installs the default one and gives the caller's back") {
   REQUIRE(float_environment_is_default());
