@@ -112,7 +112,7 @@ Result<double> DeepAligner::agree_px(const nn::WeightFile& weights) {
 Result<std::unique_ptr<DeepAligner>> DeepAligner::create(const nn::WeightFile& weights, int width, int height,
                                                          const iclk::TrackerOptions& options, int threads,
                                                          int use_levels, ThreadPool* pool) {
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   TERRALIGN_TRY_ASSIGN(int levels, DeepAligner::levels(weights));
   if (use_levels < 0 || use_levels > levels)
     return Error{weights.name + ": " + std::to_string(use_levels) + " levels asked of weights with " +
@@ -323,7 +323,7 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::align_all(ImageView<con
                                                                    const iclk::SE3<float>& init) {
   TERRALIGN_ASSERT(ref_rgb.width == width_ && ref_rgb.height == height_ && ref_rgb.channels == 3,
                    "DeepAligner::align, align_to: a reference of another size than the aligner was built for");
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   const auto t0 = std::chrono::steady_clock::now();
   if (live_rgb) encode_pair(ref_rgb, *live_rgb);
   else encode(enc_[0], *pool_, ref_rgb, ref_f_, levels_);
@@ -345,7 +345,7 @@ const iclk::TrackResult<DeepAligner::Warp>& DeepAligner::refine(ImageView<const 
                                                                 bool learned_weights, bool agreement) {
   TERRALIGN_ASSERT(ref_rgb.width == width_ && ref_rgb.height == height_ && ref_rgb.channels == 3,
                    "DeepAligner::refine: an image of another size than the aligner was built for");
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   const auto t0 = std::chrono::steady_clock::now();
   levels = std::max(1, std::min(levels, levels_));
   encode(enc_[0], *pool_, ref_rgb, ref_f_, levels);  // the finest levels alone: the others do not run

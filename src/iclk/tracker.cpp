@@ -94,7 +94,7 @@ struct SE3Log<SE3<S>> {
 template <class S, class Warp, int C>
 Tracker<S, Warp, C>::Tracker(int width, int height, const TrackerOptions& options, ThreadPool* pool)
     : opt_(options), width_(width), height_(height) {
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   opt_.levels = std::max(1, std::min(6, opt_.levels));
   int w = width, h = height;
   levels_.resize(static_cast<std::size_t>(opt_.levels));
@@ -714,7 +714,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::build_and_solve(ImageView<const fl
                                                                const ImageView<const float>* live,
                                                                const Pinhole<S>& K0, const Params& init,
                                                                const ImageView<const float>* weights) {
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   TrackResult<Warp>& R = result_;
   R = TrackResult<Warp>{};
   R.params = init;
@@ -733,7 +733,7 @@ const TrackResult<Warp>& Tracker<S, Warp, C>::align_levels(const ImageView<const
                                                             const ImageView<const float>* live_levels,
                                                             const Pinhole<S>& K0, const Params& init,
                                                             LevelWeights* weights) {
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   TrackResult<Warp>& R = result_;
   R = TrackResult<Warp>{};
   R.params = init;

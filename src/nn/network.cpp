@@ -102,7 +102,7 @@ int Network::index_of(const std::string& name) const {
 Result<std::unique_ptr<Network>> Network::plan(const WeightFile& weights, const std::string& net, int width, int height,
                                                int threads, Simd simd, Memory memory, ThreadPool* pool,
                                                int winograd_tile) {
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   if (winograd_tile != 0 && winograd_tile != 2 && winograd_tile != 4)
     return Error{"network " + net + ": Winograd's tile " + std::to_string(winograd_tile) + " is not 0 (direct), 2 or 4"};
   TERRALIGN_TRY_ASSIGN(const auto nets, parse_architecture(weights.architecture, weights.name));
@@ -368,7 +368,7 @@ void Network::forward() { forward_until(static_cast<int>(steps_.size()) - 1); }
 void Network::forward_until(int last_step) { forward_until(last_step, *pool_); }
 
 void Network::forward_until(int last_step, ThreadPool& on) {
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   TERRALIGN_ASSERT(bound_, "Network::forward: a Memory::External network before bind()");
   TERRALIGN_ASSERT(on.threads() <= pool_->threads(), "Network::forward_until: a pool of more threads than planned");
   const std::size_t end = last_step < 0 ? 0 : std::min(steps_.size(), static_cast<std::size_t>(last_step) + 1);

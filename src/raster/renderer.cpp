@@ -279,7 +279,7 @@ void build_mips(const geo::Layer& L, LayerTexture& T, ThreadPool& pool) {
 
 Result<std::unique_ptr<Renderer>> Renderer::create(const geo::Map& map, const geo::CameraModel& camera,
                                                    const RenderOptions& options, ThreadPool* pool) {
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   TERRALIGN_TRY(camera.validate("camera"));
   if (options.threads < 1 || options.threads > 64)
     return Error{"render threads " + std::to_string(options.threads) + " is outside 1..64"};
@@ -1151,7 +1151,7 @@ void Renderer::Impl::resolve_rows(int row0, int row1) {
 
 
 Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* stats) {
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   Impl& m = *impl_;
   const auto t0 = Clock::now();
   auto invalidate = [&] {

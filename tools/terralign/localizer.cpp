@@ -20,7 +20,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
                                                      const std::vector<std::string>& layers,
                                                      const iclk::TrackerOptions& options, int threads,
                                                      const nn::WeightFile* weights, const LocalizerSizes& sizes) {
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   if (camera.model != geo::DistortionModel::None)
     return Error{"Localizer: the camera must be a pinhole (undistort the live image first)"};
   if (layers.empty()) return Error{"Localizer: no reference layer given (layers: " + map.layer_names() + ")"};
@@ -204,7 +204,7 @@ const iclk::TrackResult<iclk::SE3DepthWarp<float>>& Localizer::align_once(ImageV
 
 Result<LocalizeOutput> Localizer::localize(ImageView<const std::uint8_t> live, const geo::Pose& prior,
                                            const Eigen::Quaterniond* attitude, double altitude) {
-  const FloatEnvironmentScope float_environment;  // terralign/geo/float_environment.hpp
+  const FloatEnvironmentScope float_environment;
   if (live.width != camera_.width || live.height != camera_.height || live.channels != 3)
     return Error{"live image is " + std::to_string(live.width) + " x " + std::to_string(live.height) + " x " +
                  std::to_string(live.channels) + ", the camera is " + std::to_string(camera_.width) + " x " +
