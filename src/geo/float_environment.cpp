@@ -3,7 +3,7 @@
 #include <cstring>
 
 #if defined(__ARM_ARCH_PROFILE) && __ARM_ARCH_PROFILE == 'M'
-#define TERRALIGN_FPSCR 1  // bare metal: newlib's <fenv.h> is a placeholder there
+#define TERRALIGN_FPSCR 1  // bare metal: newlib's <fenv.h> implements nothing for ARM
 #else
 #include <cfenv>
 #if defined(__SSE__) || defined(__x86_64__)
