@@ -7,6 +7,7 @@
 #else
 #include <cfenv>
 #if defined(__SSE__) || defined(__x86_64__)
+#define TERRALIGN_MXCSR 1  // SSE's control register: FTZ, DAZ and the trap masks
 #include <xmmintrin.h>
 #endif
 #endif
@@ -36,7 +37,7 @@ void write_fpscr([[maybe_unused]] std::uint32_t v) {
 #else
 static_assert(sizeof(std::fenv_t) <= 64, "FloatEnvironmentScope::saved_ is too small for this C library's fenv_t");
 
-#if defined(__SSE__) || defined(__x86_64__)
+#if defined(TERRALIGN_MXCSR)
 constexpr unsigned kMxcsrFlushBits = 0x8040u;  // FTZ (bit 15) and DAZ (bit 6)
 #endif
 #if defined(__aarch64__)
@@ -48,6 +49,8 @@ std::uint64_t read_fpcr() {
   __asm__ volatile("mrs %0, fpcr" : "=r"(v));
   return v;
 }
+
+void write_fpcr(std::uint64_t v) { __asm__ volatile("msr fpcr, %0" : : "r"(v) : "memory"); }
 #endif
 #endif
 
@@ -63,12 +66,11 @@ FloatEnvironmentScope::FloatEnvironmentScope() noexcept {
   std::fegetenv(&env);
   std::memcpy(saved_, &env, sizeof env);
   std::fesetenv(FE_DFL_ENV);
-#if defined(__SSE__) || defined(__x86_64__)
+#if defined(TERRALIGN_MXCSR)
   _mm_setcsr(_mm_getcsr() & ~kMxcsrFlushBits);
 #endif
 #if defined(__aarch64__)
-  const std::uint64_t fpcr = read_fpcr() & ~kFpcrModeBits;
-  __asm__ volatile("msr fpcr, %0" : : "r"(fpcr) : "memory");
+  write_fpcr(read_fpcr() & ~kFpcrModeBits);
 #endif
 #endif
 }
@@ -90,7 +92,7 @@ bool float_environment_is_default() noexcept {
   return (read_fpscr() & kModeBits) == 0;
 #else
   bool ok = std::fegetround() == FE_TONEAREST;
-#if defined(__SSE__) || defined(__x86_64__)
+#if defined(TERRALIGN_MXCSR)
   // The exception masks (bits 7-12) all set: no SSE trap.
   ok = ok && (_mm_getcsr() & kMxcsrFlushBits) == 0 && (_mm_getcsr() & 0x1f80u) == 0x1f80u;
 #endif
@@ -107,15 +109,14 @@ HostileFloatEnvironment::HostileFloatEnvironment() noexcept {
   write_fpscr(read_fpscr() | (1u << 22) | (1u << 24) | (1u << 25));  // RMode +inf, FZ, DN
 #else
   std::fesetround(FE_UPWARD);
-#if defined(__SSE__) || defined(__x86_64__)
+#if defined(TERRALIGN_MXCSR)
   // Unmask invalid (bit 7) and divide-by-zero (bit 9): SSE traps on them.
   _mm_setcsr((_mm_getcsr() | kMxcsrFlushBits) & ~((1u << 7) | (1u << 9)));
 #endif
 #if defined(__aarch64__)
   // FZ and DN, and the trap enables IOE (bit 8) and DZE (bit 9): a core without traps keeps
   // those two zero.
-  const std::uint64_t fpcr = read_fpcr() | (1ull << 24) | (1ull << 25) | (1ull << 8) | (1ull << 9);
-  __asm__ volatile("msr fpcr, %0" : : "r"(fpcr) : "memory");
+  write_fpcr(read_fpcr() | (1ull << 24) | (1ull << 25) | (1ull << 8) | (1ull << 9));
 #endif
 #endif
 }
@@ -129,7 +130,7 @@ const char* HostileFloatEnvironment::description() noexcept {
 #else
   return "nothing (no FPU)";
 #endif
-#elif defined(__SSE__) || defined(__x86_64__)
+#elif defined(TERRALIGN_MXCSR)
   return "rounding upward, flush to zero and denormals are zero, traps on FE_INVALID and FE_DIVBYZERO";
 #elif defined(__aarch64__)
   return "rounding upward, flush to zero, default NaN, traps on FE_INVALID and FE_DIVBYZERO where the core has them";
