@@ -16,6 +16,7 @@
 #include <memory>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include <doctest/doctest.h>
 
@@ -121,6 +122,19 @@ TEST_CASE("locale: a caller's decimal comma changes no number terralign reads or
   CHECK(geo::parse_double("1.25").value() == 1.25);
   CHECK(geo::parse_double(" +2.5e3").value() == 2500);
   CHECK_FALSE(geo::parse_double("1,25").ok());
+  // The command-line tools' options and text files: whole tokens only (session 83: "700:900m"
+  // and "classic:20x" were read as 700:900 and classic:20, and "--seed -1" as 2^64 - 1).
+  CHECK(geo::parse_numbers("700.5:900", ':').value() == std::vector<double>{700.5, 900});
+  CHECK(geo::parse_numbers(" 0.5\t12.25  -3 ", ' ').value() == std::vector<double>{0.5, 12.25, -3});
+  CHECK(geo::parse_numbers("", ' ').value().empty());
+  CHECK_FALSE(geo::parse_numbers("700:900m", ':').ok());
+  CHECK_FALSE(geo::parse_numbers("700:", ':').ok());
+  CHECK_FALSE(geo::parse_numbers("1,,2", ',').ok());
+  CHECK(geo::parse_integer("-12").value() == -12);
+  CHECK(geo::parse_integer("+1000").value() == 1000);
+  CHECK_FALSE(geo::parse_integer("20x").ok());
+  CHECK_FALSE(geo::parse_integer("1.5").ok());
+  CHECK_FALSE(geo::parse_integer("99999999999999999999").ok());
   CHECK(geo::format_double(1234.5) == "1234.5");
   CHECK(geo::format_double(0.1) == "0.1");
   auto pose = geo::parse_pose("487450.5 5207437.25 1370 0 1 0 0");

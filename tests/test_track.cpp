@@ -668,6 +668,11 @@ TEST_CASE("track holds each answer's altitude to an altimeter's, frame by frame,
   refused("--altimeter " + dir + "/short.txt --altitude-prior 2", "short.txt: 1 altimeter readings for 6 frames");
   std::ofstream(dir + "/nan.txt") << truth[0].first << " nan\n";
   refused("--altimeter " + dir + "/nan.txt --altitude-prior 2", "nan.txt:1: expected 'timestamp z'");
+  // Whole numbers only (session 83: "1000m" was read as 1000, a third column ignored).
+  std::ofstream(dir + "/unit.txt") << truth[0].first << " 1000m\n";
+  refused("--altimeter " + dir + "/unit.txt --altitude-prior 2", "unit.txt:1: expected 'timestamp z'");
+  std::ofstream(dir + "/three.txt") << truth[0].first << " 1000 2\n";
+  refused("--altimeter " + dir + "/three.txt --altitude-prior 2", "three.txt:1: expected 'timestamp z'");
   refused("--altimeter " + dir + "/baro.txt --altitude-prior x", "--altitude-prior 'x' must be in [0, 1000] m");
 }
 

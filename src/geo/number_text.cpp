@@ -6,23 +6,29 @@
 #include <cstdio>
 #include <cstring>
 #include <system_error>
+#include <type_traits>
 
 namespace terralign::geo {
 
-Result<double> parse_double(const std::string& token) {
-  if (token.empty()) return Error{"empty text where a number was expected"};
+namespace {
+
+bool is_blank(char c) { return c == ' ' || (c >= '\t' && c <= '\r'); }
+
+// std::from_chars over the whole token after strtod's leading white space and '+'.
+template <class T>
+Result<T> parse_whole(const std::string& token, const char* what) {
+  if (token.empty()) return Error{std::string("empty text where ") + what + " was expected"};
   const char* first = token.data();
   const char* const last = first + token.size();
-  while (first != last && (*first == ' ' || (*first >= '\t' && *first <= '\r'))) ++first;
+  while (first != last && is_blank(*first)) ++first;
   if (first != last && *first == '+') ++first;
-  double v = 0;
+  T v{};
   const auto [end, ec] = std::from_chars(first, last, v);
-  if (ec == std::errc::result_out_of_range) return Error{"'" + token + "' is out of the range of a double"};
-  if (ec != std::errc() || end != last) return Error{"'" + token + "' is not a number"};
+  if (ec == std::errc::result_out_of_range)
+    return Error{"'" + token + "' is out of the range of " + (std::is_integral_v<T> ? "a long long" : "a double")};
+  if (ec != std::errc() || end != last) return Error{"'" + token + "' is not " + what};
   return v;
 }
-
-namespace {
 
 // The C library's "%.*g" with the locale's decimal point turned back to '.' (printf groups no
 // digits without the ' flag, so the point is all a locale changes). Not std::to_chars: its
@@ -40,6 +46,28 @@ std::string printf_g(double v, int prec) {
 }
 
 }  // namespace
+
+Result<double> parse_double(const std::string& token) { return parse_whole<double>(token, "a number"); }
+
+Result<long long> parse_integer(const std::string& token) { return parse_whole<long long>(token, "an integer"); }
+
+Result<std::vector<double>> parse_numbers(const std::string& text, char separator) {
+  std::vector<double> out;
+  std::size_t a = 0;
+  while (a <= text.size()) {
+    if (separator == ' ') {
+      while (a < text.size() && is_blank(text[a])) ++a;
+      if (a == text.size()) break;
+    }
+    std::size_t b = a;
+    while (b < text.size() && (separator == ' ' ? !is_blank(text[b]) : text[b] != separator)) ++b;
+    auto v = parse_double(text.substr(a, b - a));
+    if (!v.ok()) return v.error();
+    out.push_back(v.value());
+    a = b + 1;
+  }
+  return out;
+}
 
 std::string format_double(double v) {
   // The shortest precision that reads back the same; 17 digits always do.

@@ -2,11 +2,10 @@
 
 #include "localizer.hpp"
 
-#include <cerrno>
 #include <cmath>
-#include <cstdlib>
 #include <sys/stat.h>
 
+#include <terralign/geo/number_text.hpp>
 #include <terralign/iclk/tracker.hpp>
 
 namespace terralign::cli {
@@ -44,21 +43,27 @@ Result<std::string> Args::required(const std::string& key) const {
 Result<int> Args::get_int(const std::string& key, int def, int lo, int hi) const {
   if (!has(key)) return def;
   const std::string s = get(key);
-  char* end = nullptr;
-  errno = 0;
-  const long v = std::strtol(s.c_str(), &end, 10);
-  if (s.empty() || *end || errno || v < lo || v > hi)
+  const auto v = geo::parse_integer(s);
+  if (!v.ok() || v.value() < lo || v.value() > hi)
     return Error{"--" + key + " '" + s + "' must be an integer in [" + std::to_string(lo) + ", " + std::to_string(hi) + "]"};
-  return static_cast<int>(v);
+  return static_cast<int>(v.value());
 }
 
 Result<double> Args::get_double(const std::string& key, double def) const {
   if (!has(key)) return def;
   const std::string s = get(key);
-  char* end = nullptr;
-  const double v = std::strtod(s.c_str(), &end);
-  if (s.empty() || *end || !std::isfinite(v)) return Error{"--" + key + " '" + s + "' must be a finite number"};
-  return v;
+  const auto v = geo::parse_double(s);
+  if (!v.ok() || !std::isfinite(v.value())) return Error{"--" + key + " '" + s + "' must be a finite number"};
+  return v.value();
+}
+
+Result<std::array<double, 2>> altitude_range(const Args& args, std::array<double, 2> def) {
+  if (!args.has("altitude")) return def;
+  const std::string text = args.get("altitude");
+  const auto v = geo::parse_numbers(text, ':');
+  if (!v.ok() || v->size() != 2 || !((*v)[0] > 0) || !((*v)[1] >= (*v)[0]) || !std::isfinite((*v)[1]))
+    return Error{"--altitude '" + text + "' must be LO:HI metres with 0 < LO <= HI"};
+  return std::array<double, 2>{(*v)[0], (*v)[1]};
 }
 
 std::vector<std::string> split_commas(const std::string& s) {

@@ -1,6 +1,7 @@
 // Command-line arguments: "--key value" pairs and "--flag" switches after a command name.
 #pragma once
 
+#include <array>
 #include <map>
 #include <set>
 #include <string>
@@ -30,6 +31,10 @@ class Args {
  private:
   std::map<std::string, std::string> values_;
 };
+
+// --altitude LO:HI, the sampled poses' heights above the ground in metres (eval, dataset):
+// `def` without the option; an error names the text unless 0 < LO <= HI, both finite.
+Result<std::array<double, 2>> altitude_range(const Args& args, std::array<double, 2> def);
 
 // "a,b,c" -> {"a", "b", "c"} (empty fields kept, so callers can refuse them by name).
 std::vector<std::string> split_commas(const std::string& s);

@@ -51,10 +51,9 @@ int run_dataset(const std::vector<std::string>& argv) {
   if (!fraction.ok() || !(fraction.value() > 0 && fraction.value() < 1))
     return usage_error("dataset", Error{"--split-fraction must be in (0, 1)"});
   if (!scale.ok() || !(scale.value() > 0 && scale.value() <= 4)) return usage_error("dataset", Error{"--scale must be in (0, 4]"});
-  double lo = 700, hi = 900;
-  if (args->has("altitude") &&
-      (std::sscanf(args->get("altitude").c_str(), "%lf:%lf", &lo, &hi) != 2 || !(lo > 0) || !(hi >= lo)))
-    return usage_error("dataset", Error{"--altitude '" + args->get("altitude") + "' must be LO:HI metres with 0 < LO <= HI"});
+  const auto altitude = altitude_range(args.value(), {700, 900});
+  if (!altitude.ok()) return usage_error("dataset", altitude.error());
+  const auto [lo, hi] = altitude.value();
   auto map = geo::load_map(args->get("map"));
   if (!map.ok()) return fail(map.error());
   auto cam_in = geo::load_camera(args->get("camera"));

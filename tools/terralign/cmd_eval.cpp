@@ -8,6 +8,7 @@
 
 #include <terralign/geo/file.hpp>
 #include <terralign/geo/image_io.hpp>
+#include <terralign/geo/number_text.hpp>
 #include <terralign/geo/numeric.hpp>
 
 #include "args.hpp"
@@ -141,15 +142,14 @@ int run_eval(const std::vector<std::string>& argv) {
     if (!args->has(k)) return usage_error("eval", Error{std::string("missing required option --") + k});
   auto count = args->get_int("count", 0, 1, 100000);
   if (!count.ok()) return usage_error("eval", count.error());
-  char* end = nullptr;
   const std::string seed_text = args->get("seed");
-  const unsigned long long seed = std::strtoull(seed_text.c_str(), &end, 10);
-  if (seed_text.empty() || *end) return usage_error("eval", Error{"--seed '" + seed_text + "' must be a non-negative integer"});
-  const std::string alt = args->get("altitude");
-  const auto colon = alt.find(':');
-  double lo = 0, hi = 0;
-  if (colon == std::string::npos || std::sscanf(alt.c_str(), "%lf:%lf", &lo, &hi) != 2 || !(lo > 0) || !(hi >= lo))
-    return usage_error("eval", Error{"--altitude '" + alt + "' must be LO:HI metres with 0 < LO <= HI"});
+  const auto seed_value = geo::parse_integer(seed_text);
+  if (!seed_value.ok() || seed_value.value() < 0)
+    return usage_error("eval", Error{"--seed '" + seed_text + "' must be a non-negative integer"});
+  const auto seed = static_cast<unsigned long long>(seed_value.value());
+  const auto altitude = altitude_range(args.value(), {0, 0});
+  if (!altitude.ok()) return usage_error("eval", altitude.error());
+  const auto [lo, hi] = altitude.value();
   auto tilt = args->get_double("tilt", 0.0);
   if (!tilt.ok() || tilt.value() < 0 || tilt.value() > 60) return usage_error("eval", Error{"--tilt must be in [0, 60] degrees"});
   auto threads = args->get_int("threads", 2, 1, 64);
@@ -190,19 +190,14 @@ int run_eval(const std::vector<std::string>& argv) {
         methods.emplace_back();
         methods.back().name = m;
         methods.back().iterations = 0;
-      } else if (m.rfind("classic:", 0) == 0) {
-        const int n = std::atoi(m.c_str() + 8);
-        if (n < 1 || n > 1000) return usage_error("eval", Error{"method '" + m + "': iterations must be 1..1000"});
+      } else if (m.rfind("classic:", 0) == 0 || m.rfind("nn:", 0) == 0) {
+        const auto n = geo::parse_integer(m.substr(m.find(':') + 1));
+        if (!n.ok() || n.value() < 1 || n.value() > 1000)
+          return usage_error("eval", Error{"method '" + m + "': iterations must be an integer in [1, 1000]"});
         methods.emplace_back();
         methods.back().name = m;
-        methods.back().iterations = n;
-      } else if (m.rfind("nn:", 0) == 0) {
-        const int n = std::atoi(m.c_str() + 3);
-        if (n < 1 || n > 1000) return usage_error("eval", Error{"method '" + m + "': iterations must be 1..1000"});
-        methods.emplace_back();
-        methods.back().name = m;
-        methods.back().iterations = n;
-        methods.back().learned = true;
+        methods.back().iterations = static_cast<int>(n.value());
+        methods.back().learned = m[0] == 'n';
       } else {
         return usage_error("eval", Error{"unknown method '" + m + "' (init, classic:N, nn:N)"});
       }
@@ -238,8 +233,10 @@ int run_eval(const std::vector<std::string>& argv) {
     if (auto st = ensure_dir(overlays); !st.ok()) return fail(st.error());
   geo::Extent area = map->common_extent();
   if (args->has("area")) {
-    geo::Extent a;
-    if (std::sscanf(args->get("area").c_str(), "%lf,%lf,%lf,%lf", &a.min_x, &a.min_y, &a.max_x, &a.max_y) != 4 || a.empty())
+    const auto v = geo::parse_numbers(args->get("area"), ',');
+    const bool four = v.ok() && v->size() == 4 && std::all_of(v->begin(), v->end(), [](double x) { return std::isfinite(x); });
+    const geo::Extent a = four ? geo::Extent{(*v)[0], (*v)[1], (*v)[2], (*v)[3]} : geo::Extent{};
+    if (a.empty())
       return usage_error("eval", Error{"--area '" + args->get("area") + "' must be MINX,MINY,MAXX,MAXY in map coordinates"});
     area = area.intersect(a);
     if (area.empty()) return fail(Error{"--area '" + args->get("area") + "' does not overlap the map"});

@@ -2,10 +2,10 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
-#include <sstream>
 
 #include <terralign/geo/file.hpp>
 #include <terralign/geo/image_io.hpp>
+#include <terralign/geo/number_text.hpp>
 #include <terralign/geo/numeric.hpp>
 
 #include "args.hpp"
@@ -54,11 +54,10 @@ Result<std::vector<Waypoint>> path_points(const std::string& path, const geo::Ex
     while (std::getline(in, line)) {
       ++n;
       if (line.empty() || line[0] == '#') continue;
-      std::istringstream s(line);
-      Waypoint w;
-      if (!(s >> w.x >> w.y) || !std::isfinite(w.x) || !std::isfinite(w.y))
-        return Error{path + ":" + std::to_string(n) + ": expected 'x y' map coordinates"};
-      pts.push_back(w);
+      const auto xy = geo::parse_numbers(line, ' ');
+      if (!xy.ok() || xy->size() != 2 || !std::isfinite((*xy)[0]) || !std::isfinite((*xy)[1]))
+        return Error{path + ":" + std::to_string(n) + ": expected 'x y' map coordinates, got '" + line + "'"};
+      pts.push_back(Waypoint{(*xy)[0], (*xy)[1]});
     }
     if (pts.size() < 2) return Error{path + ": a path needs at least 2 waypoints"};
   }

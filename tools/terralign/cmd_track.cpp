@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 
 #include <terralign/geo/file.hpp>
+#include <terralign/geo/number_text.hpp>
 
 #include "args.hpp"
 #include "commands.hpp"
@@ -45,9 +46,13 @@ Result<std::vector<Frame>> read_list(const std::string& list) {
     ++n;
     if (line.find_first_not_of(" \t\r") == std::string::npos || line[0] == '#') continue;
     std::istringstream s(line);
+    std::string time, rest;
     Frame f{0, "", n};
-    if (!(s >> f.t >> f.path) || !std::isfinite(f.t))
-      return Error{list + ":" + std::to_string(n) + ": expected 'timestamp image-path'"};
+    const bool two = (s >> time >> f.path) && !(s >> rest);
+    const auto t = geo::parse_double(time);
+    if (!two || !t.ok() || !std::isfinite(t.value()))
+      return Error{list + ":" + std::to_string(n) + ": expected 'timestamp image-path', got '" + line + "'"};
+    f.t = t.value();
     if (f.path[0] != '/') f.path = dir + f.path;
     frames.push_back(f);
   }
@@ -76,12 +81,13 @@ Result<std::vector<Reading>> read_readings(const std::string& path, const std::v
     ++number;
     if (line.find_first_not_of(" \t\r") == std::string::npos || line[0] == '#') continue;
     const std::string where = path + ":" + std::to_string(number) + ": ";
-    std::istringstream s(line);
-    double t = 0;
+    const auto values = geo::parse_numbers(line, ' ');
+    if (!values.ok() || values->size() != static_cast<std::size_t>(n) + 1 ||
+        !std::all_of(values->begin(), values->end(), [](double v) { return std::isfinite(v); }))
+      return Error{where + "expected '" + fields + "' (finite numbers), got '" + line + "'"};
+    const double t = (*values)[0];
     Reading r{{}, where};
-    bool ok = static_cast<bool>(s >> t) && std::isfinite(t);
-    for (auto k = 0u; k < static_cast<unsigned>(n) && ok; ++k) ok = static_cast<bool>(s >> r.v[k]) && std::isfinite(r.v[k]);
-    if (!ok) return Error{where + "expected '" + fields + "' (finite numbers), got '" + line + "'"};
+    std::copy(values->begin() + 1, values->end(), r.v.begin());
     if (auto st = check(r); !st.ok()) return st.error();
     if (out.size() >= frames.size())
       return Error{where + "more " + what + " than the " + std::to_string(frames.size()) + " frames"};
@@ -123,10 +129,10 @@ Result<std::vector<double>> read_altimeter(const std::string& path, const std::v
 
 // "vx vy vz" in metres a second along the map's axes, finite.
 Result<Eigen::Vector3d> parse_velocity(const std::string& text) {
-  std::istringstream s(text);
-  Eigen::Vector3d v;
-  std::string rest;
-  if (!(s >> v.x() >> v.y() >> v.z()) || (s >> rest) || !v.allFinite())
+  const auto values = geo::parse_numbers(text, ' ');
+  Eigen::Vector3d v = Eigen::Vector3d::Constant(std::nan(""));
+  if (values.ok() && values->size() == 3) v = Eigen::Vector3d((*values)[0], (*values)[1], (*values)[2]);
+  if (!v.allFinite())
     return Error{"--init-velocity '" + text + "' must be three finite numbers 'vx vy vz' (m/s along the map's axes)"};
   return v;
 }

@@ -9,6 +9,7 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include <terralign/geo/result.hpp>
 
@@ -18,6 +19,13 @@ namespace terralign::geo {
 // strtod skips them; "nan" and "inf" parse (the caller decides); a value beyond a double's
 // range, either way, is an error.
 Result<double> parse_double(const std::string& token);
+// Parses a whole token as a base-10 integer, with parse_double's leading white space and '+';
+// a value beyond a long long's range is an error.
+Result<long long> parse_integer(const std::string& token);
+// The numbers of `text` split at `separator`, each a whole token through parse_double. A
+// blank separator (' ') splits at runs of white space and keeps no empty field; any other
+// keeps them, so "700:" is an error, not one number.
+Result<std::vector<double>> parse_numbers(const std::string& text, char separator);
 // The shortest "%g"-style text ("C" locale) that reads back as the same double.
 std::string format_double(double v);
 
