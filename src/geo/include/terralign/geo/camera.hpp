@@ -107,6 +107,8 @@ Eigen::Matrix<S, 2, 1> CameraModel::distort(const Eigen::Matrix<S, 2, 1>& xn,
       return {s * x, s * y};
     }
   }
+  // No model of the enum's (a value cast from outside it): no distortion, as None.
+  if (J) J->setIdentity();
   return xn;
 }
 
