@@ -24,7 +24,9 @@ namespace terralign::geo {
 // Refuse rasters that would need more memory than the caller allows.
 struct RasterLimits {
   std::int64_t max_side = 65536;                   // pixels, per axis
-  std::int64_t max_bytes = std::int64_t{2} << 30;  // decoded size, bytes
+  // Decoded size, bytes: 2 GiB, or 512 MiB in a 32-bit process (whose 2-4 GiB of address
+  // space must hold the file's bytes and the decoded raster at once).
+  std::int64_t max_bytes = sizeof(void*) >= 8 ? std::int64_t{2} << 30 : std::int64_t{512} << 20;
 };
 
 enum class SampleType { U8, I16, U16, F32 };

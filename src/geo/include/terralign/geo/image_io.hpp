@@ -10,12 +10,15 @@
 
 namespace terralign::geo {
 
+// The default limit of load_image and decode_image: 2^30 pixels, or 2^27 in a 32-bit process
+// (at 4 channels, 512 MiB of its 2-4 GiB of address space).
+inline constexpr std::int64_t kMaxImagePixels = sizeof(void*) >= 8 ? std::int64_t{1} << 30 : std::int64_t{1} << 27;
+
 // Loads an 8-bit image with `channels` channels (1, 3 or 4; stb converts), refusing one
 // larger than max_pixels.
-Result<ImageU8> load_image(const std::string& path, int channels = 3,
-                           std::int64_t max_pixels = std::int64_t{1} << 30);
+Result<ImageU8> load_image(const std::string& path, int channels = 3, std::int64_t max_pixels = kMaxImagePixels);
 Result<ImageU8> decode_image(const std::uint8_t* data, std::size_t size, const std::string& name,
-                             int channels = 3, std::int64_t max_pixels = std::int64_t{1} << 30);
+                             int channels = 3, std::int64_t max_pixels = kMaxImagePixels);
 
 // Writes a PNG (1, 3 or 4 channels) atomically: a failed write leaves any old file intact.
 Status save_png(const std::string& path, ImageView<const std::uint8_t> image);
