@@ -2,6 +2,7 @@
 
 #include "localizer.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <sys/stat.h>
 
@@ -57,11 +58,18 @@ Result<double> Args::get_double(const std::string& key, double def) const {
   return v.value();
 }
 
+std::optional<std::vector<double>> finite_numbers(const std::string& text, char separator, std::size_t count) {
+  auto v = geo::parse_numbers(text, separator);
+  if (!v.ok() || v->size() != count || !std::all_of(v->begin(), v->end(), [](double x) { return std::isfinite(x); }))
+    return std::nullopt;
+  return std::move(v.value());
+}
+
 Result<std::array<double, 2>> altitude_range(const Args& args, std::array<double, 2> def) {
   if (!args.has("altitude")) return def;
   const std::string text = args.get("altitude");
-  const auto v = geo::parse_numbers(text, ':');
-  if (!v.ok() || v->size() != 2 || !((*v)[0] > 0) || !((*v)[1] >= (*v)[0]) || !std::isfinite((*v)[1]))
+  const auto v = finite_numbers(text, ':', 2);
+  if (!v || !((*v)[0] > 0) || !((*v)[1] >= (*v)[0]))
     return Error{"--altitude '" + text + "' must be LO:HI metres with 0 < LO <= HI"};
   return std::array<double, 2>{(*v)[0], (*v)[1]};
 }

@@ -3,6 +3,7 @@
 
 #include <array>
 #include <map>
+#include <optional>
 #include <set>
 #include <string>
 #include <vector>
@@ -35,6 +36,10 @@ class Args {
 // --altitude LO:HI, the sampled poses' heights above the ground in metres (eval, dataset):
 // `def` without the option; an error names the text unless 0 < LO <= HI, both finite.
 Result<std::array<double, 2>> altitude_range(const Args& args, std::array<double, 2> def);
+
+// Exactly `count` finite numbers of `text` split at `separator` (geo::parse_numbers' rules), or
+// none: the caller's error names its option or line and what it expects.
+std::optional<std::vector<double>> finite_numbers(const std::string& text, char separator, std::size_t count);
 
 // "a,b,c" -> {"a", "b", "c"} (empty fields kept, so callers can refuse them by name).
 std::vector<std::string> split_commas(const std::string& s);

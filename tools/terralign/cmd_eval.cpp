@@ -233,9 +233,8 @@ int run_eval(const std::vector<std::string>& argv) {
     if (auto st = ensure_dir(overlays); !st.ok()) return fail(st.error());
   geo::Extent area = map->common_extent();
   if (args->has("area")) {
-    const auto v = geo::parse_numbers(args->get("area"), ',');
-    const bool four = v.ok() && v->size() == 4 && std::all_of(v->begin(), v->end(), [](double x) { return std::isfinite(x); });
-    const geo::Extent a = four ? geo::Extent{(*v)[0], (*v)[1], (*v)[2], (*v)[3]} : geo::Extent{};
+    const auto v = finite_numbers(args->get("area"), ',', 4);
+    const geo::Extent a = v ? geo::Extent{(*v)[0], (*v)[1], (*v)[2], (*v)[3]} : geo::Extent{};
     if (a.empty())
       return usage_error("eval", Error{"--area '" + args->get("area") + "' must be MINX,MINY,MAXX,MAXY in map coordinates"});
     area = area.intersect(a);

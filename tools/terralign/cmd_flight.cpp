@@ -5,7 +5,6 @@
 
 #include <terralign/geo/file.hpp>
 #include <terralign/geo/image_io.hpp>
-#include <terralign/geo/number_text.hpp>
 #include <terralign/geo/numeric.hpp>
 
 #include "args.hpp"
@@ -54,8 +53,8 @@ Result<std::vector<Waypoint>> path_points(const std::string& path, const geo::Ex
     while (std::getline(in, line)) {
       ++n;
       if (line.empty() || line[0] == '#') continue;
-      const auto xy = geo::parse_numbers(line, ' ');
-      if (!xy.ok() || xy->size() != 2 || !std::isfinite((*xy)[0]) || !std::isfinite((*xy)[1]))
+      const auto xy = finite_numbers(line, ' ', 2);
+      if (!xy)
         return Error{path + ":" + std::to_string(n) + ": expected 'x y' map coordinates, got '" + line + "'"};
       pts.push_back(Waypoint{(*xy)[0], (*xy)[1]});
     }

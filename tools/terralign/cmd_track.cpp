@@ -81,9 +81,8 @@ Result<std::vector<Reading>> read_readings(const std::string& path, const std::v
     ++number;
     if (line.find_first_not_of(" \t\r") == std::string::npos || line[0] == '#') continue;
     const std::string where = path + ":" + std::to_string(number) + ": ";
-    const auto values = geo::parse_numbers(line, ' ');
-    if (!values.ok() || values->size() != static_cast<std::size_t>(n) + 1 ||
-        !std::all_of(values->begin(), values->end(), [](double v) { return std::isfinite(v); }))
+    const auto values = finite_numbers(line, ' ', static_cast<std::size_t>(n) + 1);
+    if (!values)
       return Error{where + "expected '" + fields + "' (finite numbers), got '" + line + "'"};
     const double t = (*values)[0];
     Reading r{{}, where};
@@ -129,12 +128,9 @@ Result<std::vector<double>> read_altimeter(const std::string& path, const std::v
 
 // "vx vy vz" in metres a second along the map's axes, finite.
 Result<Eigen::Vector3d> parse_velocity(const std::string& text) {
-  const auto values = geo::parse_numbers(text, ' ');
-  Eigen::Vector3d v = Eigen::Vector3d::Constant(std::nan(""));
-  if (values.ok() && values->size() == 3) v = Eigen::Vector3d((*values)[0], (*values)[1], (*values)[2]);
-  if (!v.allFinite())
-    return Error{"--init-velocity '" + text + "' must be three finite numbers 'vx vy vz' (m/s along the map's axes)"};
-  return v;
+  const auto v = finite_numbers(text, ' ', 3);
+  if (!v) return Error{"--init-velocity '" + text + "' must be three finite numbers 'vx vy vz' (m/s along the map's axes)"};
+  return Eigen::Vector3d((*v)[0], (*v)[1], (*v)[2]);
 }
 
 // Constant velocity: extrapolate from the last two estimates by dt / dt_prev.
