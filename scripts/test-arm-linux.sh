@@ -1,53 +1,65 @@
 #!/usr/bin/env bash
-# The aarch64 build and its tests under qemu-user, on an x86-64 Debian 12 machine: Debian's
-# cross compiler, the arm64 libraries through multiarch, -Werror, NEON kernels (compared with
-# their scalar twins by the tests). Build folder: build/aarch64 (or $ARM_BUILD).
+# Usage: scripts/test-arm-linux.sh [aarch64|armhf]   (default aarch64; scripts/test-aarch64.sh)
+# An ARM Linux build and its tests under qemu-user, on an x86-64 Debian 12 machine: Debian's
+# cross compiler, the target's libraries through multiarch, -Werror. Build folder:
+# build/aarch64 or build/armhf (or $ARM_BUILD).
+# - aarch64 (CI): NEON kernels, compared with their scalar twins by the tests.
+# - armhf (32-bit ARMv7-A, hard float; by hand): Debian's baseline has no NEON, so every kernel
+#   runs its scalar twin and the learned tracker's cases take 2-10 minutes each under qemu-arm:
+#   the suite takes hours. ARM_SUITE=0 skips it and runs the firmware's test alone.
 #
 # Debian 12's qemu-user hangs at the first thread a dynamically linked aarch64 program
 # starts (a ten-line std::thread program does too) and runs the same program linked
-# statically, so the executables are linked statically: the arm64 libGeographicLib.a comes
-# from libgeographiclib-dev:arm64 unpacked into the build folder (installing it would remove
+# statically, so the executables are linked statically: the target's libGeographicLib.a comes
+# from its libgeographiclib-dev unpacked into the build folder (installing it would remove
 # the host's). Where that package cannot be fetched, the build is dynamic and the tests that
-# start a thread pool (THREADED_TESTS) are skipped, with a message. On a real aarch64
+# start a thread pool (THREADED_TESTS) are skipped, with a message. On a real ARM Linux
 # machine run scripts/test.sh instead.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-if [ "$(uname -m)" = aarch64 ]; then
-  echo "native aarch64: use scripts/test.sh"
+arch=${1:-aarch64}
+case "$arch" in
+  aarch64) deb=arm64 triplet=aarch64-linux-gnu qemu=qemu-aarch64 static_option=TERRALIGN_AARCH64_STATIC
+           native=aarch64 ;;
+  armhf) deb=armhf triplet=arm-linux-gnueabihf qemu=qemu-arm static_option=TERRALIGN_ARM_STATIC native=armv7l ;;
+  *) echo "usage: $0 [aarch64|armhf] (got '$arch')" >&2; exit 2 ;;
+esac
+if [ "$(uname -m)" = "$native" ]; then
+  echo "native $arch: use scripts/test.sh"
   exit 0
 fi
 SUDO=""
 [ "$(id -u)" -eq 0 ] || SUDO="sudo"
 bash scripts/install-deps.sh
-# The cross tools: a machine that cannot get them (no arm64 packages on its mirror) skips
+# The cross tools: a machine that cannot get them (no $deb packages on its mirror) skips
 # this step with a message; a build or test failure is a failure.
 install_cross() {
-  if ! dpkg --print-foreign-architectures | grep -qx arm64; then
-    $SUDO dpkg --add-architecture arm64 && $SUDO apt-get update -qq
+  if ! dpkg --print-foreign-architectures | grep -qx "$deb"; then
+    $SUDO dpkg --add-architecture "$deb" && $SUDO apt-get update -qq
   fi
-  # libgeographiclib-dev is not multiarch: the host's headers, arm64's runtime library.
-  bash scripts/install-deps.sh g++-aarch64-linux-gnu qemu-user libgeographiclib23:arm64 libtiff-dev:arm64
+  # libgeographiclib-dev is not multiarch: the host's headers, the target's runtime library.
+  bash scripts/install-deps.sh "g++-$triplet" qemu-user "libgeographiclib23:$deb" "libtiff-dev:$deb"
 }
 if ! install_cross; then
-  echo "aarch64: the cross compiler or the arm64 libraries could not be installed; skipped"
+  echo "$arch: the cross compiler or the $deb libraries could not be installed; skipped"
   exit 0
 fi
 jobs=$(nproc)
-build=${ARM_BUILD:-build/aarch64}
+build=${ARM_BUILD:-build/$arch}
 mkdir -p "$build"
 static=()
-geo_a="$build/deps/usr/lib/aarch64-linux-gnu/libGeographicLib.a"
+geo_a="$build/deps/usr/lib/$triplet/libGeographicLib.a"
 if [ ! -f "$geo_a" ]; then
   rm -rf "$build/deps" && mkdir -p "$build/deps"
-  (cd "$build/deps" && apt-get download libgeographiclib-dev:arm64 >/dev/null 2>&1 &&
-     dpkg -x libgeographiclib-dev_*_arm64.deb .) || true
+  (cd "$build/deps" && apt-get download "libgeographiclib-dev:$deb" >/dev/null 2>&1 &&
+     dpkg -x libgeographiclib-dev_*_"$deb".deb .) || true
 fi
 if [ -f "$geo_a" ]; then
-  static=(-DTERRALIGN_AARCH64_STATIC=ON "-DGeographicLib_STATIC=$(realpath "$geo_a")")
+  static=("-D$static_option=ON" "-DGeographicLib_STATIC=$(realpath "$geo_a")")
 else
-  echo "aarch64: libgeographiclib-dev:arm64 could not be fetched: dynamic build, threaded tests skipped"
+  echo "$arch: libgeographiclib-dev:$deb could not be fetched: dynamic build, threaded tests skipped"
 fi
-cmake -S . -B "$build" -DCMAKE_TOOLCHAIN_FILE=cmake/toolchains/aarch64-linux-gnu.cmake \
+cmake -S . -B "$build" -DCMAKE_TOOLCHAIN_FILE="cmake/toolchains/$triplet.cmake" \
   -DCMAKE_BUILD_TYPE=Release -DTERRALIGN_WERROR=ON -DTERRALIGN_BUILD_BENCH=OFF "${static[@]}" >/dev/null
 cmake --build "$build" -j "$jobs"
 THREADED_TESTS='abuse|no-data texels|learned tracker: the C|learned tracker: same bytes|rendered|no texture|1 and 2 threads|allocates nothing|parity with PyTorch|depth is the analytic|no cracks|ortho texel|bad poses|unknown layer|ray-caster|registration|flight|track reports|dataset|cli_render'
@@ -72,13 +84,16 @@ NATIVE_ONLY+="|refinement: the learned tracker refines on three levels|the regis
 # The firmware's test runs below instead, compared with the host's answers.
 FIRMWARE_TEST="firmware's test on the host"
 NATIVE_ONLY+="|$FIRMWARE_TEST"
-if [ ${#static[@]} -gt 0 ]; then
+if [ "${ARM_SUITE:-1}" = 0 ]; then
+  echo "$arch: ARM_SUITE=0: the suite skipped, the firmware's test alone"
+elif [ ${#static[@]} -gt 0 ]; then
   ctest --test-dir "$build" --output-on-failure -j "$jobs" --timeout 1800 -E "$NATIVE_ONLY"
 else
   ctest --test-dir "$build" --output-on-failure -j "$jobs" --timeout 120 -E "$THREADED_TESTS|$FIRMWARE_TEST"
 fi
 # The firmware's test (firmware/scenario.cpp: 16 frames of both trackers through the
-# localiser, about 80 s under qemu): every frame's answer must be this host's x86-64 build's
-# to the bit (scripts/same-answers-as-host.sh).
-timeout 1200 qemu-aarch64 -L /usr/aarch64-linux-gnu "$build/firmware/terralign_firmware_host" >"$build/firmware-host.log"
-bash scripts/same-answers-as-host.sh "the aarch64 build under qemu" "$build/firmware-host.log"
+# localiser, about 80 s under qemu-aarch64): every frame's answer must be this host's x86-64
+# build's to the bit (scripts/same-answers-as-host.sh).
+timeout "${ARM_FIRMWARE_TIMEOUT:-1200}" "$qemu" -L "/usr/$triplet" "$build/firmware/terralign_firmware_host" \
+  >"$build/firmware-host.log"
+bash scripts/same-answers-as-host.sh "the $arch build under qemu" "$build/firmware-host.log"
