@@ -38,6 +38,7 @@ namespace {
 
 // An optimiser may not fold these: the sum's last bit shows the rounding mode.
 volatile double g_one = 1.0, g_tiny = 0x1p-60;
+volatile float g_min_normal = 0x1p-126f;  // half of it is a subnormal float
 
 // The classical tracker on the 2016 image (it does not converge across years), the learned one
 // on 2017's.
@@ -156,17 +157,21 @@ TEST_CASE("locale: a caller's decimal comma changes no number terralign reads or
 TEST_CASE("float environment: a scope installs the default one and gives the caller's back") {
   REQUIRE(float_environment_is_default());
   CHECK(g_one + g_tiny == 1.0);  // to nearest
+  CHECK(g_min_normal * 0.5f > 0.0f);  // subnormals kept
   {
     const HostileFloatEnvironment hostile;
-    MESSAGE("hostile: " << std::string(HostileFloatEnvironment::description()));
+    const std::string what = HostileFloatEnvironment::description();
+    MESSAGE("hostile: " << what);
     CHECK_FALSE(float_environment_is_default());
 #if !(defined(__ARM_ARCH_PROFILE) && __ARM_ARCH_PROFILE == 'M')
     CHECK(g_one + g_tiny > 1.0);  // upward
 #endif
+    if (what.find("flush to zero") != std::string::npos) CHECK(g_min_normal * 0.5f == 0.0f);
     {
       const FloatEnvironmentScope scope;
       CHECK(float_environment_is_default());
       CHECK(g_one + g_tiny == 1.0);
+      CHECK(g_min_normal * 0.5f > 0.0f);
       {
         const FloatEnvironmentScope nested;
         CHECK(float_environment_is_default());

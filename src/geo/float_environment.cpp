@@ -10,12 +10,15 @@
 #define TERRALIGN_MXCSR 1  // SSE's control register: FTZ, DAZ and the trap masks
 #include <xmmintrin.h>
 #endif
+#if defined(__arm__) && defined(__ARM_FP)
+#define TERRALIGN_ARM32_FPSCR 1  // 32-bit ARM Linux: FPSCR's FZ, DN and AHP beside <fenv.h>
+#endif
 #endif
 
 namespace terralign {
 namespace {
 
-#if defined(TERRALIGN_FPSCR)
+#if defined(TERRALIGN_FPSCR) || defined(TERRALIGN_ARM32_FPSCR)
 // FPSCR's RMode (bits 22-23, 0: to nearest), FZ (24), DN (25) and AHP (26).
 constexpr std::uint32_t kModeBits = (3u << 22) | (1u << 24) | (1u << 25) | (1u << 26);
 
@@ -34,7 +37,8 @@ void write_fpscr([[maybe_unused]] std::uint32_t v) {
   __asm__ volatile("vmsr fpscr, %0" : : "r"(v) : "memory");
 #endif
 }
-#else
+#endif
+#if !defined(TERRALIGN_FPSCR)
 static_assert(sizeof(std::fenv_t) <= 64, "FloatEnvironmentScope::saved_ is too small for this C library's fenv_t");
 
 #if defined(TERRALIGN_MXCSR)
@@ -72,6 +76,9 @@ FloatEnvironmentScope::FloatEnvironmentScope() noexcept {
 #if defined(__aarch64__)
   write_fpcr(read_fpcr() & ~kFpcrModeBits);
 #endif
+#if defined(TERRALIGN_ARM32_FPSCR)
+  write_fpscr(read_fpscr() & ~kModeBits);  // glibc's FE_DFL_ENV clears them; a C library's need not
+#endif
 #endif
 }
 
@@ -100,6 +107,10 @@ bool float_environment_is_default() noexcept {
   // The trap enables (IOE..IXE, bits 8-12, and IDE, bit 15) clear.
   ok = ok && (read_fpcr() & (kFpcrModeBits | (0x1fu << 8) | (1u << 15))) == 0;
 #endif
+#if defined(TERRALIGN_ARM32_FPSCR)
+  // FZ, DN and AHP clear, and the trap enables (IOE..IXE, bits 8-12, and IDE, bit 15).
+  ok = ok && (read_fpscr() & (kModeBits | (0x1fu << 8) | (1u << 15))) == 0;
+#endif
   return ok;
 #endif
 }
@@ -118,6 +129,10 @@ HostileFloatEnvironment::HostileFloatEnvironment() noexcept {
   // those two zero.
   write_fpcr(read_fpcr() | (1ull << 24) | (1ull << 25) | (1ull << 8) | (1ull << 9));
 #endif
+#if defined(TERRALIGN_ARM32_FPSCR)
+  // The same bits of FPSCR: FZ, DN, IOE and DZE (ARMv7-A cores without traps keep those zero).
+  write_fpscr(read_fpscr() | (1u << 24) | (1u << 25) | (1u << 8) | (1u << 9));
+#endif
 #endif
 }
 
@@ -132,7 +147,7 @@ const char* HostileFloatEnvironment::description() noexcept {
 #endif
 #elif defined(TERRALIGN_MXCSR)
   return "rounding upward, flush to zero and denormals are zero, traps on FE_INVALID and FE_DIVBYZERO";
-#elif defined(__aarch64__)
+#elif defined(__aarch64__) || defined(TERRALIGN_ARM32_FPSCR)
   return "rounding upward, flush to zero, default NaN, traps on FE_INVALID and FE_DIVBYZERO where the core has them";
 #else
   return "rounding upward";
