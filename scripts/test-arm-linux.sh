@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
-# Usage: scripts/test-arm-linux.sh [aarch64|armhf]   (default aarch64; scripts/test-aarch64.sh)
+# Usage: scripts/test-arm-linux.sh [aarch64|armhf [CMAKE_ARGS...]]   (default aarch64: scripts/test-aarch64.sh)
 # An ARM Linux build and its tests under qemu-user, on an x86-64 Debian 12 machine: Debian's
 # cross compiler, the target's libraries through multiarch, -Werror. Build folder:
 # build/aarch64 or build/armhf (or $ARM_BUILD).
 # - aarch64 (CI): NEON kernels, compared with their scalar twins by the tests.
 # - armhf (32-bit ARMv7-A, hard float; by hand): Debian's baseline has no NEON, so every kernel
 #   runs its scalar twin and the learned tracker's cases take 2-10 minutes each under qemu-arm:
-#   the suite takes hours. ARM_SUITE=0 skips it and runs the firmware's test alone.
+#   the suite takes hours. ARM_SUITE=0 skips it and runs the firmware's test alone. Further
+#   arguments go to CMake, e.g. -DTERRALIGN_ARM_FPU=vfpv4-d16 (with ARM_BUILD=build/armhf-vfpv4;
+#   cmake/toolchains/arm-linux-gnueabihf.cmake says what it changes).
 #
 # Debian 12's qemu-user hangs at the first thread a dynamically linked aarch64 program
 # starts (a ten-line std::thread program does too) and runs the same program linked
@@ -18,6 +20,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 arch=${1:-aarch64}
+shift $(( $# > 0 ? 1 : 0 ))
 case "$arch" in
   aarch64) deb=arm64 triplet=aarch64-linux-gnu qemu=qemu-aarch64 static_option=TERRALIGN_AARCH64_STATIC
            native=aarch64 ;;
@@ -60,7 +63,7 @@ else
   echo "$arch: libgeographiclib-dev:$deb could not be fetched: dynamic build, threaded tests skipped"
 fi
 cmake -S . -B "$build" -DCMAKE_TOOLCHAIN_FILE="cmake/toolchains/$triplet.cmake" \
-  -DCMAKE_BUILD_TYPE=Release -DTERRALIGN_WERROR=ON -DTERRALIGN_BUILD_BENCH=OFF "${static[@]}" >/dev/null
+  -DCMAKE_BUILD_TYPE=Release -DTERRALIGN_WERROR=ON -DTERRALIGN_BUILD_BENCH=OFF "${static[@]}" "$@" >/dev/null
 cmake --build "$build" -j "$jobs"
 THREADED_TESTS='abuse|no-data texels|learned tracker: the C|learned tracker: same bytes|rendered|no texture|1 and 2 threads|allocates nothing|parity with PyTorch|depth is the analytic|no cracks|ortho texel|bad poses|unknown layer|ray-caster|registration|flight|track reports|dataset|cli_render'
 # The cases that run the command-line program over a flight or an eval (tests/test_track.cpp:
