@@ -5,6 +5,7 @@
 #include <cstdarg>
 #include <cstdio>
 #include <cstring>
+#include <limits>
 #include <memory>
 #include <mutex>
 
@@ -248,9 +249,12 @@ Result<GeoRaster> read_geotiff_memory(const std::uint8_t* data, std::size_t size
   TIFFOpenOptions* opts = TIFFOpenOptionsAlloc();
   TIFFOpenOptionsSetErrorHandlerExtR(opts, tiff_error, &sink);
   TIFFOpenOptionsSetWarningHandlerExtR(opts, tiff_warning, nullptr);
-  // A corrupt header must not make libtiff allocate gigabytes.
+  // A corrupt header must not make libtiff allocate gigabytes. At most what tmsize_t holds: in
+  // a 32-bit process 2^31 would wrap to a negative limit.
   TIFFOpenOptionsSetMaxSingleMemAlloc(
-      opts, static_cast<tmsize_t>(std::clamp<std::int64_t>(limits.max_bytes, std::int64_t{16} << 20, std::int64_t{1} << 31)));
+      opts, static_cast<tmsize_t>(std::clamp<std::int64_t>(
+                limits.max_bytes, std::int64_t{16} << 20,
+                std::min<std::int64_t>(std::int64_t{1} << 31, std::numeric_limits<tmsize_t>::max()))));
   std::unique_ptr<TIFF, TiffCloser> tif(TIFFClientOpenExt(name.c_str(), "rm", &mem, mem_read, mem_write,
                                                           mem_seek, mem_close, mem_size, mem_map,
                                                           mem_unmap, opts));
