@@ -3,12 +3,14 @@
 # An ARM Linux build and its tests under qemu-user, on an x86-64 Debian 12 machine: Debian's
 # cross compiler, the target's libraries through multiarch, -Werror. Build folder:
 # build/aarch64 or build/armhf (or $ARM_BUILD).
-# - aarch64 (CI): NEON kernels, compared with their scalar twins by the tests.
-# - armhf (32-bit ARMv7-A, hard float; by hand): Debian's baseline has no NEON, so every kernel
-#   runs its scalar twin and the learned tracker's cases take 2-10 minutes each under qemu-arm:
-#   the suite takes hours. ARM_SUITE=0 skips it and runs the firmware's test alone. Further
-#   arguments go to CMake, e.g. -DTERRALIGN_ARM_FPU=vfpv4-d16 (with ARM_BUILD=build/armhf-vfpv4;
-#   cmake/toolchains/arm-linux-gnueabihf.cmake says what it changes).
+# - aarch64: NEON kernels, compared with their scalar twins by the tests.
+# - armhf (32-bit ARMv7-A, hard float): no NEON kernels (terralign's are AArch64's), so every
+#   kernel runs its scalar twin. With Debian's baseline FPU (VFPv3-D16) each fused multiply-add
+#   calls glibc's fmaf and the suite takes hours under qemu-arm; CI builds for VFPv4
+#   (-DTERRALIGN_ARM_FPU=vfpv4-d16: cmake/toolchains/arm-linux-gnueabihf.cmake), where it takes
+#   about 9 minutes.
+# Both run in CI (.ci/run). Arguments after the architecture go to CMake; ARM_SUITE=0 skips the
+# suite and runs the firmware's test alone.
 #
 # Debian 12's qemu-user hangs at the first thread a dynamically linked aarch64 program
 # starts (a ten-line std::thread program does too) and runs the same program linked

@@ -1,9 +1,8 @@
 # Cross-compiling for 32-bit ARM Linux (ARMv7-A, hard float) with Debian's
 # g++-arm-linux-gnueabihf, the armhf libraries installed through multiarch, and the tests run
-# under qemu-user: `bash scripts/test-arm-linux.sh armhf` does all of it (by hand, not in CI:
-# with no NEON kernels every kernel is its scalar twin, the learned tracker's cases take 2-10
-# minutes each under qemu-arm and the suite hours; ARM_SUITE=0 runs the firmware's test
-# alone and compares its 16 answers with the host's).
+# under qemu-user: `bash scripts/test-arm-linux.sh armhf [-DTERRALIGN_ARM_FPU=vfpv4-d16]` does
+# all of it, and CI runs it with the option. No NEON kernels (terralign's are AArch64's): every
+# kernel runs its scalar twin.
 # Debian's armhf defaults: ARMv7-A, VFPv3-D16, hard float, Thumb-2. VFPv3 has no fused
 # multiply-add, so each std::fma of the scalar kernels (917 call sites in the firmware's test)
 # calls glibc's fmaf, which computes in double with FPSCR's rounding mode switched twice.
