@@ -77,7 +77,7 @@ FloatEnvironmentScope::FloatEnvironmentScope() noexcept {
   write_fpcr(read_fpcr() & ~kFpcrModeBits);
 #endif
 #if defined(TERRALIGN_ARM32_FPSCR)
-  write_fpscr(read_fpscr() & ~kModeBits);  // glibc's FE_DFL_ENV clears them; a C library's need not
+  write_fpscr(read_fpscr() & ~kModeBits);  // glibc's FE_DFL_ENV clears them; another's need not
 #endif
 #endif
 }

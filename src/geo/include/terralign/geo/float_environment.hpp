@@ -19,10 +19,10 @@
 //
 // Where: glibc and other C libraries with a working <fenv.h> (fegetenv / fesetenv(FE_DFL_ENV);
 // on x86 MXCSR's FTZ and DAZ bits, on AArch64 FPCR's FZ, DN, AHP and FZ16 bits and on 32-bit
-// ARM FPSCR's FZ, DN and AHP bits are cleared as well, since FE_DFL_ENV need not); a bare-metal M-profile ARM with an FPU (the
-// firmware: newlib's <fenv.h> implements nothing for ARM) through FPSCR's RMode, FZ, DN and AHP
-// bits. ARMv7-A's NEON unit flushes subnormals whatever the environment says; terralign's
-// AArch64 NEON kernels do not run there.
+// ARM FPSCR's FZ, DN and AHP bits are cleared as well, since FE_DFL_ENV need not); a
+// bare-metal M-profile ARM with an FPU (the firmware: newlib's <fenv.h> implements nothing for
+// ARM) through FPSCR's RMode, FZ, DN and AHP bits. ARMv7-A's NEON unit flushes subnormals
+// whatever the environment says; terralign's AArch64 NEON kernels do not run there.
 #pragma once
 
 #include <cstdint>
