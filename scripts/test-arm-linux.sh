@@ -8,7 +8,7 @@
 #   kernel runs its scalar twin. With Debian's baseline FPU (VFPv3-D16) each fused multiply-add
 #   calls glibc's fmaf and the suite takes hours under qemu-arm; CI builds for VFPv4
 #   (-DTERRALIGN_ARM_FPU=vfpv4-d16: cmake/toolchains/arm-linux-gnueabihf.cmake), where it takes
-#   about 9 minutes.
+#   8-10 minutes.
 # Both run in CI (.ci/run). Arguments after the architecture go to CMake; ARM_SUITE=0 skips the
 # suite and runs the firmware's test alone.
 #
