@@ -10,61 +10,59 @@
 #define TERRALIGN_MXCSR 1  // SSE's control register: FTZ, DAZ and the trap masks
 #include <xmmintrin.h>
 #endif
-#if defined(__arm__) && defined(__ARM_FP)
-#define TERRALIGN_ARM32_FPSCR 1  // 32-bit ARM Linux: FPSCR's FZ, DN and AHP beside <fenv.h>
+#if defined(__aarch64__) || (defined(__arm__) && defined(__ARM_FP))
+#define TERRALIGN_ARM_LINUX 1  // FPCR's or FPSCR's FZ, DN and AHP beside <fenv.h>
 #endif
 #endif
 
 namespace terralign {
 namespace {
 
-#if defined(TERRALIGN_FPSCR) || defined(TERRALIGN_ARM32_FPSCR)
-// FPSCR's RMode (bits 22-23, 0: to nearest), FZ (24), DN (25) and AHP (26).
-constexpr std::uint32_t kModeBits = (3u << 22) | (1u << 24) | (1u << 25) | (1u << 26);
-
-std::uint32_t read_fpscr() {
-#if defined(__ARM_FP)
-  std::uint32_t v;
-  __asm__ volatile("vmrs %0, fpscr" : "=r"(v));
-  return v;
+#if defined(TERRALIGN_FPSCR) || defined(TERRALIGN_ARM_LINUX)
+// ARM's control register, FPSCR on 32-bit cores and FPCR on AArch64, places these alike: RMode
+// (bits 22-23, 0: to nearest), FZ (24), DN (25), AHP (26), AArch64's FZ16 (19), and the trap
+// enables IOE..IXE (8-12) and IDE (15).
+#if defined(__aarch64__)
+using ArmControl = std::uint64_t;
+constexpr ArmControl kModeBits = (3u << 22) | (1u << 24) | (1u << 25) | (1u << 26) | (1u << 19);
 #else
-  return 0;  // no FPU: software floating point rounds to nearest and keeps subnormals
+using ArmControl = std::uint32_t;
+constexpr ArmControl kModeBits = (3u << 22) | (1u << 24) | (1u << 25) | (1u << 26);
 #endif
+constexpr ArmControl kTrapBits = (0x1fu << 8) | (1u << 15);
+
+ArmControl read_arm_control() {
+  ArmControl v = 0;  // no FPU: software floating point rounds to nearest and keeps subnormals
+#if defined(__aarch64__)
+  __asm__ volatile("mrs %0, fpcr" : "=r"(v));
+#elif defined(__ARM_FP)
+  __asm__ volatile("vmrs %0, fpscr" : "=r"(v));
+#endif
+  return v;
 }
 
-void write_fpscr([[maybe_unused]] std::uint32_t v) {
-#if defined(__ARM_FP)
+void write_arm_control([[maybe_unused]] ArmControl v) {
+#if defined(__aarch64__)
+  __asm__ volatile("msr fpcr, %0" : : "r"(v) : "memory");
+#elif defined(__ARM_FP)
   __asm__ volatile("vmsr fpscr, %0" : : "r"(v) : "memory");
 #endif
 }
 #endif
 #if !defined(TERRALIGN_FPSCR)
 static_assert(sizeof(std::fenv_t) <= 64, "FloatEnvironmentScope::saved_ is too small for this C library's fenv_t");
-
+#endif
 #if defined(TERRALIGN_MXCSR)
 constexpr unsigned kMxcsrFlushBits = 0x8040u;  // FTZ (bit 15) and DAZ (bit 6)
-#endif
-#if defined(__aarch64__)
-// FPCR's FZ16 (bit 19), FZ (24), DN (25) and AHP (26): glibc's FE_DFL_ENV keeps DN and AHP.
-constexpr std::uint64_t kFpcrModeBits = (1ull << 19) | (1ull << 24) | (1ull << 25) | (1ull << 26);
-
-std::uint64_t read_fpcr() {
-  std::uint64_t v;
-  __asm__ volatile("mrs %0, fpcr" : "=r"(v));
-  return v;
-}
-
-void write_fpcr(std::uint64_t v) { __asm__ volatile("msr fpcr, %0" : : "r"(v) : "memory"); }
-#endif
 #endif
 
 }  // namespace
 
 FloatEnvironmentScope::FloatEnvironmentScope() noexcept {
 #if defined(TERRALIGN_FPSCR)
-  const std::uint32_t fpscr = read_fpscr();
+  const ArmControl fpscr = read_arm_control();
   std::memcpy(saved_, &fpscr, sizeof fpscr);
-  write_fpscr(fpscr & ~kModeBits);
+  write_arm_control(fpscr & ~kModeBits);
 #else
   std::fenv_t env;
   std::fegetenv(&env);
@@ -73,20 +71,19 @@ FloatEnvironmentScope::FloatEnvironmentScope() noexcept {
 #if defined(TERRALIGN_MXCSR)
   _mm_setcsr(_mm_getcsr() & ~kMxcsrFlushBits);
 #endif
-#if defined(__aarch64__)
-  write_fpcr(read_fpcr() & ~kFpcrModeBits);
-#endif
-#if defined(TERRALIGN_ARM32_FPSCR)
-  write_fpscr(read_fpscr() & ~kModeBits);  // glibc's FE_DFL_ENV clears them; another's need not
+#if defined(TERRALIGN_ARM_LINUX)
+  // glibc's FE_DFL_ENV keeps AArch64's DN and AHP (32-bit ARM's it clears; another C library's
+  // need not).
+  write_arm_control(read_arm_control() & ~kModeBits);
 #endif
 #endif
 }
 
 FloatEnvironmentScope::~FloatEnvironmentScope() {
 #if defined(TERRALIGN_FPSCR)
-  std::uint32_t fpscr;
+  ArmControl fpscr;
   std::memcpy(&fpscr, saved_, sizeof fpscr);
-  write_fpscr(fpscr);
+  write_arm_control(fpscr);
 #else
   std::fenv_t env;
   std::memcpy(&env, saved_, sizeof env);
@@ -96,20 +93,15 @@ FloatEnvironmentScope::~FloatEnvironmentScope() {
 
 bool float_environment_is_default() noexcept {
 #if defined(TERRALIGN_FPSCR)
-  return (read_fpscr() & kModeBits) == 0;
+  return (read_arm_control() & kModeBits) == 0;
 #else
   bool ok = std::fegetround() == FE_TONEAREST;
 #if defined(TERRALIGN_MXCSR)
   // The exception masks (bits 7-12) all set: no SSE trap.
   ok = ok && (_mm_getcsr() & kMxcsrFlushBits) == 0 && (_mm_getcsr() & 0x1f80u) == 0x1f80u;
 #endif
-#if defined(__aarch64__)
-  // The trap enables (IOE..IXE, bits 8-12, and IDE, bit 15) clear.
-  ok = ok && (read_fpcr() & (kFpcrModeBits | (0x1fu << 8) | (1u << 15))) == 0;
-#endif
-#if defined(TERRALIGN_ARM32_FPSCR)
-  // FZ, DN and AHP clear, and the trap enables (IOE..IXE, bits 8-12, and IDE, bit 15).
-  ok = ok && (read_fpscr() & (kModeBits | (0x1fu << 8) | (1u << 15))) == 0;
+#if defined(TERRALIGN_ARM_LINUX)
+  ok = ok && (read_arm_control() & (kModeBits | kTrapBits)) == 0;
 #endif
   return ok;
 #endif
@@ -117,21 +109,18 @@ bool float_environment_is_default() noexcept {
 
 HostileFloatEnvironment::HostileFloatEnvironment() noexcept {
 #if defined(TERRALIGN_FPSCR)
-  write_fpscr(read_fpscr() | (1u << 22) | (1u << 24) | (1u << 25));  // RMode +inf, FZ, DN
+  // RMode toward +infinity, FZ and DN.
+  write_arm_control(read_arm_control() | (1u << 22) | (1u << 24) | (1u << 25));
 #else
   std::fesetround(FE_UPWARD);
 #if defined(TERRALIGN_MXCSR)
   // Unmask invalid (bit 7) and divide-by-zero (bit 9): SSE traps on them.
   _mm_setcsr((_mm_getcsr() | kMxcsrFlushBits) & ~((1u << 7) | (1u << 9)));
 #endif
-#if defined(__aarch64__)
-  // FZ and DN, and the trap enables IOE (bit 8) and DZE (bit 9): a core without traps keeps
-  // those two zero.
-  write_fpcr(read_fpcr() | (1ull << 24) | (1ull << 25) | (1ull << 8) | (1ull << 9));
-#endif
-#if defined(TERRALIGN_ARM32_FPSCR)
-  // The same bits of FPSCR: FZ, DN, IOE and DZE (ARMv7-A cores without traps keep those zero).
-  write_fpscr(read_fpscr() | (1u << 24) | (1u << 25) | (1u << 8) | (1u << 9));
+#if defined(TERRALIGN_ARM_LINUX)
+  // FZ and DN, and the trap enables IOE (bit 8) and DZE (bit 9): a core without traps (most
+  // ARMv7-A cores) keeps those two zero.
+  write_arm_control(read_arm_control() | (1u << 24) | (1u << 25) | (1u << 8) | (1u << 9));
 #endif
 #endif
 }
@@ -147,7 +136,7 @@ const char* HostileFloatEnvironment::description() noexcept {
 #endif
 #elif defined(TERRALIGN_MXCSR)
   return "rounding upward, flush to zero and denormals are zero, traps on FE_INVALID and FE_DIVBYZERO";
-#elif defined(__aarch64__) || defined(TERRALIGN_ARM32_FPSCR)
+#elif defined(TERRALIGN_ARM_LINUX)
   return "rounding upward, flush to zero, default NaN, traps on FE_INVALID and FE_DIVBYZERO where the core has them";
 #else
   return "rounding upward";
