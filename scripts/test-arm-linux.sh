@@ -4,11 +4,11 @@
 # cross compiler, the target's libraries through multiarch, -Werror. Build folder:
 # build/aarch64 or build/armhf (or $ARM_BUILD).
 # - aarch64: NEON kernels, compared with their scalar twins by the tests.
-# - armhf (32-bit ARMv7-A, hard float): no NEON kernels (terralign's are AArch64's), so every
-#   kernel runs its scalar twin. With Debian's baseline FPU (VFPv3-D16) each fused multiply-add
-#   calls glibc's fmaf and the suite takes hours under qemu-arm; CI builds for VFPv4
-#   (-DTERRALIGN_ARM_FPU=vfpv4-d16: cmake/toolchains/arm-linux-gnueabihf.cmake), where it takes
-#   8-10 minutes.
+# - armhf (32-bit ARMv7-A, hard float): with Debian's baseline FPU (VFPv3-D16) every kernel
+#   runs its scalar twin, each fused multiply-add calls glibc's fmaf, and the suite takes hours
+#   under qemu-arm. CI builds for NEON and VFPv4 (-DTERRALIGN_ARM_FPU=neon-vfpv4:
+#   cmake/toolchains/arm-linux-gnueabihf.cmake): the convolutions run their NEON kernel, tested
+#   against the scalar twin, and the rest its scalar twin with one instruction a multiply-add.
 # Both run in CI (.ci/run). Arguments after the architecture go to CMake; ARM_SUITE=0 skips the
 # suite and runs the firmware's test alone.
 #

@@ -1,4 +1,4 @@
-// aarch64 only (NEON and FMA are part of the base architecture).
+// aarch64, and 32-bit ARM with NEON and VFPv4 (simd_neon.hpp).
 #include "conv_rows.hpp"
 #include "simd_neon.hpp"
 

@@ -1,4 +1,9 @@
-// The NEON vector wrapper (4 floats), for aarch64 (where NEON and FMA are always present).
+// The NEON vector wrapper (4 floats): aarch64, where NEON and FMA are always present, and 32-bit
+// ARM built for NEON with VFPv4's fused multiply-add (-mfpu=neon-vfpv4: Cortex-A7, A15 and later;
+// the Cortex-A8 and A9 have no fused NEON multiply-add, so they keep the scalar kernels).
+// 32-bit ARM's NEON flushes subnormal inputs and results to zero whatever FPSCR says; a
+// convolution there differs from the other builds only where a value falls below 2^-126 in
+// magnitude (none does in the tests' images, checked under qemu-arm, which flushes as the cores do).
 #pragma once
 
 #include <arm_neon.h>
@@ -30,9 +35,14 @@ inline float32x4_t expm1_neg_neon(float32x4_t x) {
 
 struct VecNeon {
   static constexpr int kWidth = 4;
-  static constexpr int kBlock = 8;       // output channels a weight block holds (two vectors)
+  static constexpr int kBlock = 8;  // output channels a weight block holds (two vectors)
+#if defined(__aarch64__)
   static constexpr int kTilePixels = 6;  // output pixels a register tile holds
   static constexpr int kTileBlocks = 2;  // 6 x 2 x 2 = 24 accumulators of 32 registers
+#else
+  static constexpr int kTilePixels = 4;  // 32-bit ARM: 4 x 1 x 2 = 8 accumulators of 16 registers
+  static constexpr int kTileBlocks = 1;
+#endif
   using Lanes8 = VecNeon;                // the one-output-channel kernel's eight lanes: two vectors
   float32x4_t v;
   static VecNeon load(const float* p) { return {vld1q_f32(p)}; }

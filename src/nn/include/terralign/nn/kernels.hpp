@@ -84,7 +84,7 @@ void conv3x3_rows_neon(const Tensor& in, const ConvWeights& w, Tensor& out, int 
 #endif
 bool nn_cpu_has_avx2();
 bool nn_cpu_has_avx512();
-bool nn_cpu_has_neon();  // an aarch64 build
+bool nn_cpu_has_neon();  // an aarch64 build, or 32-bit ARM built for NEON and VFPv4
 
 // 2x2 average pooling (floor sizes), mean over channels (out.c equal groups of consecutive
 // channels, each to one; one group: all of them), sigmoid in place,
