@@ -257,7 +257,7 @@ TEST_CASE("subnormal values: every build of the convolution keeps them as the sc
   // and AArch64's NEON keep subnormals in the default floating-point environment (which every
   // onboard entry sets: FloatEnvironmentScope), as the scalar build does. 32-bit ARM's NEON
   // flushes them to zero whatever FPSCR says: there the kernels differ from the scalar build
-  // in such values alone (simd_neon.hpp), which is counted, not checked.
+  // in such values alone (simd_neon.hpp), which is printed, not checked.
   std::mt19937 rng(5);
   std::normal_distribution<float> n01(0, 1);
   int subnormal_outputs = 0;

@@ -1,9 +1,10 @@
 // The NEON vector wrapper (4 floats): aarch64, where NEON and FMA are always present, and 32-bit
 // ARM built for NEON with VFPv4's fused multiply-add (-mfpu=neon-vfpv4: Cortex-A7, A15 and later;
 // the Cortex-A8 and A9 have no fused NEON multiply-add, so they keep the scalar kernels).
-// 32-bit ARM's NEON flushes subnormal inputs and results to zero whatever FPSCR says; a
-// convolution there differs from the other builds only where a value falls below 2^-126 in
-// magnitude (none does in the tests' images, checked under qemu-arm, which flushes as the cores do).
+// 32-bit ARM's NEON flushes subnormal inputs and results to zero whatever FPSCR says, so a
+// convolution there differs from the other builds where a value falls below 2^-126 in magnitude
+// (tests/test_nn.cpp's "subnormal values"); under qemu-arm, which flushes as the cores do, the
+// suite's bit-for-bit cases and the firmware's answers are the host's.
 #pragma once
 
 #include <arm_neon.h>
