@@ -24,7 +24,7 @@ Result<Args> Args::parse(const std::vector<std::string>& argv, const std::set<st
       if (i + 1 >= argv.size()) return Error{"option --" + key + " needs a value"};
       a.values_[key] = argv[++i];
     } else {
-      return Error{"unknown option --" + key + " (see --help)"};
+      return Error{"unknown option --" + key};
     }
   }
   return a;
