@@ -120,6 +120,13 @@ TEST_CASE("camera JSON: reads every model, refuses bad values with the value") {
   auto model = parse_camera("{" + base + R"(, "fx": 1, "fy": 1, "distortion": {"model": "fisheye624"}})", "cam.json");
   REQUIRE(!model.ok());
   CHECK(model.error().message.find("unknown model 'fisheye624'") != std::string::npos);
+  // k1 = 1e308 is finite but turns the pixel beside the principal point (r^2 of about 6e-7)
+  // to infinity: no camera. The model of the same file with k1 = -0.1 passes above.
+  auto wild = parse_camera("{" + base + R"(, "fx": 651.2, "fy": 651.2, "distortion": {"model": "radtan", "k1": 1e308}})",
+                           "wild.json");
+  REQUIRE(!wild.ok());
+  CHECK(wild.error().message.find("wild.json: the distortion (coefficients 1e+308, 0, 0, 0, 0) cannot be inverted at pixel (376, 240)") !=
+        std::string::npos);
   auto key = parse_camera("{" + base + R"(, "fx": 1, "fy": 1, "focal": 3})", "cam.json");
   REQUIRE(!key.ok());
   CHECK(key.error().message.find("unknown key 'focal'") != std::string::npos);

@@ -2,6 +2,7 @@
 // and writing camera files is camera_io.cpp.
 #include <terralign/geo/camera.hpp>
 
+#include <algorithm>
 #include <cmath>
 
 #include <Eigen/LU>
@@ -67,6 +68,21 @@ Status CameraModel::validate(const std::string& where) const {
   if (!(fx > 0) || !(fy > 0))
     return Error{where + ": focal length fx = " + format_double(fx) + ", fy = " + format_double(fy) +
                  " must be > 0 pixels"};
+  if (model != DistortionModel::None) {
+    // A distortion that cannot be inverted even beside the principal point (where every
+    // usable model is nearly the identity) describes no camera: say so here, with the file,
+    // rather than as a renderer's "nowhere in the image".
+    const double u = std::min(std::max(std::round(cx), 0.0), static_cast<double>(width - 1));
+    const double v = std::min(std::max(std::round(cy), 0.0), static_cast<double>(height - 1));
+    Eigen::Vector3d ray;
+    if (!unproject(Eigen::Vector2d(u, v), ray)) {
+      std::string ks;
+      for (double kk : k) ks += (ks.empty() ? "" : ", ") + format_double(kk);
+      return Error{where + ": the distortion (coefficients " + ks + ") cannot be inverted at pixel (" +
+                   std::to_string(static_cast<long>(u)) + ", " + std::to_string(static_cast<long>(v)) +
+                   "), the nearest the principal point"};
+    }
+  }
   return Ok{};
 }
 
