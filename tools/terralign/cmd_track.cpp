@@ -340,7 +340,7 @@ int run_track(const std::vector<std::string>& argv) {
     double ms = 0;
     const auto t0 = std::chrono::steady_clock::now();
     if (!in_order) {
-      reason = "timestamp " + std::to_string(f.t) + " does not follow " + std::to_string(last_t);
+      reason = "timestamp " + geo::format_double(f.t) + " does not follow " + geo::format_double(last_t);
     } else {
       auto img = load_rgb(f.path);
       if (!img.ok()) {
