@@ -1,5 +1,6 @@
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <fstream>
 #include <sstream>
 
@@ -223,6 +224,84 @@ TEST_CASE("sin_cos, atan2_portable, log_portable: within 2 ulp of the C library'
   CHECK(std::isnan(log_portable(-1.0)));
   CHECK(log_portable(INFINITY) == INFINITY);
   CHECK(ulps(log_portable(4.9e-324), std::log(4.9e-324)) <= 2);  // the least subnormal
+}
+
+TEST_CASE("fma_float_by_double gives std::fma's bits: random triples, sums beside a rounding midpoint, subnormals, specials") {
+  // std::fma is correctly rounded wherever it comes from (an instruction, or the C library's
+  // fmaf), so any bit apart is a bug: no tolerance. A NaN result needs only be a NaN.
+  std::uint64_t z = 0x2545f4914f6cdd1dull;
+  auto next = [&z]() {  // splitmix64: the same triples on every machine
+    z += 0x9e3779b97f4a7c15ull;
+    std::uint64_t x = z;
+    x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
+    x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
+    return x ^ (x >> 31);
+  };
+  auto from_bits = [](std::uint32_t b) {
+    float f;
+    std::memcpy(&f, &b, sizeof f);
+    return f;
+  };
+  auto bits_of = [](float f) {
+    std::uint32_t b;
+    std::memcpy(&b, &f, sizeof b);
+    return b;
+  };
+  int checked = 0, apart = 0, naive_apart = 0;
+  auto check = [&](float a, float b, float c) {
+    const float want = std::fma(a, b, c), got = fma_float_by_double(a, b, c);
+    ++checked;
+    const bool same = std::isnan(want) ? std::isnan(got) : bits_of(got) == bits_of(want);
+    if (!same && ++apart <= 5) MESSAGE("fma(" << a << ", " << b << ", " << c << "): " << got << ", std::fma " << want);
+    // The same sum rounded twice (to double, then to float), for the cases' teeth.
+    const float naive = static_cast<float>(static_cast<double>(a) * static_cast<double>(b) + static_cast<double>(c));
+    if (!std::isnan(want) && bits_of(naive) != bits_of(want)) ++naive_apart;
+  };
+  // Any bit patterns (NaN, infinities, subnormals among them), and sums that cancel: c the
+  // negated product rounded to float, moved by up to 3 ulp.
+  for (int i = 0; i < 400000; ++i) {
+    const std::uint64_t r = next();
+    const float a = from_bits(static_cast<std::uint32_t>(r)), b = from_bits(static_cast<std::uint32_t>(r >> 32));
+    check(a, b, from_bits(static_cast<std::uint32_t>(next())));
+    const float near = -static_cast<float>(static_cast<double>(a) * static_cast<double>(b));
+    check(a, b, from_bits(bits_of(near) + static_cast<std::uint32_t>(next() % 7) - 3u));
+  }
+  // Sums just below a midpoint between two floats: c with a random exponent, u its ulp, and
+  // a b = +-(u / 2)(1 - 2^-2k), 2^-2k under a double's precision for k >= 15 (so rounding to
+  // double lands on the midpoint and ties to even picks wrong for odd c, half the time).
+  // c + u and the negative product give sums just above one.
+  int midpoint_cases = 0;
+  for (int i = 0; i < 20000; ++i) {
+    const std::uint32_t exponent = 1 + static_cast<std::uint32_t>(next() % 200);  // c normal, 2^-126..2^74
+    const float c = from_bits(exponent << 23 | static_cast<std::uint32_t>(next() & 0x7fffffu));
+    const float u = std::nextafter(c, INFINITY) - c;
+    const int k = 1 + static_cast<int>(next() % 23);
+    const float a = u / 2 * (1 + std::ldexp(1.0f, -k)), b = 1 - std::ldexp(1.0f, -k);
+    check(a, b, c);
+    check(-a, b, c + u);
+    check(-a, b, -c);
+    midpoint_cases += 3;
+  }
+  // The same beside subnormal results: u = 2^-149, a b = 2^-150 (1 - 2^-2k).
+  for (int i = 0; i < 20000; ++i) {
+    const float c = from_bits(static_cast<std::uint32_t>(next() % 0x800000u));
+    const int k = 1 + static_cast<int>(next() % 23);
+    const float a = std::ldexp(1.0f + std::ldexp(1.0f, -k), -75), b = std::ldexp(1.0f - std::ldexp(1.0f, -k), -75);
+    check(a, b, c);
+    check(-a, b, -c);
+  }
+  // Signed zeros, infinities, NaN, overflow and the largest and least values.
+  const float special[] = {0.0f, -0.0f, 1.0f, -1.0f, INFINITY, -INFINITY, NAN, 3.4028235e38f, -3.4028235e38f,
+                           1.17549435e-38f, 1.4e-45f, -1.4e-45f, 0.5f, 2.0f};
+  for (float a : special)
+    for (float b : special)
+      for (float c : special) check(a, b, c);
+  MESSAGE(checked << " triples, " << midpoint_cases << " beside a midpoint; rounded twice, " << naive_apart << " would differ");
+  CHECK(apart == 0);
+  // The cases reach what they test: rounding twice is wrong on thousands of them.
+  CHECK(naive_apart > 1000);
+  // fma_float is the instruction or this: the same bits either way.
+  CHECK(bits_of(fma_float(0.1f, 0.2f, 0.3f)) == bits_of(std::fma(0.1f, 0.2f, 0.3f)));
 }
 
 TEST_CASE("rotations from axes and angles and back: Eigen's AngleAxis to a few ulp, with terralign's sine") {

@@ -2,6 +2,8 @@
 #pragma once
 
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 
 // Every promise of the same bits (and every NaN check on bad input) rests on IEEE arithmetic
 // as written. -ffast-math and -Ofast let the compiler reorder sums, drop signed zeros and
@@ -31,5 +33,42 @@ double atan2_portable(double y, double x);
 // The natural logarithm in the same way (within 2 ulp of glibc's; -inf at 0, NaN below), for
 // the samplers' normal deviates (Box and Muller).
 double log_portable(double x);
+
+// a b + c rounded once, as std::fma, in double arithmetic: for targets without a fused
+// multiply-add (32-bit ARM with Debian's baseline VFPv3, as the Cortex-A8 and A9 have; x86-64
+// built without -mfma), where std::fma is the C library's fmaf, which glibc computes the same
+// way but writes and restores the FPU's rounding mode around every call. The product of two
+// floats is exact in double (48 bits); their sum with c is rounded to double and, where that
+// rounding was inexact (its exact error by Knuth's two-sum), moved to its odd neighbour:
+// rounded to odd at 53 bits, the one rounding to float is then the correct one (Boldo and
+// Melquiond, 2008: 53 >= 2 x 24 + 2, subnormal results included). Needs round to nearest,
+// which every frame-level entry of the onboard path sets (float_environment.hpp). A NaN
+// result is a NaN, its payload not std::fma's.
+inline float fma_float_by_double(float a, float b, float c) {
+  const double p = static_cast<double>(a) * static_cast<double>(b);
+  const double cd = static_cast<double>(c);
+  double s = p + cd;
+  const double back = s - p;
+  const double err = (p - (s - back)) + (cd - back);
+  if (err != 0.0 && std::isfinite(s)) {
+    std::uint64_t bits;
+    std::memcpy(&bits, &s, sizeof bits);
+    if ((bits & 1u) == 0) {
+      // Towards the exact sum: up in magnitude where the error has the sum's sign.
+      bits = (err > 0.0) == (s > 0.0) ? bits + 1 : bits - 1;
+      std::memcpy(&s, &bits, sizeof s);
+    }
+  }
+  return static_cast<float>(s);
+}
+
+// a b + c rounded once: the instruction where the target has one, else fma_float_by_double.
+inline float fma_float(float a, float b, float c) {
+#if defined(__FP_FAST_FMAF)
+  return std::fma(a, b, c);
+#else
+  return fma_float_by_double(a, b, c);
+#endif
+}
 
 }  // namespace terralign
