@@ -107,7 +107,7 @@ inline void conv1_tile(const Tensor& in, const ConvWeights& w, Tensor& out, int 
           for (int p = 0; p < NP; ++p) acc[p][j] = fmadd(L::load(ip + p * cp + c), wv, acc[p][j]);
         }
       for (int ci = groups * 8; ci < cin; ++ci)
-        for (int p = 0; p < NP; ++p) rest[p] = std::fma(ip[p * cp + ci], wp[ci], rest[p]);
+        for (int p = 0; p < NP; ++p) rest[p] = fma_float(ip[p * cp + ci], wp[ci], rest[p]);
     }
   for (int p = 0; p < NP; ++p) {
     float l[8];

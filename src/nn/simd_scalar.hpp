@@ -1,22 +1,26 @@
 // The one-lane scalar vector wrapper: the scalar build of every kernel. Every operation is the
-// vector builds' one lane at a time, multiply-adds rounded once (std::fma) and ELU's exp the
-// same polynomial, so this build gives their bits on any CPU (the tests compare them).
+// vector builds' one lane at a time, multiply-adds rounded once (fma_float: the instruction,
+// or where the target has none an exact sum in double, not a call that writes the FPU's
+// rounding mode each time) and ELU's exp the same polynomial, so this build gives their bits
+// on any CPU (the tests compare them).
 #pragma once
 
 #include <cmath>
 #include <cstdint>
 #include <cstring>
 
+#include <terralign/geo/numeric.hpp>  // fma_float
+
 namespace terralign::nn {
 
 // taylor6_avx2 and expm1_neg_avx2 (simd_avx2.hpp, where the reduction is explained), one lane.
 inline float taylor6_scalar(float t) {
   float q = 1.0f / 720.0f;
-  q = std::fma(q, t, 1.0f / 120.0f);
-  q = std::fma(q, t, 1.0f / 24.0f);
-  q = std::fma(q, t, 1.0f / 6.0f);
-  q = std::fma(q, t, 0.5f);
-  q = std::fma(q, t, 1.0f);
+  q = fma_float(q, t, 1.0f / 120.0f);
+  q = fma_float(q, t, 1.0f / 24.0f);
+  q = fma_float(q, t, 1.0f / 6.0f);
+  q = fma_float(q, t, 0.5f);
+  q = fma_float(q, t, 1.0f);
   return q * t;
 }
 
@@ -37,10 +41,10 @@ inline float pow2_of_shifted(float nb) {
 // exp(x) - 1 for x <= 0 (expm1_neg_avx2). The clamp is max_ps's: a NaN x stays NaN.
 inline float expm1_neg_scalar(float x) {
   x = -87.0f > x ? -87.0f : x;
-  const float nb = std::fma(x, 1.44269504088896341f, kExpShifter);
-  const float r = std::fma(-(nb - kExpShifter), 0.693147180559945309f, x);
+  const float nb = fma_float(x, 1.44269504088896341f, kExpShifter);
+  const float r = fma_float(-(nb - kExpShifter), 0.693147180559945309f, x);
   const float s = pow2_of_shifted(nb);
-  return std::fma(s, taylor6_scalar(r), s - 1.0f);
+  return fma_float(s, taylor6_scalar(r), s - 1.0f);
 }
 
 struct VecScalar {
@@ -55,7 +59,7 @@ struct VecScalar {
   void store(float* p) const { *p = v; }
   friend VecScalar operator+(VecScalar a, VecScalar b) { return {a.v + b.v}; }
   friend VecScalar operator-(VecScalar a, VecScalar b) { return {a.v - b.v}; }
-  friend VecScalar fmadd(VecScalar a, VecScalar b, VecScalar c) { return {std::fma(a.v, b.v, c.v)}; }
+  friend VecScalar fmadd(VecScalar a, VecScalar b, VecScalar c) { return {fma_float(a.v, b.v, c.v)}; }
   friend VecScalar elu(VecScalar a) { return {a.v > 0.0f ? a.v : expm1_neg_scalar(a.v)}; }
   friend VecScalar relu(VecScalar a) { return {a.v > 0.0f ? a.v : 0.0f}; }
 };
