@@ -62,9 +62,11 @@ inline float fma_float_by_double(float a, float b, float c) {
   return static_cast<float>(s);
 }
 
-// a b + c rounded once: the instruction where the target has one, else fma_float_by_double.
+// a b + c rounded once: the instruction where the target has one (GCC says so with
+// __FP_FAST_FMAF; clang defines only __FMA__ on x86 and __ARM_FEATURE_FMA on ARM), else
+// fma_float_by_double.
 inline float fma_float(float a, float b, float c) {
-#if defined(__FP_FAST_FMAF)
+#if defined(__FP_FAST_FMAF) || defined(__FMA__) || defined(__ARM_FEATURE_FMA)
   return std::fma(a, b, c);
 #else
   return fma_float_by_double(a, b, c);
