@@ -35,9 +35,9 @@ double atan2_portable(double y, double x);
 double log_portable(double x);
 
 // a b + c rounded once, as std::fma, in double arithmetic: for targets without a fused
-// multiply-add (32-bit ARM with Debian's baseline VFPv3, as the Cortex-A8 and A9 have; x86-64
-// built without -mfma), where std::fma is the C library's fmaf, which glibc computes the same
-// way but writes and restores the FPU's rounding mode around every call. The product of two
+// multiply-add (32-bit ARM with Debian's baseline VFPv3, as the Cortex-A8 and A9 have), where
+// std::fma is the C library's fmaf, which glibc computes the same way but writes and restores
+// the FPU's rounding mode around every call. The product of two
 // floats is exact in double (48 bits); their sum with c is rounded to double and, where that
 // rounding was inexact (its exact error by Knuth's two-sum), moved to its odd neighbour:
 // rounded to odd at 53 bits, the one rounding to float is then the correct one (Boldo and
@@ -62,14 +62,17 @@ inline float fma_float_by_double(float a, float b, float c) {
   return static_cast<float>(s);
 }
 
-// a b + c rounded once: the instruction where the target has one (GCC says so with
-// __FP_FAST_FMAF; clang defines only __FMA__ on x86 and __ARM_FEATURE_FMA on ARM), else
-// fma_float_by_double.
+// a b + c rounded once, as std::fma: fma_float_by_double on 32-bit ARM with a double-precision
+// FPU but no fused multiply-add (VFPv3), where std::fma is glibc's fmaf, which switches FPSCR's
+// rounding mode twice a call (the firmware's test under qemu-arm: 425 s against 702 s, session
+// 86). Elsewhere std::fma: the instruction, or on x86-64 built without -mfma glibc's fmaf, which
+// runs the instruction where the CPU has one; the emulation measured 1.0-2.4x slower than that
+// call on this project's AVX-512 host (bench_nn's scalar rows), so x86-64 keeps the call.
 inline float fma_float(float a, float b, float c) {
-#if defined(__FP_FAST_FMAF) || defined(__FMA__) || defined(__ARM_FEATURE_FMA)
-  return std::fma(a, b, c);
-#else
+#if defined(__arm__) && !defined(__ARM_FEATURE_FMA) && defined(__ARM_FP) && (__ARM_FP & 8)
   return fma_float_by_double(a, b, c);
+#else
+  return std::fma(a, b, c);
 #endif
 }
 
