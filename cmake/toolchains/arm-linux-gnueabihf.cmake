@@ -3,8 +3,9 @@
 # under qemu-user: `bash scripts/test-arm-linux.sh armhf [-DTERRALIGN_ARM_FPU=...]` does all of
 # it, and CI runs it with -DTERRALIGN_ARM_FPU=neon-vfpv4.
 # Debian's armhf defaults: ARMv7-A, VFPv3-D16, hard float, Thumb-2. VFPv3 has no fused
-# multiply-add, so each std::fma of the scalar kernels (917 call sites in the firmware's test)
-# calls glibc's fmaf, which computes in double with FPSCR's rounding mode switched twice.
+# multiply-add, so the scalar kernels' multiply-adds (917 sites in the firmware's test) are
+# computed exactly in double arithmetic, inline (fma_float, geo/numeric.hpp; until session 86
+# each was a call to glibc's fmaf, which switches FPSCR's rounding mode twice).
 # -DTERRALIGN_ARM_FPU=vfpv4-d16 (Cortex-A5, A7, A12, A15, A17, and ARMv8 cores running 32-bit
 # code) makes each one instruction, vfma.f32; both round once, so the answers are the same.
 # -DTERRALIGN_ARM_FPU=neon-vfpv4 (the same cores with NEON, as most have) adds the NEON
