@@ -22,6 +22,18 @@ double angle_deg(const Eigen::Quaterniond& a, const Eigen::Quaterniond& b) {
   return Eigen::AngleAxisd(a.conjugate() * b).angle() * 180.0 / M_PI;
 }
 
+// splitmix64: the same numbers on every machine.
+struct SplitMix64 {
+  std::uint64_t z;
+  std::uint64_t operator()() {
+    z += 0x9e3779b97f4a7c15ull;
+    std::uint64_t x = z;
+    x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
+    x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
+    return x ^ (x >> 31);
+  }
+};
+
 }  // namespace
 
 TEST_CASE("pose text: parse, format, round trip") {
@@ -173,14 +185,7 @@ TEST_CASE("sin_cos, atan2_portable, log_portable: within 2 ulp of the C library'
   // over 4 million arguments when they were written (session 80). Tried against it there: 1/5!
   // written 1/121 (sin and cos 1.9e11 ulp off), the middle part of pi / 2 dropped (1.1e12),
   // atan(1/2) 1e-16 high (atan2 3 ulp) and the log's series cut to five terms (3.2e5 ulp).
-  std::uint64_t z = 0x9e3779b97f4a7c15ull;
-  auto next = [&z]() {  // splitmix64: the same arguments on every machine
-    z += 0x9e3779b97f4a7c15ull;
-    std::uint64_t x = z;
-    x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
-    x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
-    return x ^ (x >> 31);
-  };
+  SplitMix64 next{0x9e3779b97f4a7c15ull};
   auto uniform = [&](double lo, double hi) { return lo + (hi - lo) * static_cast<double>(next() >> 11) * 0x1.0p-53; };
   double worst_sin = 0, worst_cos = 0, worst_atan2 = 0, worst_log = 0;
   for (int i = 0; i < 200000; ++i) {
@@ -229,14 +234,7 @@ TEST_CASE("sin_cos, atan2_portable, log_portable: within 2 ulp of the C library'
 TEST_CASE("fma_float_by_double gives std::fma's bits: random triples, sums beside a rounding midpoint, subnormals, specials") {
   // std::fma is correctly rounded wherever it comes from (an instruction, or the C library's
   // fmaf), so any bit apart is a bug: no tolerance. A NaN result needs only be a NaN.
-  std::uint64_t z = 0x2545f4914f6cdd1dull;
-  auto next = [&z]() {  // splitmix64: the same triples on every machine
-    z += 0x9e3779b97f4a7c15ull;
-    std::uint64_t x = z;
-    x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
-    x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
-    return x ^ (x >> 31);
-  };
+  SplitMix64 next{0x2545f4914f6cdd1dull};
   auto from_bits = [](std::uint32_t b) {
     float f;
     std::memcpy(&f, &b, sizeof f);
