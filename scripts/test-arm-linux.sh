@@ -6,9 +6,10 @@
 # - aarch64: NEON kernels, compared with their scalar twins by the tests.
 # - armhf (32-bit ARMv7-A, hard float): with Debian's baseline FPU (VFPv3-D16) every kernel
 #   runs its scalar twin, each fused multiply-add is computed in double (fma_float), and the
-#   firmware's test alone takes about 7 minutes under qemu-arm. CI builds for NEON and VFPv4 (-DTERRALIGN_ARM_FPU=neon-vfpv4:
-#   cmake/toolchains/arm-linux-gnueabihf.cmake): the convolutions run their NEON kernel, tested
-#   against the scalar twin, and the rest its scalar twin with one instruction a multiply-add.
+#   firmware's test alone takes about 7 minutes under qemu-arm. CI builds for NEON and VFPv4
+#   (-DTERRALIGN_ARM_FPU=neon-vfpv4: cmake/toolchains/arm-linux-gnueabihf.cmake): the
+#   convolutions run their NEON kernel, tested against the scalar twin, and the rest its
+#   scalar twin with one instruction a multiply-add.
 # Both run in CI (.ci/run). Arguments after the architecture go to CMake; ARM_SUITE=0 skips the
 # suite and runs the firmware's test alone.
 #

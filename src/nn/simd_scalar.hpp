@@ -1,8 +1,7 @@
 // The one-lane scalar vector wrapper: the scalar build of every kernel. Every operation is the
-// vector builds' one lane at a time, multiply-adds rounded once (fma_float: the instruction,
-// or where the target has none an exact sum in double, not a call that writes the FPU's
-// rounding mode each time) and ELU's exp the same polynomial, so this build gives their bits
-// on any CPU (the tests compare them).
+// vector builds' one lane at a time, multiply-adds rounded once (fma_float: std::fma, or on
+// 32-bit ARM without a fused multiply-add the same rounding in double arithmetic) and ELU's
+// exp the same polynomial, so this build gives their bits on any CPU (the tests compare them).
 #pragma once
 
 #include <cmath>

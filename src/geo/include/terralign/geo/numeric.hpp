@@ -37,13 +37,12 @@ double log_portable(double x);
 // a b + c rounded once, as std::fma, in double arithmetic: for targets without a fused
 // multiply-add (32-bit ARM with Debian's baseline VFPv3, as the Cortex-A8 and A9 have), where
 // std::fma is the C library's fmaf, which glibc computes the same way but writes and restores
-// the FPU's rounding mode around every call. The product of two
-// floats is exact in double (48 bits); their sum with c is rounded to double and, where that
-// rounding was inexact (its exact error by Knuth's two-sum), moved to its odd neighbour:
-// rounded to odd at 53 bits, the one rounding to float is then the correct one (Boldo and
-// Melquiond, 2008: 53 >= 2 x 24 + 2, subnormal results included). Needs round to nearest,
-// which every frame-level entry of the onboard path sets (float_environment.hpp). A NaN
-// result is a NaN, its payload not std::fma's.
+// the FPU's rounding mode around every call. The product of two floats is exact in double
+// (48 bits); their sum with c is rounded to double and, where that rounding was inexact (its
+// exact error by Knuth's two-sum), moved to its odd neighbour: rounded to odd at 53 bits, the
+// one rounding to float is then the correct one (Boldo and Melquiond, 2008: 53 >= 2 x 24 + 2,
+// subnormal results included). Needs round to nearest, which every frame-level entry of the
+// onboard path sets (float_environment.hpp). A NaN result is a NaN, its payload not std::fma's.
 inline float fma_float_by_double(float a, float b, float c) {
   const double p = static_cast<double>(a) * static_cast<double>(b);
   const double cd = static_cast<double>(c);
@@ -64,7 +63,7 @@ inline float fma_float_by_double(float a, float b, float c) {
 
 // a b + c rounded once, as std::fma: fma_float_by_double on 32-bit ARM with a double-precision
 // FPU but no fused multiply-add (VFPv3), where std::fma is glibc's fmaf, which switches FPSCR's
-// rounding mode twice a call (the firmware's test under qemu-arm: 425 s against 702 s, session
+// rounding mode twice a call (the firmware's test under qemu-arm: 389-425 s against 702 s, session
 // 86). Elsewhere std::fma: the instruction, or on x86-64 built without -mfma glibc's fmaf, which
 // runs the instruction where the CPU has one; the emulation measured 1.0-2.4x slower than that
 // call on this project's AVX-512 host (bench_nn's scalar rows), so x86-64 keeps the call.
