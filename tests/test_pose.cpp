@@ -298,7 +298,7 @@ TEST_CASE("fma_float_by_double gives std::fma's bits: random triples, sums besid
   CHECK(apart == 0);
   // The cases reach what they test: rounding twice is wrong on thousands of them.
   CHECK(naive_apart > 1000);
-  // fma_float is the instruction or this: the same bits either way.
+  // fma_float is std::fma or this: the same bits either way.
   CHECK(bits_of(fma_float(0.1f, 0.2f, 0.3f)) == bits_of(std::fma(0.1f, 0.2f, 0.3f)));
 }
 
