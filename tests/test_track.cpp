@@ -893,7 +893,7 @@ TEST_CASE("eval --altimeter: the priors' altitude is an altimeter's, and across 
   CHECK(runs[1]["nn:20"]["epe_px"]["mean"].get<double>() < runs[0]["nn:20"]["epe_px"]["mean"].get<double>());
   check_refused(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2009 --query-layer 2020 --count 1 --seed 3 " +
                     "--altitude 700:900 --altimeter -2",
-                test::temp_dir() + "/eval_alt_err.txt", "--altimeter must be in [0, 1000] m");
+                test::temp_dir() + "/eval_alt_err.txt", "--altimeter '-2' must be in [0, 1000] m");
 }
 
 TEST_CASE("eval on Christchurch: the manifest's registration sigma makes the converged answers' NEES honest, and the JSON's covariance gives that NEES") {

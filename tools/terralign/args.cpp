@@ -58,6 +58,27 @@ Result<double> Args::get_double(const std::string& key, double def) const {
   return v.value();
 }
 
+namespace {
+
+// An interval's end as written: integers whole ("1000000", not "1e+06").
+std::string bound_text(double v) {
+  return v == std::trunc(v) && std::abs(v) < 1e15 ? std::to_string(static_cast<long long>(v)) : geo::format_double(v);
+}
+
+}  // namespace
+
+std::string Interval::text() const {
+  if (std::isinf(hi)) return (lo_open ? "> " : ">= ") + bound_text(lo);
+  if (std::isinf(lo)) return (hi_open ? "< " : "<= ") + bound_text(hi);
+  return std::string("in ") + (lo_open ? "(" : "[") + bound_text(lo) + ", " + bound_text(hi) + (hi_open ? ")" : "]");
+}
+
+Result<double> Args::get_double_in(const std::string& key, double def, const Interval& in, const std::string& unit) const {
+  const auto v = get_double(key, def);
+  if (!has(key) || (v.ok() && in.contains(v.value()))) return v;
+  return Error{"--" + key + " '" + get(key) + "' must be " + in.text() + (unit.empty() ? "" : " " + unit)};
+}
+
 std::optional<std::vector<double>> finite_numbers(const std::string& text, char separator, std::size_t count) {
   auto v = geo::parse_numbers(text, separator);
   if (!v.ok() || v->size() != count || !std::all_of(v->begin(), v->end(), [](double x) { return std::isfinite(x); }))
@@ -105,74 +126,38 @@ Result<nn::WeightFile> learned_weights(const Args& args) {
 
 Result<iclk::TrackerOptions> parse_tracker_options(const Args& args) {
   iclk::TrackerOptions opt;
-  auto tilt = args.get_double("tilt-prior", kDefaultTiltPriorDeg);
-  if (!tilt.ok() || !(tilt.value() >= 0 && tilt.value() <= 10))
-    return Error{"--tilt-prior '" + args.get("tilt-prior") + "' must be in [0, 10] degrees (0: no tilt prior)"};
-  opt.tilt_prior_rad = tilt.value() * 3.14159265358979323846 / 180;
-  auto altitude = args.get_double("altitude-prior", 0.0);
-  if (!altitude.ok() || !(altitude.value() >= 0 && altitude.value() <= 1000))
-    return Error{"--altitude-prior '" + args.get("altitude-prior") + "' must be in [0, 1000] m (0: no altitude prior)"};
-  opt.altitude_prior_m = altitude.value();
-  auto floor_px = args.get_double("registration-floor", opt.registration_floor_px);
-  if (!floor_px.ok() || !(floor_px.value() >= 0 && floor_px.value() <= 100))
-    return Error{"--registration-floor '" + args.get("registration-floor") + "' must be in [0, 100] camera pixels"};
-  opt.registration_floor_px = floor_px.value();
-  auto per_residual = args.get_double("registration-floor-per-residual", opt.registration_floor_per_residual_px);
-  if (!per_residual.ok() || !(per_residual.value() >= 0 && per_residual.value() <= 100))
-    return Error{"--registration-floor-per-residual '" + args.get("registration-floor-per-residual") +
-                 "' must be in [0, 100] camera pixels"};
-  opt.registration_floor_per_residual_px = per_residual.value();
-  auto sharp = args.get_double("min-sharpness", 0.0);
-  if (!sharp.ok() || !(std::abs(sharp.value()) <= 1000))
-    return Error{"--min-sharpness '" + args.get("min-sharpness") + "' must be in [-1000, 1000] (negative: no sharpness test)"};
-  opt.min_sharpness = sharp.value();
-  auto agree = args.get_double("max-disagreement", 0.0);
-  if (!agree.ok() || !(std::abs(agree.value()) <= 1000))
-    return Error{"--max-disagreement '" + args.get("max-disagreement") +
-                 "' must be in [-1000, 1000] working pixels (negative: no agreement test)"};
-  opt.max_disagreement_px = agree.value();
-  auto agree_px = args.get_double("agree-px", 0.0);
-  if (!agree_px.ok() || !(agree_px.value() >= 0 && agree_px.value() <= 10))
-    return Error{"--agree-px '" + args.get("agree-px") + "' must be in [0, 10] working pixels (0: each tracker's own)"};
-  opt.agree_px = agree_px.value();
+  double tilt_deg = 0;
+  TERRALIGN_TRY_ASSIGN(tilt_deg, args.get_double_in("tilt-prior", kDefaultTiltPriorDeg, {0, 10}, "degrees (0: no tilt prior)"));
+  opt.tilt_prior_rad = tilt_deg * 3.14159265358979323846 / 180;
+  TERRALIGN_TRY_ASSIGN(opt.altitude_prior_m, args.get_double_in("altitude-prior", 0.0, {0, 1000}, "m (0: no altitude prior)"));
+  TERRALIGN_TRY_ASSIGN(opt.registration_floor_px,
+                       args.get_double_in("registration-floor", opt.registration_floor_px, {0, 100}, "camera pixels"));
+  TERRALIGN_TRY_ASSIGN(opt.registration_floor_per_residual_px,
+                       args.get_double_in("registration-floor-per-residual", opt.registration_floor_per_residual_px, {0, 100},
+                                          "camera pixels"));
+  TERRALIGN_TRY_ASSIGN(opt.min_sharpness,
+                       args.get_double_in("min-sharpness", 0.0, {-1000, 1000}, "(negative: no sharpness test)"));
+  TERRALIGN_TRY_ASSIGN(opt.max_disagreement_px,
+                       args.get_double_in("max-disagreement", 0.0, {-1000, 1000}, "working pixels (negative: no agreement test)"));
+  TERRALIGN_TRY_ASSIGN(opt.agree_px, args.get_double_in("agree-px", 0.0, {0, 10}, "working pixels (0: each tracker's own)"));
   TERRALIGN_TRY_ASSIGN(opt.coarse_search_px, args.get_int("coarse-search", 0, -1, 16));
-  auto min_step = args.get_double("min-step", 0.0);
-  if (!min_step.ok() || !(min_step.value() >= -1 && min_step.value() <= 10))
-    return Error{"--min-step '" + args.get("min-step") + "' must be in [-1, 10] working pixels (negative: none)"};
-  opt.min_step_px = min_step.value();
+  TERRALIGN_TRY_ASSIGN(opt.min_step_px, args.get_double_in("min-step", 0.0, {-1, 10}, "working pixels (negative: none)"));
   return opt;
 }
 
 Result<Degradation> parse_degradation(const Args& args) {
   Degradation d;
   TERRALIGN_TRY_ASSIGN(d.blur, args.get_int("blur", 0, 0, 10));
-  auto noise = args.get_double("noise", 0.0);
-  if (!noise.ok() || !(noise.value() >= 0 && noise.value() <= 100))
-    return Error{"--noise '" + args.get("noise") + "' must be in [0, 100] grey levels"};
-  d.noise = noise.value();
-  auto exposure = args.get_double("exposure", 0.0);
-  if (!exposure.ok() || !(exposure.value() >= 0 && exposure.value() < 1))
-    return Error{"--exposure '" + args.get("exposure") + "' must be in [0, 1)"};
-  d.exposure = exposure.value();
+  TERRALIGN_TRY_ASSIGN(d.noise, args.get_double_in("noise", 0.0, {0, 100}, "grey levels"));
+  TERRALIGN_TRY_ASSIGN(d.exposure, args.get_double_in("exposure", 0.0, {0, 1, false, true}));
   return d;
 }
 
 Result<TrackFilterOptions> parse_track_filter(const Args& args) {
   TrackFilterOptions opt;
-  auto accel = args.get_double("accel-sigma", opt.accel_sigma);
-  if (!accel.ok()) return accel.error();
-  if (!(accel.value() > 0 && accel.value() <= 100))
-    return Error{"--accel-sigma " + args.get("accel-sigma") + " must be in (0, 100] m/s per root second"};
-  opt.accel_sigma = accel.value();
-  auto gate = args.get_double("gate", opt.gate);
-  if (!gate.ok()) return gate.error();
-  if (!(gate.value() <= 1e6)) return Error{"--gate " + args.get("gate") + " must be at most 1e6 (negative: none)"};
-  opt.gate = gate.value();
-  auto init_sigma = args.get_double("init-sigma", opt.init_position_sigma);
-  if (!init_sigma.ok()) return init_sigma.error();
-  if (!(init_sigma.value() > 0 && init_sigma.value() <= 1e5))
-    return Error{"--init-sigma " + args.get("init-sigma") + " must be in (0, 1e5] m"};
-  opt.init_position_sigma = init_sigma.value();
+  TERRALIGN_TRY_ASSIGN(opt.accel_sigma, args.get_double_in("accel-sigma", opt.accel_sigma, {0, 100, true}, "m/s per root second"));
+  TERRALIGN_TRY_ASSIGN(opt.gate, args.get_double_in("gate", opt.gate, {-INFINITY, 1e6}, "(negative: none)"));
+  TERRALIGN_TRY_ASSIGN(opt.init_position_sigma, args.get_double_in("init-sigma", opt.init_position_sigma, {0, 1e5, true}, "m"));
   return opt;
 }
 
@@ -186,25 +171,11 @@ Result<Refinement> parse_refine(const Args& args, bool tracking) {
     if (!l.ok()) return Error{"--refine-levels '" + args.get("refine-levels") + "' must be 1 to 6 levels"};
     r.levels = l.value();
   }
-  if (args.has("refine-max-residual")) {
-    auto m = args.get_double("refine-max-residual", 0.0);
-    if (!m.ok() || !(m.value() > 0 && m.value() <= 100))
-      return Error{"--refine-max-residual '" + args.get("refine-max-residual") + "' must be a final residual in (0, 100]"};
-    r.max_residual = m.value();
-  }
-  if (args.has("refine-uniform")) {
-    auto u = args.get_double("refine-uniform", 0.0);
-    if (!u.ok() || !(u.value() >= 0 && u.value() <= 2))
-      return Error{"--refine-uniform '" + args.get("refine-uniform") + "' must be a final residual in [0, 2]"};
-    r.uniform_max_residual = u.value();
-  }
-  if (args.has("second-look-max-disagreement")) {
-    auto m = args.get_double("second-look-max-disagreement", 0.0);
-    if (!m.ok() || !(m.value() > 0 && m.value() <= 1000))
-      return Error{"--second-look-max-disagreement '" + args.get("second-look-max-disagreement") +
-                   "' must be in (0, 1000] px"};
-    r.second_look_max_disagreement = m.value();
-  }
+  TERRALIGN_TRY_ASSIGN(r.max_residual, args.get_double_in("refine-max-residual", r.max_residual, {0, 100, true}, "(a final residual)"));
+  TERRALIGN_TRY_ASSIGN(r.uniform_max_residual,
+                       args.get_double_in("refine-uniform", r.uniform_max_residual, {0, 2}, "(a final residual)"));
+  TERRALIGN_TRY_ASSIGN(r.second_look_max_disagreement,
+                       args.get_double_in("second-look-max-disagreement", r.second_look_max_disagreement, {0, 1000, true}, "px"));
   const std::string look = args.get("second-look", kDefaultSecondLook ? "yes" : "no");
   const bool at_start = tracking && look == "start";  // off until the track's first frame turns it on
   if (!at_start && look != "yes" && look != "no")

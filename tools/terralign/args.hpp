@@ -18,6 +18,15 @@
 
 namespace terralign::cli {
 
+// Where a number option may lie: from lo to hi, each end closed unless said open; an infinite
+// end is no bound.
+struct Interval {
+  double lo, hi;
+  bool lo_open = false, hi_open = false;
+  bool contains(double v) const { return (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi); }
+  std::string text() const;  // "in [0, 60]", "in (0, 1)", "> 0", "<= 1000000"
+};
+
 class Args {
  public:
   // `flags` take no value; every other option takes one. Unknown options are errors.
@@ -28,6 +37,9 @@ class Args {
   Result<std::string> required(const std::string& key) const;
   Result<int> get_int(const std::string& key, int def, int lo, int hi) const;
   Result<double> get_double(const std::string& key, double def) const;
+  // A number in `in`, `def` without the option; an error names the option, its text and the
+  // interval, then `unit` ("--tilt '70' must be in [0, 60] degrees").
+  Result<double> get_double_in(const std::string& key, double def, const Interval& in, const std::string& unit = "") const;
 
  private:
   std::map<std::string, std::string> values_;

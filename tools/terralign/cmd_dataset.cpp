@@ -42,15 +42,13 @@ int run_dataset(const std::vector<std::string>& argv) {
     if (!args->has(k)) return usage_error("dataset", Error{std::string("missing required option --") + k});
   auto count = args->get_int("count", 0, 1, 1000000);
   auto seed = args->get_int("seed", 0, 0, 1 << 30);
-  auto tilt = args->get_double("tilt", 10);
-  auto fraction = args->get_double("split-fraction", 0.2);
-  auto scale = args->get_double("scale", 1.0);
-  if (!count.ok()) return usage_error("dataset", count.error());
-  if (!seed.ok()) return usage_error("dataset", seed.error());
-  if (!tilt.ok() || tilt.value() < 0 || tilt.value() > 60) return usage_error("dataset", Error{"--tilt must be in [0, 60] degrees"});
-  if (!fraction.ok() || !(fraction.value() > 0 && fraction.value() < 1))
-    return usage_error("dataset", Error{"--split-fraction must be in (0, 1)"});
-  if (!scale.ok() || !(scale.value() > 0 && scale.value() <= 4)) return usage_error("dataset", Error{"--scale must be in (0, 4]"});
+  auto tilt = args->get_double_in("tilt", 10, {0, 60}, "degrees");
+  auto fraction = args->get_double_in("split-fraction", 0.2, {0, 1, true, true});
+  auto scale = args->get_double_in("scale", 1.0, {0, 4, true});
+  for (const auto* r : {&count, &seed})
+    if (!r->ok()) return usage_error("dataset", r->error());
+  for (const auto* r : {&tilt, &fraction, &scale})
+    if (!r->ok()) return usage_error("dataset", r->error());
   const auto altitude = altitude_range(args.value(), {700, 900});
   if (!altitude.ok()) return usage_error("dataset", altitude.error());
   const auto [lo, hi] = altitude.value();

@@ -150,23 +150,19 @@ int run_eval(const std::vector<std::string>& argv) {
   const auto altitude = altitude_range(args.value(), {0, 0});
   if (!altitude.ok()) return usage_error("eval", altitude.error());
   const auto [lo, hi] = altitude.value();
-  auto tilt = args->get_double("tilt", 0.0);
-  if (!tilt.ok() || tilt.value() < 0 || tilt.value() > 60) return usage_error("eval", Error{"--tilt must be in [0, 60] degrees"});
+  auto tilt = args->get_double_in("tilt", 0.0, {0, 60}, "degrees");
+  if (!tilt.ok()) return usage_error("eval", tilt.error());
   auto threads = args->get_int("threads", 2, 1, 64);
   if (!threads.ok()) return usage_error("eval", threads.error());
   auto robust = parse_robust(args->get("robust", "none"));
   if (!robust.ok()) return usage_error("eval", robust.error());
   auto levels = args->get_int("levels", 4, 1, 6);
   if (!levels.ok()) return usage_error("eval", levels.error());
-  auto imu_tilt = args->get_double("imu-tilt", 0.0);
-  if (!imu_tilt.ok() || !(imu_tilt.value() >= 0 && imu_tilt.value() <= 10))
-    return usage_error("eval", Error{"--imu-tilt must be in [0, 10] degrees (0: the protocol's prior rotation)"});
-  auto altimeter = args->get_double("altimeter", 0.0);
-  if (!altimeter.ok() || !(altimeter.value() >= 0 && altimeter.value() <= 1000))
-    return usage_error("eval", Error{"--altimeter must be in [0, 1000] m (0: the protocol's prior position)"});
-  auto prior_scale = args->get_double("prior-scale", 1.0);
-  if (!prior_scale.ok() || !(prior_scale.value() > 0 && prior_scale.value() <= 4))
-    return usage_error("eval", Error{"--prior-scale must be in (0, 4] (1: the protocol's priors)"});
+  auto imu_tilt = args->get_double_in("imu-tilt", 0.0, {0, 10}, "degrees (0: the protocol's prior rotation)");
+  auto altimeter = args->get_double_in("altimeter", 0.0, {0, 1000}, "m (0: the protocol's prior position)");
+  auto prior_scale = args->get_double_in("prior-scale", 1.0, {0, 4, true}, "(1: the protocol's priors)");
+  for (const auto* r : {&imu_tilt, &altimeter, &prior_scale})
+    if (!r->ok()) return usage_error("eval", r->error());
   auto topt = parse_tracker_options(args.value());
   if (!topt.ok()) return usage_error("eval", topt.error());
   auto refine = parse_refine(args.value());
@@ -176,9 +172,8 @@ int run_eval(const std::vector<std::string>& argv) {
   // The learned tracker's working size and levels (as the firmware sets them): 0 keeps the
   // weight file's.
   LocalizerSizes sizes;
-  auto input_scale = args->get_double("input-scale", 0.0);
-  if (!input_scale.ok() || !(input_scale.value() >= 0 && input_scale.value() <= 1))
-    return usage_error("eval", Error{"--input-scale must be in (0, 1] (0: the weight file's)"});
+  auto input_scale = args->get_double_in("input-scale", 0.0, {0, 1}, "(0: the weight file's)");
+  if (!input_scale.ok()) return usage_error("eval", input_scale.error());
   sizes.input_scale = input_scale.value();
   auto nn_levels = args->get_int("nn-levels", 0, 0, 6);
   if (!nn_levels.ok()) return usage_error("eval", nn_levels.error());

@@ -5,6 +5,7 @@
 
 #include <terralign/geo/file.hpp>
 #include <terralign/geo/image_io.hpp>
+#include <terralign/geo/number_text.hpp>
 #include <terralign/geo/numeric.hpp>
 
 #include "args.hpp"
@@ -17,6 +18,8 @@ namespace terralign::cli {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
+// The most frames a flight writes (--duration x --rate): 752 x 480 PNG frames, about a terabyte.
+constexpr int kMaxFrames = 1000000;
 
 struct Waypoint {
   double x, y;
@@ -71,24 +74,25 @@ int run_flight(const std::vector<std::string>& argv) {
   if (!args.ok()) return usage_error("flight", args.error());
   for (const char* k : {"map", "camera", "layer", "path", "speed", "rate", "out"})
     if (!args->has(k)) return usage_error("flight", Error{std::string("missing required option --") + k});
-  auto speed = args->get_double("speed", 20);
-  auto rate = args->get_double("rate", 2);
-  auto altitude = args->get_double("altitude", 800);
-  auto duration = args->get_double("duration", 60);
-  auto tilt = args->get_double("tilt", 0);
-  auto imu_tilt = args->get_double("imu-tilt", 0);
-  auto altimeter = args->get_double("altimeter", 0);
+  auto speed = args->get_double_in("speed", 20, {0, 1000, true}, "m/s");
+  // At most 1000 Hz: list.txt's and truth.txt's times, in microseconds, stay apart.
+  auto rate = args->get_double_in("rate", 2, {0, 1000, true}, "Hz");
+  auto altitude = args->get_double_in("altitude", 800, {0, INFINITY, true}, "m");
+  auto duration = args->get_double_in("duration", 60, {0, INFINITY, true}, "s");
+  auto tilt = args->get_double_in("tilt", 0, {0, 60}, "degrees");
+  auto imu_tilt = args->get_double_in("imu-tilt", 0, {0, 10}, "degrees");
+  auto altimeter = args->get_double_in("altimeter", 0, {0, 1000}, "m");
   auto degradation = parse_degradation(args.value());
   auto seed = args->get_int("seed", 1, 0, 1 << 30);
   for (auto* r : {&speed, &rate, &altitude, &duration, &tilt, &imu_tilt, &altimeter})
     if (!r->ok()) return usage_error("flight", r->error());
   if (!degradation.ok()) return usage_error("flight", degradation.error());
   if (!seed.ok()) return usage_error("flight", seed.error());
-  if (!(speed.value() > 0) || !(rate.value() > 0) || !(altitude.value() > 0) || !(duration.value() > 0) ||
-      tilt.value() < 0 || tilt.value() > 60 ||
-      !(imu_tilt.value() >= 0 && imu_tilt.value() <= 10) || !(altimeter.value() >= 0 && altimeter.value() <= 1000))
-    return usage_error("flight", Error{"--speed, --rate, --altitude, --duration must be > 0; "
-                                       "--tilt in [0, 60]; --imu-tilt in [0, 10]; --altimeter in [0, 1000]"});
+  const double frame_count = std::floor(duration.value() * rate.value());
+  if (!(frame_count >= 1 && frame_count <= kMaxFrames))
+    return usage_error("flight", Error{"--duration " + args->get("duration", "60") + " s at --rate " + args->get("rate") + " Hz is " +
+                                       geo::format_double(frame_count) + " frames; a flight has 1 to " +
+                                       std::to_string(kMaxFrames)});
   auto map = geo::load_map(args->get("map"));
   if (!map.ok()) return fail(map.error());
   auto cam_in = geo::load_camera(args->get("camera"));
@@ -115,7 +119,7 @@ int run_flight(const std::vector<std::string>& argv) {
   // The altimeter's: a third.
   Rng baro{static_cast<std::uint64_t>(seed.value()) ^ 0x7b3d9e1f05a2c468ULL};
   std::string list, truth, attitude, altimeter_lines;
-  const int frames = static_cast<int>(duration.value() * rate.value());
+  const int frames = static_cast<int>(frame_count);
   std::size_t leg = 0;
   double along = 0;  // metres along the current leg
   for (int i = 0; i < frames; ++i) {

@@ -58,7 +58,7 @@ int run_render(const std::vector<std::string>& argv) {
     return usage_error("render", Error{"give exactly one of --pose or --poses"});
   auto threads = args->get_int("threads", 2, 1, 64);
   if (!threads.ok()) return usage_error("render", threads.error());
-  auto lod = args->get_double("lod-error", 0.5);
+  auto lod = args->get_double_in("lod-error", 0.5, {0, INFINITY, true}, "px");
   if (!lod.ok()) return usage_error("render", lod.error());
 
   std::vector<geo::Pose> poses;

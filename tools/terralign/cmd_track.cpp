@@ -211,9 +211,8 @@ int run_track(const std::vector<std::string>& argv) {
   // (docs/history.md, session 73).
   auto restart_after = args->get_int("restart-after", kDefaultRestartAfter, 0, 1000);
   if (!restart_after.ok()) return usage_error("track", restart_after.error());
-  auto restart_max_ratio = args->get_double("restart-max-ratio", kDefaultRestartMaxRatio);
-  if (!restart_max_ratio.ok() || !(restart_max_ratio.value() >= 1 && restart_max_ratio.value() <= 1000))
-    return usage_error("track", Error{"--restart-max-ratio '" + args->get("restart-max-ratio") + "' must be in [1, 1000]"});
+  auto restart_max_ratio = args->get_double_in("restart-max-ratio", kDefaultRestartMaxRatio, {1, 1000});
+  if (!restart_max_ratio.ok()) return usage_error("track", restart_max_ratio.error());
   auto iters = args->get_int("iterations", 20, 1, 1000);
   auto threads = args->get_int("threads", 2, 1, 64);
   if (!iters.ok()) return usage_error("track", iters.error());
