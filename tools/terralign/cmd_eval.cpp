@@ -3,6 +3,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 
 #include <nlohmann/json.hpp>
 
@@ -145,7 +146,8 @@ int run_eval(const std::vector<std::string>& argv) {
   const std::string seed_text = args->get("seed");
   const auto seed_value = geo::parse_integer(seed_text);
   if (!seed_value.ok() || seed_value.value() < 0)
-    return usage_error("eval", Error{"--seed '" + seed_text + "' must be a non-negative integer"});
+    return usage_error("eval", Error{"--seed '" + seed_text + "' must be an integer in [0, " +
+                                     std::to_string(std::numeric_limits<long long>::max()) + "]"});
   const auto seed = static_cast<unsigned long long>(seed_value.value());
   const auto altitude = altitude_range(args.value(), {0, 0});
   if (!altitude.ok()) return usage_error("eval", altitude.error());
@@ -196,6 +198,9 @@ int run_eval(const std::vector<std::string>& argv) {
       } else {
         return usage_error("eval", Error{"unknown method '" + m + "' (init, classic:N, nn:N)"});
       }
+      // The table would show it twice and the JSON, keyed by name, once.
+      for (std::size_t i = 0; i + 1 < methods.size(); ++i)
+        if (methods[i].name == m) return usage_error("eval", Error{"method '" + m + "' is given twice"});
     }
   }
 
