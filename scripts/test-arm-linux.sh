@@ -80,6 +80,7 @@ source scripts/end-to-end-cases.sh
 NATIVE_ONLY="$END_TO_END_CASES|a rendered flight is tracked, and a frame of pure noise"
 NATIVE_ONLY+="|align on a flight's first frame takes the learned tracker's converged tests|eval --noise/--blur/--exposure"
 NATIVE_ONLY+="|track starts from --init-velocity|track holds each answer's|track reports bad frames by name"
+NATIVE_ONLY+="|eval's metrics of an answer do not depend on the methods"  # eval's bookkeeping: 32 learned pairs
 # Five of the learned tracker's library cases test what it decides (which layer is tried next,
 # which answers a refinement pass takes and how, the covariance's floor), not how a kernel
 # computes: 130-165 s each under qemu. The refinement's and the layers' cases for bytes and

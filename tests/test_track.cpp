@@ -749,6 +749,30 @@ TEST_CASE("eval --prior-scale: the same true poses with priors nearer by the fac
             "--altitude 700:900 --prior-scale nan") != 0);
 }
 
+TEST_CASE("eval's metrics of an answer do not depend on the methods run before it") {
+  // Until session 87 the metrics took the reference depth a classical localisation left
+  // behind, which a refinement pass that did not converge had rendered at its answer instead
+  // of the prior: with classic:20 run first, 7 of seed 7's 200 learned answers across 11 years
+  // were measured against the wrong depth, the 16th of them first.
+  const std::string tl = TERRALIGN_CLI;
+  const std::string map = test::source_path("data/naip_west/map.json");
+  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
+  std::vector<nlohmann::json> runs;
+  for (const char* methods : {"nn:20", "classic:20,nn:20"}) {
+    const std::string out = test::temp_dir() + "/eval_methods_" + std::to_string(runs.size()) + ".json";
+    REQUIRE(run(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2009 --query-layer 2020 --count 16 --seed 7 " +
+                "--altitude 700:900 --tilt 10 --methods " + methods + " --json " + out) == 0);
+    nlohmann::json samples = nlohmann::json::parse(test::read_text(out))["methods"]["nn:20"]["samples"];
+    for (auto& sample : samples) sample.erase("ms");
+    runs.push_back(std::move(samples));
+  }
+  REQUIRE(runs[0].size() == 16);
+  for (std::size_t i = 0; i < 16; ++i) {
+    CAPTURE(i);
+    CHECK(runs[0][i] == runs[1][i]);
+  }
+}
+
 TEST_CASE("eval --noise/--blur/--exposure: the same poses, each query degraded by its own draws, the same answers every run") {
   const std::string tl = TERRALIGN_CLI;
   const std::string base = tl + " eval --map " + test::source_path("data/naip_west/map.json") + " --camera " +

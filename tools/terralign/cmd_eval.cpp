@@ -273,6 +273,7 @@ int run_eval(const std::vector<std::string>& argv) {
   auto query = query_renderer.value()->make_output({args->get("query-layer")});
   if (!query.ok()) return fail(query.error());
   ImageF ref_grey, query_grey;
+  ImageF ref_depth;  // the metrics' reference: the classical (full-size) one rendered at the prior
   ImageU8 degraded;  // the query as the camera gives it, with --blur, --noise or --exposure
 
   int skipped = 0;
@@ -294,7 +295,19 @@ int run_eval(const std::vector<std::string>& argv) {
     iclk::SE3<double> gt;
     gt.R = rel.R();
     gt.t = rel.t_W_C;
-    bool have_ref = false;
+    // The metrics and the figures take the reference at the prior, rendered once a sample
+    // before any method. Until session 87 they took the one a classical localisation left
+    // behind, which a refinement pass that did not converge had rendered at its answer.
+    if (!loc.value()->render_at(s.prior).ok()) {
+      ++skipped;
+      continue;
+    }
+    ref_depth = loc.value()->reference_depth();
+    const bool figures = !overlays.empty() && i < 20;
+    if (figures) {
+      iclk::rgb_to_grey(loc.value()->reference().rgb[0].view(), ref_grey);
+      iclk::rgb_to_grey(live->view(), query_grey);
+    }
     for (auto& m : methods) {
       iclk::SE3<double> est = iclk::SE3<double>::identity();
       double ms = 0;
@@ -306,9 +319,6 @@ int run_eval(const std::vector<std::string>& argv) {
           std::fprintf(stderr, "terralign eval: sample %zu: %s\n", i, out.error().message.c_str());
           break;
         }
-        // The metrics use the classical (full-size) reference rendered at the prior: the
-        // classical tracker's own, unless it refined (rendered again at its answer).
-        if (!m.learned) have_ref = out->refinements == 0 && out->layer == 0;
         est = out->T_live_ref;
         ms = out->ms_encoder + out->ms_pyramid + out->ms_jacobian + out->ms_iterations;
         m.converged += out->converged;
@@ -336,11 +346,7 @@ int run_eval(const std::vector<std::string>& argv) {
         m.converged += 1;
         m.ok.push_back(1);
       }
-      if (!have_ref) {  // the reference for the metrics (the init method renders nothing)
-        if (!loc.value()->render_at(s.prior).ok()) break;
-        have_ref = true;
-      }
-      const Errors e = errors(est, gt, s.prior.R().transpose() * Eigen::Vector3d::UnitZ(), loc.value()->reference_depth(), cam);
+      const Errors e = errors(est, gt, s.prior.R().transpose() * Eigen::Vector3d::UnitZ(), ref_depth, cam);
       m.epe_m.push_back(e.epe_m);
       m.angle.push_back(e.angle_deg);
       m.tilt.push_back(e.tilt_deg);
@@ -352,16 +358,14 @@ int run_eval(const std::vector<std::string>& argv) {
       m.position_error.push_back((s.prior * T_live_ref.inverse()).t_W_C - s.truth.t_W_C);
       m.ground_shift.push_back(s.truth.R() * e.shift_C);
       m.truth_position.push_back(s.truth.t_W_C);
-      if (!overlays.empty() && i < 20) {
-        iclk::rgb_to_grey(loc.value()->reference().rgb[0].view(), ref_grey);
-        iclk::rgb_to_grey(live->view(), query_grey);
+      if (figures) {
         const std::string base = overlays + "/" + std::to_string(i) + "_";
         std::string safe = m.name;
         std::replace(safe.begin(), safe.end(), ':', '_');
-        auto img = overlay(ref_grey, loc.value()->reference_depth(), query_grey, est, cam);
+        auto img = overlay(ref_grey, ref_depth, query_grey, est, cam);
         if (auto st = geo::save_png(base + safe + ".png", img.view()); !st.ok()) return fail(st.error());
         if (&m == &methods.front()) {
-          auto truth_img = overlay(ref_grey, loc.value()->reference_depth(), query_grey, gt, cam);
+          auto truth_img = overlay(ref_grey, ref_depth, query_grey, gt, cam);
           if (auto st = geo::save_png(base + "truth.png", truth_img.view()); !st.ok()) return fail(st.error());
         }
       }
