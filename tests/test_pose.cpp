@@ -3,11 +3,14 @@
 #include <cstring>
 #include <fstream>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include <doctest/doctest.h>
 
 #include <terralign/geo/camera.hpp>
 #include <terralign/geo/map.hpp>
+#include <terralign/geo/number_text.hpp>
 #include <terralign/geo/numeric.hpp>
 #include <terralign/geo/pose.hpp>
 
@@ -45,6 +48,39 @@ TEST_CASE("pose text: parse, format, round trip") {
   REQUIRE(again.ok());
   CHECK(again->t_W_C == p->t_W_C);
   CHECK(again->q_W_C.coeffs() == p->q_W_C.coeffs());
+}
+
+TEST_CASE("numbers in text: the shortest that reads back, whole numbers below 1e15 in full") {
+  // "%g" alone wrote 60 as "6e+01" and 1370 as "1.37e+03" in messages and pose files.
+  CHECK(format_pose(parse_pose("487450.5 5207437.25 1370 0 1 0 0").value()) == "487450.5 5207437.25 1370 0 1 0 0");
+  CHECK(format_double(60) == "60");
+  CHECK(format_double(-1000000) == "-1000000");
+  CHECK(format_double(999999999999999) == "999999999999999");
+  CHECK(format_double(1e15) == "1e+15");
+  CHECK(format_double(1e300) == "1e+300");
+  CHECK(format_double(0.0001) == "0.0001");
+  CHECK(format_double(1e-5) == "1e-05");
+  CHECK(format_double(5208159.9) == "5208159.9");
+  CHECK(format_double(0.1 + 0.2) == "0.30000000000000004");
+  CHECK(format_double(-0.0) == "-0");
+  // Every text reads back as its double: 2000 doubles whose bits are drawn at random (NaN
+  // aside), and every whole number 10^k and 3 x 10^k up to 10^17.
+  SplitMix64 rng{99};
+  std::vector<double> values;
+  for (int i = 0; i < 2000; ++i) {
+    const std::uint64_t bits = rng();
+    double v;
+    std::memcpy(&v, &bits, sizeof v);
+    if (!std::isnan(v)) values.push_back(v);
+  }
+  for (double p10 = 1; p10 <= 1e17; p10 *= 10) values.insert(values.end(), {p10, 3 * p10, -7 * p10});
+  for (double v : values) {
+    const std::string text = format_double(v);
+    const auto back = parse_double(text);
+    REQUIRE_MESSAGE(back.ok(), text);
+    CHECK_MESSAGE(back.value() == v, text);
+    if (v == std::trunc(v) && std::abs(v) < 1e15) CHECK_MESSAGE(text.find('e') == std::string::npos, text);
+  }
 }
 
 TEST_CASE("bad pose text: zero-norm quaternion, NaN, wrong count, junk") {

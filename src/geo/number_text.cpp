@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <charconv>
 #include <clocale>
+#include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <system_error>
 #include <type_traits>
@@ -45,6 +47,19 @@ std::string printf_g(double v, int prec) {
   return s;
 }
 
+// "%g" writes a number with fewer significant digits than its exponent in exponent form: 60 as
+// "6e+01", 1370 as "1.37e+03". Such a number below 1e15 is a whole number (its shortest
+// digits read back as an integer below 2^53, which a double holds exactly), and is written
+// in full, as a reader expects: "60", "1370". Larger ones and small ones keep "%g"'s form.
+std::string whole_in_full(const std::string& shortest, double v) {
+  const std::size_t e = shortest.find('e');
+  if (e == std::string::npos || shortest[e + 1] != '+' || !(std::abs(v) < 1e15)) return shortest;
+  const int exponent = std::atoi(shortest.c_str() + e + 2);
+  std::string s = printf_g(v, exponent + 1);
+  const auto back = parse_double(s);
+  return back.ok() && back.value() == v ? s : shortest;
+}
+
 }  // namespace
 
 Result<double> parse_double(const std::string& token) { return parse_whole<double>(token, "a number"); }
@@ -74,7 +89,7 @@ std::string format_double(double v) {
   for (int prec = 1; prec < 17; ++prec) {
     std::string s = printf_g(v, prec);
     const auto back = parse_double(s);
-    if (back.ok() && back.value() == v) return s;
+    if (back.ok() && back.value() == v) return whole_in_full(s, v);
   }
   return printf_g(v, 17);
 }

@@ -58,19 +58,10 @@ Result<double> Args::get_double(const std::string& key, double def) const {
   return v.value();
 }
 
-namespace {
-
-// An interval's end as written: integers whole ("1000000", not "1e+06").
-std::string bound_text(double v) {
-  return v == std::trunc(v) && std::abs(v) < 1e15 ? std::to_string(static_cast<long long>(v)) : geo::format_double(v);
-}
-
-}  // namespace
-
 std::string Interval::text() const {
-  if (std::isinf(hi)) return (lo_open ? "> " : ">= ") + bound_text(lo);
-  if (std::isinf(lo)) return (hi_open ? "< " : "<= ") + bound_text(hi);
-  return std::string("in ") + (lo_open ? "(" : "[") + bound_text(lo) + ", " + bound_text(hi) + (hi_open ? ")" : "]");
+  if (std::isinf(hi)) return (lo_open ? "> " : ">= ") + geo::format_double(lo);
+  if (std::isinf(lo)) return (hi_open ? "< " : "<= ") + geo::format_double(hi);
+  return std::string("in ") + (lo_open ? "(" : "[") + geo::format_double(lo) + ", " + geo::format_double(hi) + (hi_open ? ")" : "]");
 }
 
 Result<double> Args::get_double_in(const std::string& key, double def, const Interval& in, const std::string& unit) const {

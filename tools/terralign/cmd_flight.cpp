@@ -90,7 +90,8 @@ int run_flight(const std::vector<std::string>& argv) {
   if (!seed.ok()) return usage_error("flight", seed.error());
   const double frame_count = std::floor(duration.value() * rate.value());
   if (!(frame_count >= 1 && frame_count <= kMaxFrames))
-    return usage_error("flight", Error{"--duration " + args->get("duration", "60") + " s at --rate " + args->get("rate") + " Hz is " +
+    return usage_error("flight", Error{"--duration " + geo::format_double(duration.value()) + " s at --rate " +
+                                       geo::format_double(rate.value()) + " Hz is " +
                                        geo::format_double(frame_count) + " frames; a flight has 1 to " +
                                        std::to_string(kMaxFrames)});
   auto map = geo::load_map(args->get("map"));

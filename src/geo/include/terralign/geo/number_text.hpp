@@ -26,7 +26,8 @@ Result<long long> parse_integer(const std::string& token);
 // blank separator (' ') splits at runs of white space and keeps no empty field; any other
 // keeps them, so "700:" is an error, not one number.
 Result<std::vector<double>> parse_numbers(const std::string& text, char separator);
-// The shortest "%g"-style text ("C" locale) that reads back as the same double.
+// The shortest "%g"-style text ("C" locale) that reads back as the same double, a whole number
+// below 1e15 written in full ("60", not "6e+01").
 std::string format_double(double v);
 
 }  // namespace terralign::geo
