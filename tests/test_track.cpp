@@ -99,6 +99,20 @@ void check_refused(const std::string& cmd, const std::string& err, const std::st
   CHECK(text.find(want) != std::string::npos);
 }
 
+// `terralign eval` on `map` (by default the NAIP sample) with the 752 x 480 camera, before its
+// other options.
+std::string eval_command(const std::string& map = test::source_path("data/naip_west/map.json")) {
+  return std::string(TERRALIGN_CLI) + " eval --map " + map + " --camera " + test::source_path("data/cameras/uav_752x480.json") + " ";
+}
+
+// eval_command(map) with `options`, its JSON written to temp_dir()/NAME.json and read back.
+nlohmann::json eval_json(const std::string& name, const std::string& options,
+                         const std::string& map = test::source_path("data/naip_west/map.json")) {
+  const std::string out = test::temp_dir() + "/" + name + ".json";
+  REQUIRE(run(eval_command(map) + options + " --json " + out) == 0);
+  return nlohmann::json::parse(test::read_text(out));
+}
+
 }  // namespace
 
 TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged and the track recovers") {
@@ -716,16 +730,10 @@ TEST_CASE("dataset: the same seed gives the same bytes, and training and validat
 
 #if defined(TERRALIGN_CLI)
 TEST_CASE("eval --prior-scale: the same true poses with priors nearer by the factor, and --json holds each pose's truth and ground shift") {
-  const std::string tl = TERRALIGN_CLI;
-  const std::string map = test::source_path("data/naip_west/map.json");
-  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
   std::vector<nlohmann::json> runs;
-  for (const char* scale : {"1", "0.25"}) {
-    const std::string out = test::temp_dir() + "/eval_scale_" + scale + ".json";
-    REQUIRE(run(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2016 --query-layer 2016 --count 4 --seed 3 " +
-                "--altitude 700:900 --tilt 10 --methods init --prior-scale " + scale + " --json " + out) == 0);
-    runs.push_back(nlohmann::json::parse(test::read_text(out))["methods"]["init"]["samples"]);
-  }
+  for (const std::string scale : {"1", "0.25"})
+    runs.push_back(eval_json("eval_scale_" + scale, "--ref-layer 2016 --query-layer 2016 --count 4 --seed 3 --altitude 700:900 "
+                                                    "--tilt 10 --methods init --prior-scale " + scale)["methods"]["init"]["samples"]);
   REQUIRE(runs[0].size() == 4);
   REQUIRE(runs[1].size() == 4);
   for (std::size_t i = 0; i < 4; ++i) {
@@ -745,8 +753,7 @@ TEST_CASE("eval --prior-scale: the same true poses with priors nearer by the fac
       CHECK(norm > 0.5 * (*s)["epe_m"].get<double>());  // init's error is mostly one shift (measured 0.79-1.0)
     }
   }
-  CHECK(run(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2016 --query-layer 2016 --count 2 --seed 3 " +
-            "--altitude 700:900 --prior-scale nan") != 0);
+  CHECK(run(eval_command() + "--ref-layer 2016 --query-layer 2016 --count 2 --seed 3 --altitude 700:900 --prior-scale nan") != 0);
 }
 
 TEST_CASE("eval's metrics of an answer do not depend on the methods run before it") {
@@ -754,15 +761,11 @@ TEST_CASE("eval's metrics of an answer do not depend on the methods run before i
   // behind, which a refinement pass that did not converge had rendered at its answer instead
   // of the prior: with classic:20 run first, 7 of seed 7's 200 learned answers across 11 years
   // were measured against the wrong depth, the 16th of them first.
-  const std::string tl = TERRALIGN_CLI;
-  const std::string map = test::source_path("data/naip_west/map.json");
-  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
   std::vector<nlohmann::json> runs;
-  for (const char* methods : {"nn:20", "classic:20,nn:20"}) {
-    const std::string out = test::temp_dir() + "/eval_methods_" + std::to_string(runs.size()) + ".json";
-    REQUIRE(run(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2009 --query-layer 2020 --count 16 --seed 7 " +
-                "--altitude 700:900 --tilt 10 --methods " + methods + " --json " + out) == 0);
-    nlohmann::json samples = nlohmann::json::parse(test::read_text(out))["methods"]["nn:20"]["samples"];
+  for (const std::string methods : {"nn:20", "classic:20,nn:20"}) {
+    nlohmann::json samples = eval_json("eval_methods_" + std::to_string(runs.size()),
+                                       "--ref-layer 2009 --query-layer 2020 --count 16 --seed 7 --altitude 700:900 --tilt 10 "
+                                       "--methods " + methods)["methods"]["nn:20"]["samples"];
     for (auto& sample : samples) sample.erase("ms");
     runs.push_back(std::move(samples));
   }
@@ -774,26 +777,18 @@ TEST_CASE("eval's metrics of an answer do not depend on the methods run before i
 }
 
 TEST_CASE("eval --noise/--blur/--exposure: the same poses, each query degraded by its own draws, the same answers every run") {
-  const std::string tl = TERRALIGN_CLI;
-  const std::string base = tl + " eval --map " + test::source_path("data/naip_west/map.json") + " --camera " +
-                           test::source_path("data/cameras/uav_752x480.json") +
-                           " --ref-layer 2016 --query-layer 2016 --seed 5 --altitude 700:900 --tilt 10 --methods init,classic:20";
   const std::string degraded = " --noise 8 --blur 1 --exposure 0.2";
-  auto eval = [&](const std::string& name, const std::string& options) {
-    const std::string out = test::temp_dir() + "/eval_degraded_" + name + ".json";
-    REQUIRE(run(base + options + " --json " + out) == 0);
-    return test::read_text(out);
-  };
   // Each method's answers, without its timing (which no two runs share).
-  auto answers = [](const std::string& text) {
-    auto methods = nlohmann::json::parse(text)["methods"];
+  auto answers = [](const std::string& name, const std::string& options) {
+    auto methods = eval_json("eval_degraded_" + name, "--ref-layer 2016 --query-layer 2016 --seed 5 --altitude 700:900 "
+                                                      "--tilt 10 --methods init,classic:20" + options)["methods"];
     for (auto& m : methods) m.erase("ms");
     return methods;
   };
-  const auto clean = answers(eval("clean", " --count 4"));
-  const auto a = answers(eval("a", " --count 4" + degraded));
-  CHECK(answers(eval("b", " --count 4" + degraded)) == a);  // same seed, same answers to the last bit
-  const auto first_two = answers(eval("two", " --count 2" + degraded));
+  const auto clean = answers("clean", " --count 4");
+  const auto a = answers("a", " --count 4" + degraded);
+  CHECK(answers("b", " --count 4" + degraded) == a);  // same seed, same answers to the last bit
+  const auto first_two = answers("two", " --count 2" + degraded);
   int aligned = 0;
   for (std::size_t i = 0; i < 4; ++i) {
     CAPTURE(i);
@@ -827,16 +822,11 @@ TEST_CASE("eval's default tilt prior: across 11 years the learned answers keep t
   // error down by a quarter at least, and no fewer answers within 5 px. Session 38's s16w64
   // (the default since): 2 -> 1 answers beyond 3 degrees, a mean of 2.97 -> 1.46, 7 -> 8 of 10
   // within 5 px (40 poses: 7 -> 4, 2.22 -> 1.41, 77.5 -> 85 %).
-  const std::string tl = TERRALIGN_CLI;
-  const std::string map = test::source_path("data/naip_west/map.json");
-  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
   std::vector<nlohmann::json> runs;
-  for (const char* prior : {"", " --tilt-prior 0"}) {
-    const std::string out = test::temp_dir() + "/eval_tilt" + (*prior ? "0" : "") + ".json";
-    REQUIRE(run(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2009 --query-layer 2020 --count 10 --seed 3 " +
-                "--altitude 700:900 --tilt 10 --methods nn:20 --max-disagreement -1 --threads 2 --json " + out + prior) == 0);
-    runs.push_back(nlohmann::json::parse(test::read_text(out))["methods"]["nn:20"]);
-  }
+  for (const std::string prior : {"", " --tilt-prior 0"})
+    runs.push_back(eval_json(prior.empty() ? "eval_tilt" : "eval_tilt0",
+                             "--ref-layer 2009 --query-layer 2020 --count 10 --seed 3 --altitude 700:900 --tilt 10 "
+                             "--methods nn:20 --max-disagreement -1 --threads 2" + prior)["methods"]["nn:20"]);
   int beyond[2] = {0, 0};
   for (int r = 0; r < 2; ++r) {
     REQUIRE(runs[r]["samples"].size() == 10);
@@ -883,16 +873,11 @@ TEST_CASE("eval --altimeter: the priors' altitude is an altimeter's, and across 
   // same true poses and the priors' same horizontal positions (the altimeter's own stream),
   // every prior and answer within 4 m (4 sigma) in height with it, the mean height error down
   // to a quarter at most and the mean 2-D EPE down.
-  const std::string tl = TERRALIGN_CLI;
-  const std::string map = test::source_path("data/naip_west/map.json");
-  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
   std::vector<nlohmann::json> runs;
-  for (const char* altimeter : {"", " --altimeter 1"}) {
-    const std::string out = test::temp_dir() + "/eval_alt" + (*altimeter ? "1" : "0") + ".json";
-    REQUIRE(run(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2009 --query-layer 2020 --count 10 --seed 3 " +
-                "--altitude 700:900 --tilt 10 --methods init,nn:20 --max-disagreement -1 --threads 2 --json " + out + altimeter) == 0);
-    runs.push_back(nlohmann::json::parse(test::read_text(out))["methods"]);
-  }
+  for (const std::string altimeter : {"", " --altimeter 1"})
+    runs.push_back(eval_json(altimeter.empty() ? "eval_alt0" : "eval_alt1",
+                             "--ref-layer 2009 --query-layer 2020 --count 10 --seed 3 --altitude 700:900 --tilt 10 "
+                             "--methods init,nn:20 --max-disagreement -1 --threads 2" + altimeter)["methods"]);
   double height_error[2] = {0, 0};
   for (int r = 0; r < 2; ++r) {
     REQUIRE(runs[r]["nn:20"]["samples"].size() == 10);
@@ -915,8 +900,7 @@ TEST_CASE("eval --altimeter: the priors' altitude is an altimeter's, and across 
   CAPTURE(height_error[1]);
   CHECK(height_error[1] < 0.25 * height_error[0]);
   CHECK(runs[1]["nn:20"]["epe_px"]["mean"].get<double>() < runs[0]["nn:20"]["epe_px"]["mean"].get<double>());
-  check_refused(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2009 --query-layer 2020 --count 1 --seed 3 " +
-                    "--altitude 700:900 --altimeter -2",
+  check_refused(eval_command() + "--ref-layer 2009 --query-layer 2020 --count 1 --seed 3 --altitude 700:900 --altimeter -2",
                 test::temp_dir() + "/eval_alt_err.txt", "--altimeter '-2' must be in [0, 1000] m");
 }
 
@@ -928,19 +912,16 @@ TEST_CASE("eval on Christchurch: the manifest's registration sigma makes the con
   // 28.7); seed 7's 200 converged answers 5.2 and 28.2. An honest covariance gives a
   // chi-square of 6 degrees of freedom, median 5.35: asked, within a factor 2 of it with the
   // sigma, and at least 3 times it without.
-  const std::string tl = TERRALIGN_CLI;
   const std::string dir = test::source_path("data/christchurch");
   const std::string bare = test::temp_dir() + "/chch_no_sigma.json";
   test::write_text(bare, R"({"crs": "local", "dem": {"constant": 0.0}, "layers": [{"name": "2012", "file": ")" + dir +
                              R"(/000121_2012.png"}, {"name": "2016", "file": ")" + dir + R"(/000121_2016.png"}]})");
-  const std::string cam = test::source_path("data/cameras/uav_752x480.json");
   std::vector<nlohmann::json> runs;
-  for (const std::string& map : {dir + "/000121.json", bare}) {
-    const std::string out = test::temp_dir() + "/eval_chch_sigma" + std::to_string(runs.size()) + ".json";
-    REQUIRE(run(tl + " eval --map " + map + " --camera " + cam + " --ref-layer 2012 --query-layer 2016 --count 10 --seed 3 " +
-                "--altitude 100:140 --tilt 5 --methods nn:20 --max-disagreement -1 --threads 2 --json " + out) == 0);
-    runs.push_back(nlohmann::json::parse(test::read_text(out))["methods"]["nn:20"]);
-  }
+  for (const std::string& map : {dir + "/000121.json", bare})
+    runs.push_back(eval_json("eval_chch_sigma" + std::to_string(runs.size()),
+                             "--ref-layer 2012 --query-layer 2016 --count 10 --seed 3 --altitude 100:140 --tilt 5 "
+                             "--methods nn:20 --max-disagreement -1 --threads 2",
+                             map)["methods"]["nn:20"]);
   REQUIRE(runs[0]["samples"].size() == runs[1]["samples"].size());
   for (std::size_t k = 0; k < runs[0]["samples"].size(); ++k) {
     const auto& s = runs[0]["samples"][k];
