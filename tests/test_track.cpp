@@ -49,6 +49,13 @@ std::string first_truth_pose(const std::string& dir) {
   return first.substr(first.find(' ') + 1);
 }
 
+// `terralign track` over the flight's frames in DIR/LIST (list.txt unless named), from `init`
+// (its first true pose unless given), on its map's 2016 layer, before the run's other options.
+std::string track_command(const Flight& f, const std::string& list = "list.txt", const std::string& init = "") {
+  return f.tl + " track --map " + f.map + " --camera " + f.cam + " --layer 2016 --images " + f.dir + "/" + list + " --init \"" +
+         (init.empty() ? first_truth_pose(f.dir) : init) + "\" ";
+}
+
 // The data rows of a CSV that has no quoted commas (track's poses), split at commas.
 std::vector<std::vector<std::string>> csv_rows(const std::string& path) {
   std::ifstream csv(path);
@@ -66,15 +73,16 @@ std::vector<std::vector<std::string>> csv_rows(const std::string& path) {
 }
 
 // A list of the flight's first `n` frames beside DIR/list.txt (its image paths are relative to
-// DIR); for runs whose assertions do not need every frame, to keep them cheap under qemu.
+// DIR), its name in DIR; for runs whose assertions do not need every frame, to keep them
+// cheap under qemu.
 std::string first_frames(const std::string& dir, std::size_t n) {
   std::ifstream all(dir + "/list.txt");
-  const std::string path = dir + "/list" + std::to_string(n) + ".txt";
-  std::ofstream part(path);
+  const std::string name = "list" + std::to_string(n) + ".txt";
+  std::ofstream part(dir + "/" + name);
   std::string line;
   for (std::size_t i = 0; i < n && std::getline(all, line); ++i) part << line << '\n';
   REQUIRE(part.good());
-  return path;
+  return name;
 }
 
 // A track CSV of `frames` frames none of which converged, the first four failing for `why`
@@ -117,15 +125,15 @@ nlohmann::json eval_json(const std::string& name, const std::string& options,
 
 TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged and the track recovers") {
   const Flight flight = fly("flight", "--duration 12 --noise 2 --seed 4");
-  const std::string &tl = flight.tl, &map = flight.map, &cam = flight.cam, &dir = flight.dir;
+  const std::string& dir = flight.dir;
   // Frame 6 becomes noise.
   std::mt19937 rng(6);
   ImageU8 noise(752, 480, 3);
   for (auto& v : noise.pixels()) v = static_cast<std::uint8_t>(rng() & 255);
   REQUIRE(geo::save_png(dir + "/frames/000006.png", noise.view()).ok());
   const std::string init = first_truth_pose(dir);
-  REQUIRE(run(tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir + "/list.txt --init \"" + init +
-              "\" --truth " + dir + "/truth.txt --out " + dir + "/poses.csv --json " + dir + "/summary.json --filter kalman") == 0);
+  REQUIRE(run(track_command(flight) + "--truth " + dir + "/truth.txt --out " + dir + "/poses.csv --json " + dir +
+              "/summary.json --filter kalman") == 0);
   std::ifstream js(dir + "/summary.json");
   const nlohmann::json j = nlohmann::json::parse(js);
   CHECK(j["frames"].get<int>() == 12);
@@ -169,8 +177,7 @@ TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged an
   // converged frame's position variance east and north larger (the floor's shifts move the
   // camera sideways); a floor that is not a number in [0, 100] is refused, naming it. Without
   // the filter, whose gains the covariance would change and with them the next priors.
-  const std::string plain = tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
-                            "/list.txt --init \"" + init + "\" --filter none --out ";
+  const std::string plain = track_command(flight) + "--filter none --out ";
   REQUIRE(run(plain + dir + "/plain.csv") == 0);
   const std::string floor_cmd = plain + dir + "/floor.csv --registration-floor ";
   REQUIRE(run(floor_cmd + "1") == 0);
@@ -192,8 +199,7 @@ TEST_CASE("a rendered flight is tracked, and a frame of pure noise is flagged an
   // The classical tracker runs the agreement test by default (its second start comes back to a
   // same-year answer, so every good frame above stood): asked to come back within 1e-9 px,
   // which no second start does, each frame fails as ambiguous.
-  REQUIRE(run(tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir + "/list.txt --init \"" +
-              init + "\" --out " + dir + "/agree.csv --max-disagreement 1e-9") == 0);
+  REQUIRE(run(track_command(flight) + "--out " + dir + "/agree.csv --max-disagreement 1e-9") == 0);
   check_none_converged(dir + "/agree.csv", rows.size(), "ambiguous: a start nearby");
 }
 
@@ -203,11 +209,9 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   // start (before it, 6 of these 12 frames failed "diverged: the final cost is above the cost
   // at the initial pose", each 0.1-0.4 m from the truth; 35 % of the 40-frame flight's).
   const Flight flight = fly("nnflight", "--duration 12 --noise 2 --blur 1 --exposure 0.1");
-  const std::string &tl = flight.tl, &map = flight.map, &cam = flight.cam, &dir = flight.dir;
-  const std::string track = tl + " track --method nn --map " + map + " --camera " + cam + " --layer 2016 --init \"" +
-                            first_truth_pose(dir) + "\" --images ";
-  REQUIRE(run(track + dir + "/list.txt --truth " + dir + "/truth.txt --json " + dir + "/s.json --out " + dir + "/first.csv") ==
-          0);
+  const std::string& dir = flight.dir;
+  REQUIRE(run(track_command(flight) + "--method nn --truth " + dir + "/truth.txt --json " + dir + "/s.json --out " + dir +
+              "/first.csv") == 0);
   std::ifstream js(dir + "/s.json");
   const nlohmann::json j = nlohmann::json::parse(js);
   CHECK(j["converged_fraction"].get<double>() == 1.0);
@@ -220,8 +224,8 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
   // 25 m/s; on the whole flight, by frame 8 the alignments diverge instead). These runs take
   // the first five frames, which is all they need. Out-of-range thresholds and searches are
   // refused.
-  const std::string cmd = track + dir + "/list.txt --out " + dir + "/sharp.csv ";
-  const std::string five = track + first_frames(dir, 5) + " --out " + dir + "/sharp.csv ";
+  const std::string cmd = track_command(flight) + "--method nn --out " + dir + "/sharp.csv ";
+  const std::string five = track_command(flight, first_frames(dir, 5)) + "--method nn --out " + dir + "/sharp.csv ";
   REQUIRE(run(five + "--min-sharpness 1000") == 0);
   check_none_converged(dir + "/sharp.csv", 5, "ambiguous");
   // --max-disagreement likewise: a same-year second start comes back within microns of a
@@ -271,8 +275,7 @@ TEST_CASE("the learned tracker confirms a prediction that is already right inste
     CHECK(std::stoi(looked[i][10]) > std::stoi(acquired[i][10]));
   }
   check_refused(cmd + "--second-look maybe", dir + "/err.txt", "--second-look 'maybe' must be yes or no (or start)");
-  check_refused(tl + " eval --map " + map + " --camera " + cam +
-                    " --ref-layer 2016 --query-layer 2016 --count 1 --seed 1 --altitude 700:900 --second-look start",
+  check_refused(eval_command() + "--ref-layer 2016 --query-layer 2016 --count 1 --seed 1 --altitude 700:900 --second-look start",
                 dir + "/err.txt", "--second-look 'start' must be yes or no");
   check_refused(cmd + "--acquire maybe", dir + "/err.txt", "--acquire 'maybe' must be yes or no");
   check_refused(cmd + "--restart-after -1", dir + "/err.txt", "--restart-after '-1' must be an integer in [0, 1000]");
@@ -324,9 +327,7 @@ TEST_CASE("track --restart-after N: after N frames in a row without an answer an
     for (auto& v : noise.pixels()) v = static_cast<std::uint8_t>(rng() & 255);
     REQUIRE(geo::save_png(dir + "/frames/00000" + std::to_string(k) + ".png", noise.view()).ok());
   }
-  const std::string track = flight.tl + " track --method nn --map " + flight.map + " --camera " + flight.cam +
-                            " --layer 2016 --init \"" + first_truth_pose(dir) + "\" --images " + dir + "/list.txt --out " +
-                            dir + "/poses.csv --json " + dir + "/summary.json ";
+  const std::string track = track_command(flight) + "--method nn --out " + dir + "/poses.csv --json " + dir + "/summary.json ";
   auto summary = [&] {
     std::ifstream js(dir + "/summary.json");
     return nlohmann::json::parse(js);
@@ -450,15 +451,13 @@ TEST_CASE("align on a flight's first frame takes the learned tracker's converged
 
 TEST_CASE("track reports bad frames by name and goes on: a missing image, a wrong size, time going backwards") {
   const Flight flight = fly("badflight", "--duration 5");
-  const std::string &tl = flight.tl, &map = flight.map, &cam = flight.cam, &dir = flight.dir;
+  const std::string& dir = flight.dir;
   std::ofstream list(dir + "/bad.txt");
   list << "0 frames/000000.png\n1 frames/000001.png\n2 frames/missing.png\n3 " << test::source_path("tests/data/tiff/no_georef.png")
        << "\n2.9999999 frames/000003.png\n4 frames/000004.png\n";
   list.close();
-  const std::string init = first_truth_pose(dir);
   const std::string err = dir + "/stderr.txt";
-  std::system((tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir + "/bad.txt --init \"" + init +
-               "\" --out " + dir + "/poses.csv 2>" + err + " >/dev/null").c_str());
+  std::system((track_command(flight, "bad.txt") + "--out " + dir + "/poses.csv 2>" + err + " >/dev/null").c_str());
   const std::string text = test::read_text(err);
   CHECK(text.find("missing.png: cannot open") != std::string::npos);
   CHECK(text.find("image is 40 x 30, the camera 752 x 480") != std::string::npos);
@@ -477,15 +476,14 @@ TEST_CASE("track starts from --init-velocity: the first frames' priors fly on wi
   // failed frame keeps its prior. With the GPS's last velocity that prior flies on at 25 m/s;
   // without it, it waits at --init, one frame's flight (25 m) further behind each frame.
   const Flight flight = fly("velflight", "--duration 8 --noise 2");
-  const std::string &tl = flight.tl, &map = flight.map, &cam = flight.cam, &dir = flight.dir;
+  const std::string& dir = flight.dir;
   {
     std::ifstream in(dir + "/list.txt");
     std::ofstream out(dir + "/late.txt");
     std::string line;
     for (int i = 0; std::getline(in, line); ++i) out << (i < 4 ? line.substr(0, line.find(' ')) + " frames/lost.png" : line) << "\n";
   }
-  const std::string base = tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
-                           "/late.txt --init \"" + first_truth_pose(dir) + "\" --truth " + dir + "/truth.txt --json " + dir;
+  const std::string base = track_command(flight, "late.txt") + "--truth " + dir + "/truth.txt --json " + dir;
   auto errors = [&](const std::string& file) {
     std::ifstream js(dir + "/" + file);
     return nlohmann::json::parse(js)["position_error_m"].get<std::vector<double>>();
@@ -512,7 +510,7 @@ TEST_CASE("track starts from --init-velocity: the first frames' priors fly on wi
 
 TEST_CASE("track holds each answer's tilt to an attitude reference's, frame by frame, and refuses a bad attitude file") {
   const Flight flight = fly("imuflight", "--duration 6 --noise 2 --imu-tilt 0.5");
-  const std::string &tl = flight.tl, &map = flight.map, &cam = flight.cam, &dir = flight.dir;
+  const std::string& dir = flight.dir;
   // flight wrote one reading per frame, at the frames' times.
   std::vector<std::pair<std::string, Eigen::Quaterniond>> truth;
   {
@@ -549,8 +547,7 @@ TEST_CASE("track holds each answer's tilt to an attitude reference's, frame by f
       out << t << " " << std::setprecision(12) << a.w() << " " << a.x() << " " << a.y() << " " << a.z() << "\n";
     }
   };
-  const std::string track = tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
-                            "/list.txt --init \"" + first_truth_pose(dir) + "\" --truth " + dir + "/truth.txt";
+  const std::string track = track_command(flight) + "--truth " + dir + "/truth.txt";
   for (double pitch : {0.0, 1.0}) {
     write_attitude(dir + "/att.txt", pitch);
     REQUIRE(run(track + " --attitude " + dir + "/att.txt --tilt-prior 0.01 --json " + dir + "/s.json") == 0);
@@ -586,7 +583,7 @@ TEST_CASE("track holds each answer's tilt to an attitude reference's, frame by f
 
 TEST_CASE("track holds each answer's altitude to an altimeter's, frame by frame, and refuses a bad altimeter file") {
   const Flight flight = fly("baroflight", "--duration 6 --noise 2 --altimeter 2");
-  const std::string &tl = flight.tl, &map = flight.map, &cam = flight.cam, &dir = flight.dir;
+  const std::string& dir = flight.dir;
   // flight wrote one reading per frame, at the frames' times: the true z plus N(0, 2 m).
   std::vector<std::pair<std::string, double>> truth;
   {
@@ -618,8 +615,7 @@ TEST_CASE("track holds each answer's altitude to an altimeter's, frame by frame,
     std::ofstream out(path);
     for (const auto& [t, z] : truth) out << t << " " << std::setprecision(12) << z + bias_m << "\n";
   };
-  const std::string track = tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
-                            "/list.txt --init \"" + first_truth_pose(dir) + "\" --truth " + dir + "/truth.txt";
+  const std::string track = track_command(flight) + "--truth " + dir + "/truth.txt";
   for (double bias : {0.0, 5.0}) {
     write_altimeter(dir + "/baro.txt", bias);
     REQUIRE(run(track + " --altimeter " + dir + "/baro.txt --altitude-prior 0.01 --out " + dir + "/baro.csv") == 0);
@@ -655,8 +651,7 @@ TEST_CASE("track holds each answer's altitude to an altimeter's, frame by frame,
   REQUIRE(static_cast<bool>(first >> x >> y >> z >> qw >> qx >> qy >> qz));
   char high[256];
   std::snprintf(high, sizeof high, "%.6f %.6f %.6f %.9f %.9f %.9f %.9f", x, y, z + 20, qw, qx, qy, qz);
-  const std::string gap_track = tl + " track --map " + map + " --camera " + cam + " --layer 2016 --images " + dir +
-                                "/gap.txt --init \"" + high + "\" --truth " + dir + "/truth.txt";
+  const std::string gap_track = track_command(flight, "gap.txt", high) + "--truth " + dir + "/truth.txt";
   REQUIRE(run(gap_track + " --altimeter " + dir + "/baro.txt --altitude-prior 0.1 --out " + dir + "/gap.csv") == 0);
   REQUIRE(run(gap_track + " --out " + dir + "/gap_none.csv") == 0);
   const auto gap = csv_rows(dir + "/gap.csv"), gap_none = csv_rows(dir + "/gap_none.csv");
