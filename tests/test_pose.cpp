@@ -64,7 +64,7 @@ TEST_CASE("numbers in text: the shortest that reads back, whole numbers below 1e
   CHECK(format_double(0.1 + 0.2) == "0.30000000000000004");
   CHECK(format_double(-0.0) == "-0");
   // Every text reads back as its double: 2000 doubles whose bits are drawn at random (NaN
-  // aside), and every whole number 10^k and 3 x 10^k up to 10^17.
+  // aside), and the whole numbers 10^k, 3 x 10^k and -7 x 10^k up to 10^17.
   SplitMix64 rng{99};
   std::vector<double> values;
   for (int i = 0; i < 2000; ++i) {
