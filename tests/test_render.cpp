@@ -1347,7 +1347,8 @@ TEST_CASE("bad poses: below the terrain, NaN, off the map, at the sky: an error 
   };
   auto below = r->render(look_down(1000, 1000, 50), out.value());
   REQUIRE(!below.ok());
-  CHECK(below.error().message.find("below the terrain") != std::string::npos);
+  // The numbers as they are, whatever the locale: not std::to_string's "50.000000".
+  CHECK(below.error().message.find("camera at z 50 m is below the terrain (100 m) at (1000, 1000)") != std::string::npos);
   CHECK(all_invalid());
   geo::Pose nan = look_down(1000, 1000, 500);
   nan.t_W_C.x() = NAN;

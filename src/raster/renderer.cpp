@@ -9,6 +9,7 @@
 #include <limits>
 
 #include <terralign/geo/float_environment.hpp>
+#include <terralign/geo/number_text.hpp>
 #include <terralign/geo/numeric.hpp>
 #include <terralign/raster/geometry_kernels.hpp>
 #include <terralign/raster/shade_kernels.hpp>
@@ -1171,8 +1172,8 @@ Status Renderer::render(const geo::Pose& T_W_C, RenderOutput& out, RenderStats* 
   const double ground = m.map->dem.height_at(t.x(), t.y());
   if (std::isfinite(ground) && t.z() < ground) {
     invalidate();
-    return Error{"render: camera at z " + std::to_string(t.z()) + " m is below the terrain (" +
-                 std::to_string(ground) + " m) at (" + std::to_string(t.x()) + ", " + std::to_string(t.y()) + ")"};
+    return Error{"render: camera at z " + geo::format_double(t.z()) + " m is below the terrain (" +
+                 geo::format_double(ground) + " m) at (" + geo::format_double(t.x()) + ", " + geo::format_double(t.y()) + ")"};
   }
   m.frame_out = &out;
   m.R_C_W = T_W_C.q_W_C.conjugate().toRotationMatrix().cast<float>();

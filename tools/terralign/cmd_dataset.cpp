@@ -4,6 +4,7 @@
 
 #include <terralign/geo/file.hpp>
 #include <terralign/geo/image_io.hpp>
+#include <terralign/geo/number_text.hpp>
 
 #include "args.hpp"
 #include "commands.hpp"
@@ -90,7 +91,7 @@ int run_dataset(const std::vector<std::string>& argv) {
   auto val = sample_poses(map.value(), cam, val_area, n_val, static_cast<std::uint64_t>(seed.value()) + 1, lo, hi, tilt.value());
   if (!val.ok())
     return fail(with_context(std::string("validation area (the ") + (by_x ? "eastern " : "northern ") +
-                                 std::to_string(fraction.value()) + " of the map; fly lower or give a larger --split-fraction)",
+                                 geo::format_double(fraction.value()) + " of the map; fly lower or give a larger --split-fraction)",
                              val.error()));
 
   const std::string out = args->get("out");

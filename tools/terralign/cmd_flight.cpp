@@ -28,7 +28,9 @@ struct Waypoint {
 Result<std::vector<Waypoint>> path_points(const std::string& path, const geo::Extent& e, double margin) {
   std::vector<Waypoint> pts;
   const double x0 = e.min_x + margin, x1 = e.max_x - margin, y0 = e.min_y + margin, y1 = e.max_y - margin;
-  if (!(x1 > x0 && y1 > y0)) return Error{"the map is too small for a flight at this altitude (no room inside a margin of " + std::to_string(margin) + " m)"};
+  if (!(x1 > x0 && y1 > y0))
+    return Error{"the map is too small for a flight at this altitude (no room inside a margin of half the footprint, " +
+                 geo::format_double(std::round(margin)) + " m)"};
   if (path == "lawnmower") {
     const int legs = 3;
     for (int k = 0; k <= legs; ++k) {
@@ -153,7 +155,8 @@ int run_flight(const std::vector<std::string>& argv) {
     const double t = i / rate.value();
     std::snprintf(line, sizeof line, "%.6f %s\n", t, name);
     list += line;
-    truth += std::to_string(t) + " " + geo::format_pose(T) + "\n";
+    std::snprintf(line, sizeof line, "%.6f ", t);
+    truth += line + geo::format_pose(T) + "\n";
     if (imu_tilt.value() > 0) {
       const Eigen::Quaterniond q = attitude_reading(T.q_W_C, imu, imu_tilt.value());
       std::snprintf(line, sizeof line, "%.6f %.9f %.9f %.9f %.9f\n", t, q.w(), q.x(), q.y(), q.z());

@@ -92,8 +92,8 @@ Result<std::vector<Reading>> read_readings(const std::string& path, const std::v
       return Error{where + "more " + what + " than the " + std::to_string(frames.size()) + " frames"};
     const Frame& f = frames[out.size()];
     if (!(std::abs(t - f.t) <= 1e-6 * std::max(1.0, std::abs(f.t))))
-      return Error{where + "timestamp " + std::to_string(t) + " is not frame " + std::to_string(out.size()) + "'s (" +
-                   std::to_string(f.t) + ")"};
+      return Error{where + "timestamp " + geo::format_double(t) + " is not frame " + std::to_string(out.size()) + "'s (" +
+                   geo::format_double(f.t) + ")"};
     out.push_back(r);
   }
   if (out.size() != frames.size())
@@ -108,7 +108,7 @@ Result<std::vector<Eigen::Quaterniond>> read_attitude(const std::string& path, c
                                                     [&](const Reading& r) -> Status {
                                                       const double norm = quaternion(r).norm();
                                                       if (std::abs(norm - 1.0) <= 1e-3) return Ok{};
-                                                      return Error{r.where + "quaternion norm " + std::to_string(norm) +
+                                                      return Error{r.where + "quaternion norm " + geo::format_double(norm) +
                                                                    ", must be 1 (within 1e-3)"};
                                                     }));
   std::vector<Eigen::Quaterniond> out;

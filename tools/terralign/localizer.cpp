@@ -5,6 +5,7 @@
 #include <cmath>
 
 #include <terralign/geo/float_environment.hpp>
+#include <terralign/geo/number_text.hpp>
 #include <terralign/geo/numeric.hpp>
 
 namespace terralign::cli {
@@ -47,7 +48,7 @@ Result<std::unique_ptr<Localizer>> Localizer::create(const geo::Map& map, const 
     if (!(s > 0 && s <= 1)) return Error{"Localizer: the learned tracker's input scale must be in (0, 1]"};
     const int w = static_cast<int>(std::lround(camera.width * s)), h = static_cast<int>(std::lround(camera.height * s));
     if (w < 1 || h < 1 || camera.width % w || camera.height % h || camera.width / w != camera.height / h)
-      return Error{weights->name + ": input scale " + std::to_string(s) + " is not 1/n of the camera's " +
+      return Error{weights->name + ": input scale " + geo::format_double(s) + " is not 1/n of the camera's " +
                    std::to_string(camera.width) + " x " + std::to_string(camera.height)};
     L->work_ = camera.scaled(s, w, h);
     iclk::TrackerOptions dopt = with_map;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include <terralign/geo/number_text.hpp>
 #include <terralign/geo/numeric.hpp>
 
 namespace terralign::cli {
@@ -103,7 +104,7 @@ Result<std::vector<Sample>> sample_poses(const geo::Map& map, const geo::CameraM
     }
     if (!placed)
       return Error{"cannot place pose " + std::to_string(i) + ": no position in 2000 tries shows only the map at altitude " +
-                   std::to_string(lo) + ".." + std::to_string(hi) + " m (map too small for the altitude?)"};
+                   geo::format_double(lo) + ".." + geo::format_double(hi) + " m (map too small for the altitude?)"};
   }
   return out;
 }
