@@ -144,6 +144,20 @@ TEST_CASE("locale: a caller's decimal comma changes no number terralign reads or
   CHECK(geo::format_pose(pose.value()) == "487450.5 5207437.25 1370 0 1 0 0");
   CHECK(geo::Crs::from_epsg(26914).value().name() ==
         "EPSG:26914 (transverse Mercator lat_0=0 lon_0=-99 k=0.9996 x_0=500000 y_0=0 GRS80)");
+  // The renderer's messages (before session 89 std::to_string's "559,750000" here).
+  auto map = geo::load_map(test::source_path("data/naip_west/map.json"));
+  auto cam = geo::load_camera(test::source_path("data/cameras/uav_752x480.json"));
+  REQUIRE(map.ok());
+  REQUIRE(cam.ok());
+  auto renderer = raster::Renderer::create(map.value(), cam.value());
+  REQUIRE(renderer.ok());
+  auto frame = renderer.value()->make_output({"2016"});
+  REQUIRE(frame.ok());
+  auto below = geo::parse_pose("487450.5 5207436.5 559.75 0 1 0 0");  // the sample's ground is at 570 m
+  REQUIRE(below.ok());
+  const Status drawn = renderer.value()->render(below.value(), frame.value());
+  REQUIRE_FALSE(drawn.ok());
+  CHECK(drawn.error().message == "render: camera at z 559.75 m is below the terrain (570 m) at (487450.5, 5207436.5)");
   // A PFM depth image: its header's numbers, written and read back.
   REQUIRE(geo::save_pfm(pfm, depth.view()).ok());
   std::ifstream f(pfm, std::ios::binary);
