@@ -688,6 +688,41 @@ TEST_CASE("track holds each answer's altitude to an altimeter's, frame by frame,
   refused("--altimeter " + dir + "/baro.txt --altitude-prior x", "--altitude-prior 'x' must be in [0, 1000] m");
 }
 
+TEST_CASE("flight follows a path file's waypoints, and refuses one that leaves the map before it draws a frame") {
+  const std::string dir = test::temp_dir() + "/waypoints", paths = test::temp_dir();
+  const std::string flight = std::string(TERRALIGN_CLI) + " flight --map " + test::source_path("data/naip_west/map.json") +
+                             " --camera " + test::source_path("data/cameras/uav_752x480.json") +
+                             " --layer 2016 --speed 25 --rate 1 --duration 2 --out " + dir + " --path ";
+  std::ofstream(paths + "/east.txt") << "# x y, map metres\n487000 5207000\n487500 5207000\n";
+  REQUIRE(run(flight + paths + "/east.txt") == 0);
+  // Two frames at 1 Hz and 25 m/s, eastwards from the first waypoint, 800 m over the ground.
+  std::ifstream truth(dir + "/truth.txt");
+  for (double x : {487000.0, 487025.0}) {
+    double t, px, py;
+    REQUIRE(static_cast<bool>(truth >> t >> px >> py));
+    truth.ignore(1000, '\n');
+    CHECK(px == doctest::Approx(x).epsilon(1e-12));
+    CHECK(py == doctest::Approx(5207000.0).epsilon(1e-12));
+  }
+  const std::string list = test::read_text(dir + "/list.txt"), png = test::read_text(dir + "/frames/000000.png");
+  REQUIRE(!png.empty());
+  // At 800 m the camera sees only the map from x 486560 .. 488341, y 5206286 .. 5208587 (the
+  // sample's common extent less 658 m). Before session 89 this path failed at its 23rd frame,
+  // having written 22 frames over the folder's.
+  auto refused = [&](const std::string& name, const std::string& text, const std::string& want) {
+    std::ofstream(paths + "/" + name) << text;
+    check_refused(flight + paths + "/" + name + " --duration 100", paths + "/err.txt", want);
+    CHECK(test::read_text(dir + "/list.txt") == list);
+    CHECK(test::read_text(dir + "/frames/000000.png") == png);
+  };
+  refused("off.txt", "487000 5207000\n999999 5207000\n",
+          "off.txt:2: waypoint (999999, 5207000) is outside x 486560 .. 488341, y 5206286 .. 5208587, where a flight at this "
+          "altitude sees only the map (its extent less half the footprint, 658 m)");
+  refused("edge.txt", "487000 5208588\n487500 5208000\n", "edge.txt:1: waypoint (487000, 5208588) is outside");
+  refused("one.txt", "487000 5207000\n", "one.txt: a path needs at least 2 waypoints");
+  refused("text.txt", "487000 5207000\n487500 north\n", "text.txt:2: expected 'x y' map coordinates, got '487500 north'");
+}
+
 #endif  // TERRALIGN_CLI
 
 #if defined(TERRALIGN_CLI)

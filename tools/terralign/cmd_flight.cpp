@@ -61,7 +61,18 @@ Result<std::vector<Waypoint>> path_points(const std::string& path, const geo::Ex
       const auto xy = finite_numbers(line, ' ', 2);
       if (!xy)
         return Error{path + ":" + std::to_string(n) + ": expected 'x y' map coordinates, got '" + line + "'"};
-      pts.push_back(Waypoint{(*xy)[0], (*xy)[1]});
+      // Inside the box the camera's view stays on the map from, checked before any frame is
+      // drawn: a path that left it failed at its first frame off the map, with the frames
+      // before it written over whatever the folder held. The box is convex, so every leg
+      // between two waypoints inside it stays inside; its edges are printed rounded inwards.
+      const double x = (*xy)[0], y = (*xy)[1];
+      if (!(x >= x0 && x <= x1 && y >= y0 && y <= y1))
+        return Error{path + ":" + std::to_string(n) + ": waypoint (" + geo::format_double(x) + ", " + geo::format_double(y) +
+                     ") is outside x " + geo::format_double(std::ceil(x0)) + " .. " + geo::format_double(std::floor(x1)) +
+                     ", y " + geo::format_double(std::ceil(y0)) + " .. " + geo::format_double(std::floor(y1)) +
+                     ", where a flight at this altitude sees only the map (its extent less half the footprint, " +
+                     geo::format_double(std::round(margin)) + " m)"};
+      pts.push_back(Waypoint{x, y});
     }
     if (pts.size() < 2) return Error{path + ": a path needs at least 2 waypoints"};
   }
