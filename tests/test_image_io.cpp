@@ -1,4 +1,6 @@
 #include <cmath>
+#include <filesystem>
+#include <iterator>
 
 #include <doctest/doctest.h>
 
@@ -56,6 +58,28 @@ TEST_CASE("PNG writing is atomic: a failed write leaves the old file") {
   CHECK(bad.error().message.find("no/such/dir/img.png") != std::string::npos);
   CHECK(!save_png(path, ImageU8().view()).ok());
   CHECK(load_image(path, 3).ok());  // the earlier good file is intact
+}
+
+TEST_CASE("check_writable: a path write_file_atomic can take passes and leaves nothing behind, a folder or a missing folder does not") {
+  const std::string dir = temp_dir() + "/writable";
+  REQUIRE(std::filesystem::create_directories(dir));
+  auto folder_entries = [&] {
+    const std::filesystem::directory_iterator all(dir);
+    return std::distance(std::filesystem::begin(all), std::filesystem::end(all));
+  };
+  const std::string path = dir + "/out.json";
+  CHECK(check_writable(path).ok());
+  CHECK(folder_entries() == 0);  // its probe is gone, and no file was made at the path
+  write_text(path, "good");
+  CHECK(check_writable(path).ok());
+  CHECK(test::read_text(path) == "good");  // an existing file is not touched
+  CHECK(folder_entries() == 1);
+  const auto folder = check_writable(dir);
+  REQUIRE(!folder.ok());
+  CHECK(folder.error().message == dir + ": is a directory, not a file");
+  const auto missing = check_writable(dir + "/no/such/out.json");
+  REQUIRE(!missing.ok());
+  CHECK(missing.error().message == dir + "/no/such/out.json: cannot write (No such file or directory)");
 }
 
 TEST_CASE("a corrupt image is refused, not decoded") {

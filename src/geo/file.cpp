@@ -31,8 +31,25 @@ Result<std::vector<std::uint8_t>> read_file(const std::string& path, std::size_t
   return bytes;
 }
 
+namespace {
+
+std::string temporary_name(const std::string& path) { return path + ".tmp-" + std::to_string(::getpid()); }
+
+}  // namespace
+
+Status check_writable(const std::string& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) == 0 && S_ISDIR(st.st_mode)) return Error{path + ": is a directory, not a file"};
+  const std::string tmp = temporary_name(path);
+  std::FILE* f = std::fopen(tmp.c_str(), "wb");
+  if (!f) return Error{path + ": cannot write (" + std::strerror(errno) + ")"};
+  std::fclose(f);
+  std::remove(tmp.c_str());
+  return Ok{};
+}
+
 Status write_file_atomic(const std::string& path, const void* data, std::size_t size) {
-  const std::string tmp = path + ".tmp-" + std::to_string(::getpid());
+  const std::string tmp = temporary_name(path);
   std::FILE* f = std::fopen(tmp.c_str(), "wb");
   if (!f) return Error{path + ": cannot write (" + std::strerror(errno) + ")"};
   const bool written = size == 0 || std::fwrite(data, 1, size, f) == size;

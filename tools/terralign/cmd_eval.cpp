@@ -231,6 +231,9 @@ int run_eval(const std::vector<std::string>& argv) {
   const std::string overlays = args->get("overlays");
   if (!overlays.empty())
     if (auto st = ensure_dir(overlays); !st.ok()) return fail(st.error());
+  // The JSON is written after every pose: a path it cannot take is refused before the first.
+  if (args->has("json"))
+    if (auto st = geo::check_writable(args->get("json")); !st.ok()) return fail(Error{"--json " + st.error().message});
   geo::Extent area = map->common_extent();
   if (args->has("area")) {
     const auto v = finite_numbers(args->get("area"), ',', 4);

@@ -217,6 +217,11 @@ int run_track(const std::vector<std::string>& argv) {
   auto threads = args->get_int("threads", 2, 1, 64);
   if (!iters.ok()) return usage_error("track", iters.error());
   if (!threads.ok()) return usage_error("track", threads.error());
+  // The CSV and the JSON are written after the whole flight: a path they cannot take is
+  // refused before it.
+  for (const char* k : {"out", "json"})
+    if (args->has(k))
+      if (auto st = geo::check_writable(args->get(k)); !st.ok()) return fail(Error{std::string("--") + k + " " + st.error().message});
   auto init = geo::parse_pose(args->get("init"));
   if (!init.ok()) return fail(Error{"--init: " + init.error().message});
   auto frames = read_list(args->get("images"));

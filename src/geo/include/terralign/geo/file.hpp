@@ -21,4 +21,9 @@ Result<std::vector<std::uint8_t>> read_file(const std::string& path, std::size_t
 // write never leaves a half file where a good one was.
 Status write_file_atomic(const std::string& path, const void* data, std::size_t size);
 
+// Whether write_file_atomic(path, ...) could write there now: path is not a folder, and its
+// temporary file can be made (and is removed again) in path's folder. For a program that
+// writes its result after minutes of work, to refuse a mistyped path before the work.
+Status check_writable(const std::string& path);
+
 }  // namespace terralign::geo
