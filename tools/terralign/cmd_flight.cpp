@@ -28,9 +28,9 @@ struct Waypoint {
 Result<std::vector<Waypoint>> path_points(const std::string& path, const geo::Extent& e, double margin) {
   std::vector<Waypoint> pts;
   const double x0 = e.min_x + margin, x1 = e.max_x - margin, y0 = e.min_y + margin, y1 = e.max_y - margin;
+  const std::string half_footprint = "half the footprint, " + geo::format_double(std::round(margin)) + " m";
   if (!(x1 > x0 && y1 > y0))
-    return Error{"the map is too small for a flight at this altitude (no room inside a margin of half the footprint, " +
-                 geo::format_double(std::round(margin)) + " m)"};
+    return Error{"the map is too small for a flight at this altitude (no room inside a margin of " + half_footprint + ")"};
   if (path == "lawnmower") {
     const int legs = 3;
     for (int k = 0; k <= legs; ++k) {
@@ -70,8 +70,7 @@ Result<std::vector<Waypoint>> path_points(const std::string& path, const geo::Ex
         return Error{path + ":" + std::to_string(n) + ": waypoint (" + geo::format_double(x) + ", " + geo::format_double(y) +
                      ") is outside x " + geo::format_double(std::ceil(x0)) + " .. " + geo::format_double(std::floor(x1)) +
                      ", y " + geo::format_double(std::ceil(y0)) + " .. " + geo::format_double(std::floor(y1)) +
-                     ", where a flight at this altitude sees only the map (its extent less half the footprint, " +
-                     geo::format_double(std::round(margin)) + " m)"};
+                     ", where a flight at this altitude sees only the map (its extent less " + half_footprint + ")"};
       pts.push_back(Waypoint{x, y});
     }
     if (pts.size() < 2) return Error{path + ": a path needs at least 2 waypoints"};
