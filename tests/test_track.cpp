@@ -1,7 +1,9 @@
 // terralign flight + track end to end, through the command-line program.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <iomanip>
 #include <random>
@@ -721,6 +723,70 @@ TEST_CASE("flight follows a path file's waypoints, and refuses one that leaves t
   refused("edge.txt", "487000 5208588\n487500 5208000\n", "edge.txt:1: waypoint (487000, 5208588) is outside");
   refused("one.txt", "487000 5207000\n", "one.txt: a path needs at least 2 waypoints");
   refused("text.txt", "487000 5207000\n487500 north\n", "text.txt:2: expected 'x y' map coordinates, got '487500 north'");
+}
+
+// The names in `dir` that start with `prefix` (a staging folder left behind, say).
+std::vector<std::string> names_starting(const std::string& dir, const std::string& prefix) {
+  std::vector<std::string> found;
+  for (const auto& e : std::filesystem::directory_iterator(dir))
+    if (e.path().filename().string().rfind(prefix, 0) == 0) found.push_back(e.path().filename().string());
+  return found;
+}
+
+TEST_CASE("flight and dataset replace an earlier result whole: a run stopped midway leaves it, a finished one leaves none of its files") {
+  const std::string dir = test::temp_dir() + "/whole", err = test::temp_dir() + "/whole_err.txt";
+  const std::string flight = std::string(TERRALIGN_CLI) + " flight --map " + test::source_path("data/naip_west/map.json") +
+                             " --camera " + test::source_path("data/cameras/uav_752x480.json") +
+                             " --layer 2016 --path lawnmower --speed 25 --rate 1 --out " + dir;
+  REQUIRE(run(flight + " --duration 3 --imu-tilt 0.5 --altimeter 2") == 0);
+  std::ofstream(dir + "/notes.txt") << "the user's own file\n";
+  std::vector<std::string> files = {"list.txt", "truth.txt", "attitude.txt", "altimeter.txt", "frames/000000.png",
+                                    "frames/000002.png", "notes.txt"};
+  std::vector<std::string> before;
+  for (const auto& f : files) before.push_back(test::read_text(dir + "/" + f));
+  REQUIRE(!before[4].empty());
+  // Another flight into the folder, killed once it has drawn three frames. Before session 90 it
+  // had written them over the earlier flight's, whose lists then named another flight's frames.
+  const std::string stopped = "(" + flight + " --duration 60 --altitude 900 2>" + err +
+                              " >/dev/null & p=$!; while kill -0 $p 2>/dev/null && ! grep -q 'frame 3/' " + err +
+                              "; do sleep 0.05; done; kill -9 $p; wait $p) >/dev/null 2>&1";
+  CHECK(std::system(stopped.c_str()) != 0);
+  CHECK(test::read_text(err).find("frame 3/") != std::string::npos);
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    CAPTURE(files[i]);
+    CHECK(test::read_text(dir + "/" + files[i]) == before[i]);
+  }
+  // A flight without an IMU or an altimeter, finished: before session 90 the earlier flight's
+  // attitude.txt and altimeter.txt stayed beside its truth, another flight's readings at the
+  // same times. The killed run's staging folder goes with this run.
+  REQUIRE(run(flight + " --duration 2 --altitude 900") == 0);
+  const std::string truth = test::read_text(dir + "/truth.txt");
+  CHECK(std::count(truth.begin(), truth.end(), '\n') == 2);
+  CHECK(truth != before[1]);
+  CHECK(test::read_text(dir + "/frames/000000.png") != before[4]);
+  for (const char* gone : {"attitude.txt", "altimeter.txt", "frames/000002.png"}) {
+    CAPTURE(gone);
+    CHECK(!std::filesystem::exists(dir + "/" + gone));
+  }
+  CHECK(test::read_text(dir + "/notes.txt") == before[6]);
+  CHECK(names_starting(dir, ".terralign-").empty());
+
+  // The data set likewise: a smaller one leaves none of the larger one's samples.
+  const std::string ds = test::temp_dir() + "/whole_ds";
+  const std::string dataset = std::string(TERRALIGN_CLI) + " dataset --map " + test::source_path("data/naip_west/map.json") +
+                              " --camera " + test::source_path("data/cameras/uav_752x480.json") +
+                              " --seed 9 --scale 0.125 --altitude 400:450 --layers 2009,2020 --out " + ds;
+  REQUIRE(run(dataset + " --count 6") == 0);
+  REQUIRE(std::filesystem::exists(ds + "/train/000004/query_2020.png"));
+  std::ofstream(ds + "/notes.txt") << "kept\n";
+  REQUIRE(run(dataset + " --count 3 --layers 2009") == 0);
+  const std::string index = test::read_text(ds + "/index.csv");
+  CHECK(std::count(index.begin(), index.end(), '\n') == 1 + 3);  // the header and 3 poses x 1 x 1 layer pairs
+  CHECK(!std::filesystem::exists(ds + "/train/000004"));
+  CHECK(!std::filesystem::exists(ds + "/train/000000/query_2020.png"));
+  CHECK(std::filesystem::exists(ds + "/train/000000/query_2009.png"));
+  CHECK(test::read_text(ds + "/notes.txt") == "kept\n");
+  CHECK(names_starting(ds, ".terralign-").empty());
 }
 
 #endif  // TERRALIGN_CLI

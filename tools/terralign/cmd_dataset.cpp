@@ -10,6 +10,7 @@
 #include "commands.hpp"
 #include "common.hpp"
 #include "localizer.hpp"
+#include "output_folder.hpp"
 #include "sampling.hpp"
 
 namespace terralign::cli {
@@ -95,8 +96,12 @@ int run_dataset(const std::vector<std::string>& argv) {
                              val.error()));
 
   const std::string out = args->get("out");
-  for (const std::string& d : {out, out + "/train", out + "/val"})
-    if (auto st = ensure_dir(d); !st.ok()) return fail(st.error());
+  // Written whole or not at all: an earlier data set in --out stays as it was (its index naming
+  // its own samples) until this one is complete, and then none of its samples is left.
+  auto staged = OutputFolder::open(out, {"train", "val", "index.csv"});
+  if (!staged.ok()) return fail(staged.error());
+  for (const char* d : {"train", "val"})
+    if (auto st = ensure_dir(staged->path(d)); !st.ok()) return fail(st.error());
   std::string index =
       "split,pose,ref_layer,query_layer,ref_image,ref_depth,query_image,width,height,fx,fy,cx,cy,altitude,"
       "t_x,t_y,t_z,q_w,q_x,q_y,q_z,prior,truth\n";
@@ -110,7 +115,7 @@ int run_dataset(const std::vector<std::string>& argv) {
       const Sample& smp = samples[i];
       char id[24];
       std::snprintf(id, sizeof id, "%06zu", i);
-      const std::string dir = out + "/" + split + "/" + id;
+      const std::string dir = staged->path(split + "/" + id);
       if (auto st = ensure_dir(dir); !st.ok()) return fail(st.error());
       // The reference: every layer at the prior, with its depth (NaN where no terrain).
       if (auto st = renderer.value()->render(smp.prior, view.value()); !st.ok())
@@ -147,7 +152,8 @@ int run_dataset(const std::vector<std::string>& argv) {
     }
   }
   std::fprintf(stderr, "\n");
-  if (auto st = geo::write_file_atomic(out + "/index.csv", index.data(), index.size()); !st.ok()) return fail(st.error());
+  if (auto st = geo::write_file_atomic(staged->path("index.csv"), index.data(), index.size()); !st.ok()) return fail(st.error());
+  if (auto st = staged->commit(); !st.ok()) return fail(st.error());
   std::printf("%s/index.csv: %d training and %d validation poses, %zu layers, %zu pairs; validation %s of %s = %.1f\n",
               out.c_str(), n_train, n_val, layers.size(), static_cast<std::size_t>(total) * layers.size() * layers.size(),
               by_x ? "east" : "north", by_x ? "x" : "y", split_at);

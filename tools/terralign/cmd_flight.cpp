@@ -12,6 +12,7 @@
 #include "commands.hpp"
 #include "common.hpp"
 #include "localizer.hpp"
+#include "output_folder.hpp"
 #include "sampling.hpp"
 
 namespace terralign::cli {
@@ -123,8 +124,11 @@ int run_flight(const std::vector<std::string>& argv) {
   auto pts = path_points(args->get("path"), map->common_extent(), half_footprint);
   if (!pts.ok()) return fail(pts.error());
   const std::string out = args->get("out");
-  for (const std::string& d : {out, out + "/frames"})
-    if (auto st = ensure_dir(d); !st.ok()) return fail(st.error());
+  // The flight is written whole or not at all: an earlier flight in --out stays as it was until
+  // this one is complete, and then no file of it is left (its attitude.txt, say).
+  auto staged = OutputFolder::open(out, {"frames", "list.txt", "truth.txt", "attitude.txt", "altimeter.txt"});
+  if (!staged.ok()) return fail(staged.error());
+  if (auto st = ensure_dir(staged->path("frames")); !st.ok()) return fail(st.error());
 
   Rng rng{static_cast<std::uint64_t>(seed.value())};
   // The attitude reference's errors: a second stream, so the frames do not depend on it.
@@ -160,7 +164,7 @@ int run_flight(const std::vector<std::string>& argv) {
     degrade(img, degradation.value(), rng);
     char name[64];
     std::snprintf(name, sizeof name, "frames/%06d.png", i);
-    if (auto s = geo::save_png(out + "/" + name, img.view()); !s.ok()) return fail(s.error());
+    if (auto s = geo::save_png(staged->path(name), img.view()); !s.ok()) return fail(s.error());
     char line[256];
     const double t = i / rate.value();
     std::snprintf(line, sizeof line, "%.6f %s\n", t, name);
@@ -179,13 +183,15 @@ int run_flight(const std::vector<std::string>& argv) {
     std::fprintf(stderr, "\rframe %d/%d", i + 1, frames);
   }
   std::fprintf(stderr, "\n");
-  if (auto s = geo::write_file_atomic(out + "/list.txt", list.data(), list.size()); !s.ok()) return fail(s.error());
-  if (auto s = geo::write_file_atomic(out + "/truth.txt", truth.data(), truth.size()); !s.ok()) return fail(s.error());
+  if (auto s = geo::write_file_atomic(staged->path("list.txt"), list.data(), list.size()); !s.ok()) return fail(s.error());
+  if (auto s = geo::write_file_atomic(staged->path("truth.txt"), truth.data(), truth.size()); !s.ok()) return fail(s.error());
   if (imu_tilt.value() > 0)
-    if (auto s = geo::write_file_atomic(out + "/attitude.txt", attitude.data(), attitude.size()); !s.ok()) return fail(s.error());
-  if (altimeter.value() > 0)
-    if (auto s = geo::write_file_atomic(out + "/altimeter.txt", altimeter_lines.data(), altimeter_lines.size()); !s.ok())
+    if (auto s = geo::write_file_atomic(staged->path("attitude.txt"), attitude.data(), attitude.size()); !s.ok())
       return fail(s.error());
+  if (altimeter.value() > 0)
+    if (auto s = geo::write_file_atomic(staged->path("altimeter.txt"), altimeter_lines.data(), altimeter_lines.size()); !s.ok())
+      return fail(s.error());
+  if (auto s = staged->commit(); !s.ok()) return fail(s.error());
   std::printf("%s/list.txt, %s/truth.txt%s%s\n", out.c_str(), out.c_str(), imu_tilt.value() > 0 ? ", attitude.txt" : "",
               altimeter.value() > 0 ? ", altimeter.txt" : "");
   return 0;

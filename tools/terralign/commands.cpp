@@ -169,7 +169,10 @@ const std::vector<Command>& commands() {
        "(drawn per frame from a second stream; the frames stay the same), for track's --attitude.\n"
        "--altimeter M also writes DIR/altimeter.txt ('timestamp z'): an altimeter's readings, the\n"
        "true camera centre's z plus N(0, M^2) m (drawn per frame from a third stream), for track's\n"
-       "--altimeter.\n",
+       "--altimeter.\n"
+       "The flight is written whole or not at all: it goes to a staging folder in DIR first, and\n"
+       "only a finished flight replaces an earlier one there (its frames, lists and readings; the\n"
+       "folder's other files stay). A run that fails or is stopped leaves the earlier flight as it was.\n",
        run_flight},
       {"track", "track a flight: each frame's prior predicted from the last answers (constant velocity)",
        "usage: terralign track --map MAP.json --camera CAMERA.json --layer NAME[,NAME...] --images LIST\n"
@@ -262,7 +265,8 @@ const std::vector<Command>& commands() {
        "ref_depth.pfm, and query_<layer>.png at the true pose (augmented: exposure, white balance,\n"
        "blur, noise; --no-augment turns it off). DIR/index.csv lists every ordered pair of layers\n"
        "per pose with intrinsics and T_query_ref. --scale resizes the camera (0.25: 188x120).\n"
-       "The same seed gives the same bytes.\n",
+       "The same seed gives the same bytes. Written whole or not at all, as flight's frames: only a\n"
+       "finished data set replaces an earlier one in DIR (its train/, val/ and index.csv).\n",
        run_dataset},
   };
   return list;
