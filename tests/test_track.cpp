@@ -733,7 +733,7 @@ std::vector<std::string> names_starting(const std::string& dir, const std::strin
   return found;
 }
 
-TEST_CASE("flight and dataset replace an earlier result whole: a run stopped midway leaves it, a finished one leaves none of its files") {
+TEST_CASE("flight, dataset and render replace an earlier result whole: a run stopped midway leaves it, a finished one leaves none of its files") {
   const std::string dir = test::temp_dir() + "/whole", err = test::temp_dir() + "/whole_err.txt";
   const std::string flight = std::string(TERRALIGN_CLI) + " flight --map " + test::source_path("data/naip_west/map.json") +
                              " --camera " + test::source_path("data/cameras/uav_752x480.json") +
@@ -787,6 +787,23 @@ TEST_CASE("flight and dataset replace an earlier result whole: a run stopped mid
   CHECK(std::filesystem::exists(ds + "/train/000000/query_2009.png"));
   CHECK(test::read_text(ds + "/notes.txt") == "kept\n");
   CHECK(names_starting(ds, ".terralign-").empty());
+
+  // A rendered view likewise: a view of one layer leaves none of an earlier view's other layers
+  // beside its depth.
+  const std::string rv = test::temp_dir() + "/whole_render";
+  const std::string render = std::string(TERRALIGN_CLI) + " render --map " + test::source_path("data/naip_west/map.json") +
+                             " --camera " + test::source_path("data/cameras/uav_752x480.json") + " --out " + rv + " --pose ";
+  REQUIRE(run(render + "'487450 5207437 1370 0 1 0 0'") == 0);
+  REQUIRE(std::filesystem::exists(rv + "/2009_valid.png"));
+  const std::string depth = test::read_text(rv + "/depth.pfm");
+  REQUIRE(run(render + "'487500 5207400 1300 0 1 0 0' --layers 2016") == 0);
+  CHECK(test::read_text(rv + "/depth.pfm") != depth);
+  CHECK(std::filesystem::exists(rv + "/2016.png"));
+  for (const char* gone : {"2009.png", "2009_valid.png", "2020.png"}) {
+    CAPTURE(gone);
+    CHECK(!std::filesystem::exists(rv + "/" + gone));
+  }
+  CHECK(names_starting(rv, ".terralign-").empty());
 }
 
 #endif  // TERRALIGN_CLI

@@ -12,6 +12,7 @@
 #include "args.hpp"
 #include "commands.hpp"
 #include "common.hpp"
+#include "output_folder.hpp"
 
 namespace terralign::cli {
 namespace {
@@ -33,14 +34,26 @@ ImageU8 depth_preview(const ImageF& depth) {
   return img;
 }
 
-Status write_outputs(const std::string& dir, const raster::RenderOutput& out) {
+// The files of one view: the colour and valid mask of each layer drawn, the depth and its preview.
+Status write_outputs(const OutputFolder& dir, const raster::RenderOutput& out) {
   for (std::size_t l = 0; l < out.layer_names.size(); ++l) {
-    TERRALIGN_TRY(geo::save_png(dir + "/" + out.layer_names[l] + ".png", out.rgb[l].view()));
-    TERRALIGN_TRY(geo::save_png(dir + "/" + out.layer_names[l] + "_valid.png", out.valid[l].view()));
+    TERRALIGN_TRY(geo::save_png(dir.path(out.layer_names[l] + ".png"), out.rgb[l].view()));
+    TERRALIGN_TRY(geo::save_png(dir.path(out.layer_names[l] + "_valid.png"), out.valid[l].view()));
   }
-  TERRALIGN_TRY(geo::save_pfm(dir + "/depth.pfm", out.depth.view()));
+  TERRALIGN_TRY(geo::save_pfm(dir.path("depth.pfm"), out.depth.view()));
   const ImageU8 preview = depth_preview(out.depth);
-  return geo::save_png(dir + "/depth.png", preview.view());
+  return geo::save_png(dir.path("depth.png"), preview.view());
+}
+
+// What a view's folder holds of it: every layer of the map, so that an earlier view's layers
+// that this one does not draw (render --layers) go with the rest of it.
+std::vector<std::string> view_entries(const geo::Map& map) {
+  std::vector<std::string> e = {"depth.pfm", "depth.png"};
+  for (const auto& layer : map.layers) {
+    e.push_back(layer.name + ".png");
+    e.push_back(layer.name + "_valid.png");
+  }
+  return e;
 }
 
 }  // namespace
@@ -107,7 +120,11 @@ int run_render(const std::vector<std::string>& argv) {
       ++failed;
       continue;  // nothing written for a failed view: no half results
     }
-    if (auto w = write_outputs(dir, out.value()); !w.ok()) return fail(w.error());
+    // A view's files replace an earlier view's in the folder together, or not at all.
+    auto staged = OutputFolder::open(dir, view_entries(map.value()));
+    if (!staged.ok()) return fail(staged.error());
+    if (auto w = write_outputs(staged.value(), out.value()); !w.ok()) return fail(w.error());
+    if (auto c = staged->commit(); !c.ok()) return fail(c.error());
     if (poses.size() > 1) {
       const int width = 40, done = static_cast<int>((i + 1) * width / poses.size());
       std::fprintf(stderr, "\r[%.*s%*s] %zu/%zu", done, "========================================", width - done, "",
