@@ -804,6 +804,21 @@ TEST_CASE("flight, dataset and render replace an earlier result whole: a run sto
     CHECK(!std::filesystem::exists(rv + "/" + gone));
   }
   CHECK(names_starting(rv, ".terralign-").empty());
+  // A batch's DIR/<index>/ is that pose of its list: where the pose fails (off the map), an
+  // earlier batch's view there goes, and the other poses are drawn.
+  const std::string list = test::temp_dir() + "/whole_poses.txt", batch = test::temp_dir() + "/whole_batch";
+  const std::string render_list = std::string(TERRALIGN_CLI) + " render --map " + test::source_path("data/naip_west/map.json") +
+                                  " --camera " + test::source_path("data/cameras/uav_752x480.json") + " --layers 2016 --out " +
+                                  batch + " --poses " + list;
+  std::ofstream(list) << "487450 5207437 1370 0 1 0 0\n487500 5207400 1300 0 1 0 0\n";
+  REQUIRE(run(render_list) == 0);
+  REQUIRE(std::filesystem::exists(batch + "/1/depth.pfm"));
+  const std::string first = test::read_text(batch + "/0/2016.png");
+  std::ofstream(list) << "487450 5207437 1370 0 1 0 0\n0 0 1300 0 1 0 0\n";
+  CHECK(run(render_list) != 0);  // exit 1: a pose failed
+  CHECK(test::read_text(batch + "/0/2016.png") == first);
+  CHECK(!std::filesystem::exists(batch + "/1/depth.pfm"));
+  CHECK(!std::filesystem::exists(batch + "/1/2016.png"));
 }
 
 #endif  // TERRALIGN_CLI

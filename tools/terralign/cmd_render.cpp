@@ -110,19 +110,20 @@ int run_render(const std::vector<std::string>& argv) {
   int failed = 0;
   for (std::size_t i = 0; i < poses.size(); ++i) {
     const std::string dir = poses.size() == 1 ? out_dir.value() : out_dir.value() + "/" + std::to_string(i);
-    if (poses.size() > 1) {
-      if (auto st = ensure_dir(dir); !st.ok()) return fail(st.error());
-    }
     raster::RenderStats stats;
     auto st = renderer.value()->render(poses[i], out.value(), &stats);
-    if (!st.ok()) {
-      std::fprintf(stderr, "terralign: pose %zu: %s\n", i, st.error().message.c_str());
-      ++failed;
-      continue;  // nothing written for a failed view: no half results
-    }
     // A view's files replace an earlier view's in the folder together, or not at all.
     auto staged = OutputFolder::open(dir, view_entries(map.value()));
     if (!staged.ok()) return fail(staged.error());
+    if (!st.ok()) {
+      std::fprintf(stderr, "terralign: pose %zu: %s\n", i, st.error().message.c_str());
+      ++failed;
+      // Nothing written for a failed view: no half results. In a batch DIR/<index>/ is this
+      // list's pose, so an earlier batch's view there goes; one pose's DIR keeps its view.
+      if (poses.size() > 1)
+        if (auto c = staged->commit(); !c.ok()) return fail(c.error());
+      continue;
+    }
     if (auto w = write_outputs(staged.value(), out.value()); !w.ok()) return fail(w.error());
     if (auto c = staged->commit(); !c.ok()) return fail(c.error());
     if (poses.size() > 1) {

@@ -16,7 +16,8 @@ const std::vector<Command>& commands() {
        "Writes DIR/<layer>.png (RGB), DIR/<layer>_valid.png (255 where the layer has data),\n"
        "DIR/depth.pfm (float32 metres along the optical axis, NaN where no terrain) and\n"
        "DIR/depth.png (a preview). With --poses (one pose a line), each view goes to DIR/<index>/\n"
-       "with a progress bar on stderr; a view that fails is reported and not written. A view's\n"
+       "with a progress bar on stderr; a view that fails is reported and not written (in a batch\n"
+       "an earlier view in its DIR/<index>/ is removed: that folder is this list's pose). A view's\n"
        "files replace an earlier view's together, and those of the map's layers it does not draw\n"
        "(--layers) go with the rest; the folder's other files stay.\n",
        run_render},
