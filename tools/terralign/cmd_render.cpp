@@ -107,13 +107,14 @@ int run_render(const std::vector<std::string>& argv) {
   if (!out.ok()) return fail(out.error());
   if (auto st = ensure_dir(out_dir.value()); !st.ok()) return fail(st.error());
 
+  const std::vector<std::string> entries = view_entries(map.value());
   int failed = 0;
   for (std::size_t i = 0; i < poses.size(); ++i) {
     const std::string dir = poses.size() == 1 ? out_dir.value() : out_dir.value() + "/" + std::to_string(i);
     raster::RenderStats stats;
     auto st = renderer.value()->render(poses[i], out.value(), &stats);
     // A view's files replace an earlier view's in the folder together, or not at all.
-    auto staged = OutputFolder::open(dir, view_entries(map.value()));
+    auto staged = OutputFolder::open(dir, entries);
     if (!staged.ok()) return fail(staged.error());
     if (!st.ok()) {
       std::fprintf(stderr, "terralign: pose %zu: %s\n", i, st.error().message.c_str());
