@@ -165,6 +165,15 @@ fi
 run() {
   local name=$1 size=$2 steps=$3 seed=$4 init=$5; shift 5
   local out="$work/runs/$name" stop=()
+  # The committed run's host, where it was recorded (since session 52): another CPU runs other
+  # oneDNN kernels, and the run parts from its log (session 90: step 32's run, trained on an
+  # AMD EPYC with AVX2, parted at step 50 on an Intel Xeon with AVX-512, capped at AVX2 too,
+  # on data whose every image was the committed run's).
+  local record="training/runs/$name/host.txt" then_host
+  then_host=$(sed -n 's/^started: //p' "$record" 2>/dev/null | head -n 1)
+  if [ -n "$then_host" ] && [ "${then_host#*; }" != "${host#*; }" ]; then
+    echo "reproduce.sh: warning: run $name was trained on another host ($then_host; $record); expect it to part from its log" >&2
+  fi
   [ "$check" -gt 0 ] && stop=(--stop-at "$check")
   # A check resumed from a checkpoint already there would compare an old log with itself.
   if [ "$check" -gt 0 ] && [ -e "$out/last.pt" ]; then
