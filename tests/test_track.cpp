@@ -734,10 +734,13 @@ std::vector<std::string> names_starting(const std::string& dir, const std::strin
 }
 
 TEST_CASE("flight, dataset and render replace an earlier result whole: a run stopped midway leaves it, a finished one leaves none of its files") {
+  // COMMAND on the NAIP sample and the 752 x 480 camera.
+  auto on_sample = [](const std::string& command) {
+    return std::string(TERRALIGN_CLI) + " " + command + " --map " + test::source_path("data/naip_west/map.json") +
+           " --camera " + test::source_path("data/cameras/uav_752x480.json");
+  };
   const std::string dir = test::temp_dir() + "/whole", err = test::temp_dir() + "/whole_err.txt";
-  const std::string flight = std::string(TERRALIGN_CLI) + " flight --map " + test::source_path("data/naip_west/map.json") +
-                             " --camera " + test::source_path("data/cameras/uav_752x480.json") +
-                             " --layer 2016 --path lawnmower --speed 25 --rate 1 --out " + dir;
+  const std::string flight = on_sample("flight") + " --layer 2016 --path lawnmower --speed 25 --rate 1 --out " + dir;
   REQUIRE(run(flight + " --duration 3 --imu-tilt 0.5 --altimeter 2") == 0);
   std::ofstream(dir + "/notes.txt") << "the user's own file\n";
   std::vector<std::string> files = {"list.txt", "truth.txt", "attitude.txt", "altimeter.txt", "frames/000000.png",
@@ -773,9 +776,8 @@ TEST_CASE("flight, dataset and render replace an earlier result whole: a run sto
 
   // The data set likewise: a smaller one leaves none of the larger one's samples.
   const std::string ds = test::temp_dir() + "/whole_ds";
-  const std::string dataset = std::string(TERRALIGN_CLI) + " dataset --map " + test::source_path("data/naip_west/map.json") +
-                              " --camera " + test::source_path("data/cameras/uav_752x480.json") +
-                              " --seed 9 --scale 0.125 --altitude 400:450 --layers 2009,2020 --out " + ds;
+  const std::string dataset =
+      on_sample("dataset") + " --seed 9 --scale 0.125 --altitude 400:450 --layers 2009,2020 --out " + ds;
   REQUIRE(run(dataset + " --count 6") == 0);
   REQUIRE(std::filesystem::exists(ds + "/train/000004/query_2020.png"));
   std::ofstream(ds + "/notes.txt") << "kept\n";
@@ -791,8 +793,7 @@ TEST_CASE("flight, dataset and render replace an earlier result whole: a run sto
   // A rendered view likewise: a view of one layer leaves none of an earlier view's other layers
   // beside its depth.
   const std::string rv = test::temp_dir() + "/whole_render";
-  const std::string render = std::string(TERRALIGN_CLI) + " render --map " + test::source_path("data/naip_west/map.json") +
-                             " --camera " + test::source_path("data/cameras/uav_752x480.json") + " --out " + rv + " --pose ";
+  const std::string render = on_sample("render") + " --out " + rv + " --pose ";
   REQUIRE(run(render + "'487450 5207437 1370 0 1 0 0'") == 0);
   REQUIRE(std::filesystem::exists(rv + "/2009_valid.png"));
   const std::string depth = test::read_text(rv + "/depth.pfm");
@@ -807,9 +808,7 @@ TEST_CASE("flight, dataset and render replace an earlier result whole: a run sto
   // A batch's DIR/<index>/ is that pose of its list: where the pose fails (off the map), an
   // earlier batch's view there goes, and the other poses are drawn.
   const std::string list = test::temp_dir() + "/whole_poses.txt", batch = test::temp_dir() + "/whole_batch";
-  const std::string render_list = std::string(TERRALIGN_CLI) + " render --map " + test::source_path("data/naip_west/map.json") +
-                                  " --camera " + test::source_path("data/cameras/uav_752x480.json") + " --layers 2016 --out " +
-                                  batch + " --poses " + list;
+  const std::string render_list = on_sample("render") + " --layers 2016 --out " + batch + " --poses " + list;
   std::ofstream(list) << "487450 5207437 1370 0 1 0 0\n487500 5207400 1300 0 1 0 0\n";
   REQUIRE(run(render_list) == 0);
   REQUIRE(std::filesystem::exists(batch + "/1/depth.pfm"));
