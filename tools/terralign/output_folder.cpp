@@ -23,6 +23,14 @@ bool present(const fs::path& p) {
   return fs::symlink_status(p, ec).type() != fs::file_type::not_found && !ec;
 }
 
+// An empty folder at `path`, whatever was there (a staging or aside folder of this process's pid).
+Status fresh_folder(const std::string& path) {
+  std::error_code ec;
+  fs::remove_all(path, ec);
+  if (ec || !fs::create_directory(path, ec) || ec) return Error{path + ": cannot create (" + ec.message() + ")"};
+  return Ok{};
+}
+
 // Removes the staging folders of runs that were killed before they could (their process is gone).
 void remove_leftovers(const std::string& folder) {
   std::error_code ec;
@@ -48,10 +56,7 @@ Result<OutputFolder> OutputFolder::open(const std::string& folder, std::vector<s
   if (auto st = ensure_dir(folder); !st.ok()) return st.error();
   remove_leftovers(folder);
   const std::string stage = folder + "/" + kStage + std::to_string(::getpid());
-  std::error_code ec;
-  fs::remove_all(stage, ec);
-  if (ec || !fs::create_directory(stage, ec) || ec)
-    return Error{stage + ": cannot create the staging folder (" + ec.message() + ")"};
+  if (auto st = fresh_folder(stage); !st.ok()) return st.error();
   return OutputFolder(folder, stage, std::move(entries));
 }
 
@@ -68,10 +73,8 @@ OutputFolder::~OutputFolder() {
 
 Status OutputFolder::commit() {
   const std::string aside = folder_ + "/" + kAside + std::to_string(::getpid());
+  if (auto st = fresh_folder(aside); !st.ok()) return st;
   std::error_code ec;
-  fs::remove_all(aside, ec);
-  if (ec || !fs::create_directory(aside, ec) || ec)
-    return Error{aside + ": cannot create (" + ec.message() + ")"};
   struct Move {
     fs::path final, staged, old;
     bool old_moved = false, new_moved = false;

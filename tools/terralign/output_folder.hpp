@@ -28,7 +28,6 @@ class OutputFolder {
 
   // Where to write `name`: an entry, or a path below one ("frames/000001.png").
   std::string path(const std::string& name) const { return stage_ + "/" + name; }
-  const std::string& folder() const { return folder_; }
   // Moves the staged entries into the folder. On an error the earlier entries are moved back
   // where it can, and the message names the entry.
   Status commit();
